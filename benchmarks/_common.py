@@ -1,0 +1,82 @@
+"""Shared benchmark helpers: device resolution, synchronized median timing, JSON/markdown output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import subprocess
+import time
+from pathlib import Path
+
+import warp as wp
+
+RESULTS = Path(__file__).resolve().parent / "results"
+REPO = Path(__file__).resolve().parent.parent
+SHARED_SCENES = REPO.parent / "shared" / "scenes"
+
+
+def base_parser(description: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s default)')
+    p.add_argument("--quick", action="store_true", help="tiny sizes and few repeats (CPU smoke run)")
+    p.add_argument("--repeats", type=int, default=None, help="timed repeats (median reported)")
+    p.add_argument("--warmup", type=int, default=3, help="untimed warm-up runs")
+    p.add_argument("--out", default=None, help="output folder for JSON/markdown (default benchmarks/results)")
+    return p
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.check_output(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
+                                       stderr=subprocess.DEVNULL).strip()
+    except Exception:
+        return "unknown"
+
+
+def device_info(device) -> dict:
+    d = wp.get_device(device)
+    return {"device": d.alias, "device_name": d.name if d.is_cuda else platform.processor() or "cpu",
+            "is_cuda": bool(d.is_cuda), "warp": wp.__version__}
+
+
+def time_ms(fn, device, repeats: int = 20, warmup: int = 3) -> dict:
+    """Median (and p10/p90) wall time of ``fn()`` in ms, synchronizing the device around each call."""
+    for _ in range(warmup):
+        fn()
+    wp.synchronize_device(device)
+    ts = []
+    for _ in range(repeats):
+        wp.synchronize_device(device)
+        t0 = time.perf_counter()
+        fn()
+        wp.synchronize_device(device)
+        ts.append((time.perf_counter() - t0) * 1e3)
+    ts.sort()
+    q = lambda f: ts[min(len(ts) - 1, int(f * len(ts)))]  # noqa: E731
+    return {"median_ms": statistics.median(ts), "p10_ms": q(0.1), "p90_ms": q(0.9), "repeats": repeats}
+
+
+def write_results(name: str, device, payload: dict, table_md: str, out=None) -> Path:
+    d = wp.get_device(device)
+    folder = Path(out) if out else RESULTS
+    folder.mkdir(parents=True, exist_ok=True)
+    tag = "cuda" if d.is_cuda else "cpu"
+    payload = {"benchmark": name, "commit": git_commit(), **device_info(device), **payload}
+    p = folder / f"{name}-{tag}.json"
+    p.write_text(json.dumps(payload, indent=1, default=float))
+    (folder / f"{name}-{tag}.md").write_text(table_md + "\n")
+    return p
+
+
+def md_table(rows: list, cols: list) -> str:
+    head = "| " + " | ".join(cols) + " |\n|" + "|".join("---" for _ in cols) + "|\n"
+    body = ""
+    for r in rows:
+        cells = []
+        for c in cols:
+            v = r.get(c, "")
+            cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
+        body += "| " + " | ".join(cells) + " |\n"
+    return head + body

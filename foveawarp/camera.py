@@ -1,0 +1,168 @@
+"""Camera: eye / target / up / vertical field of view; matrices, rays, projection, gaze <-> direction."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import check_finite, check_range
+
+__all__ = ["Camera"]
+
+
+def _vec3(name: str, v) -> tuple:
+    try:
+        t = tuple(float(c) for c in v)
+    except TypeError:
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}") from None
+    if len(t) != 3:
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
+    for i, c in enumerate(t):
+        check_finite(f"{name}[{i}]", c)
+    return t
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera looking from ``eye`` at ``target``.
+
+    Attributes:
+        eye: eye position, world units.
+        target: a point the camera looks at; must differ from ``eye``.
+        up: approximate up vector; must not be parallel to ``target - eye``.
+        fov_y_deg: vertical field of view in degrees, in (0, 180).
+    """
+
+    eye: tuple = (0.0, 1.0, 3.5)
+    target: tuple = (0.0, 1.0, 0.0)
+    up: tuple = (0.0, 1.0, 0.0)
+    fov_y_deg: float = 60.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "eye", _vec3("Camera.eye", self.eye))
+        object.__setattr__(self, "target", _vec3("Camera.target", self.target))
+        object.__setattr__(self, "up", _vec3("Camera.up", self.up))
+        check_range("Camera.fov_y_deg", self.fov_y_deg, 0.0, 180.0, lo_open=True, hi_open=True)
+        object.__setattr__(self, "fov_y_deg", float(self.fov_y_deg))
+        f = np.subtract(self.target, self.eye)
+        n = float(np.linalg.norm(f))
+        if not n > 0.0 or not math.isfinite(n):
+            raise ValueError(f"Camera.target must differ from Camera.eye (both {self.eye!r})")
+        f = f / n
+        u = np.asarray(self.up, dtype=np.float64)
+        un = float(np.linalg.norm(u))
+        if not un > 0.0:
+            raise ValueError(f"Camera.up must be a non-zero vector, got {self.up!r}")
+        if abs(float(np.dot(f, u / un))) > 1.0 - 1e-9:
+            raise ValueError(f"Camera.up {self.up!r} must not be parallel to the view direction {tuple(f)!r}")
+
+    # -- frame ---------------------------------------------------------------------------------------
+    def basis(self):
+        """(right, up, forward) as float64 unit vectors; right-handed, forward = view direction."""
+        f = np.subtract(self.target, self.eye).astype(np.float64)
+        f /= np.linalg.norm(f)
+        r = np.cross(f, np.asarray(self.up, dtype=np.float64))
+        r /= np.linalg.norm(r)
+        u = np.cross(r, f)
+        return r, u, f
+
+    @property
+    def tan_half_fov_y(self) -> float:
+        return math.tan(math.radians(self.fov_y_deg) * 0.5)
+
+    def view_matrix(self) -> np.ndarray:
+        """4x4 world -> view (OpenGL convention: camera looks down -z)."""
+        r, u, f = self.basis()
+        e = np.asarray(self.eye, dtype=np.float64)
+        m = np.eye(4)
+        m[0, :3], m[1, :3], m[2, :3] = r, u, -f
+        m[:3, 3] = -m[:3, :3] @ e
+        return m
+
+    def projection_matrix(self, aspect: float, near: float = 0.01, far: float = 1000.0) -> np.ndarray:
+        """4x4 OpenGL perspective projection for ``aspect`` = width / height."""
+        check_range("aspect", aspect, 0.0, None, lo_open=True)
+        check_range("near", near, 0.0, None, lo_open=True)
+        check_range("far", far, near, None, lo_open=True)
+        t = 1.0 / self.tan_half_fov_y
+        p = np.zeros((4, 4))
+        p[0, 0] = t / aspect
+        p[1, 1] = t
+        p[2, 2] = (far + near) / (near - far)
+        p[2, 3] = 2.0 * far * near / (near - far)
+        p[3, 2] = -1.0
+        return p
+
+    # -- rays and projection (NumPy; the kernels use kernels.camera with the same formulas) ----------
+    def ray_dirs(self, px, py, width: int, height: int) -> np.ndarray:
+        """Unit ray directions through continuous pixel positions (centres at x + 0.5)."""
+        r, u, f = self.basis()
+        t = self.tan_half_fov_y
+        sx = (2.0 * np.asarray(px, dtype=np.float64) / width - 1.0) * t * (width / height)
+        sy = (1.0 - 2.0 * np.asarray(py, dtype=np.float64) / height) * t
+        d = f + sx[..., None] * r + sy[..., None] * u
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def project(self, points, width: int, height: int) -> np.ndarray:
+        """World points (..., 3) -> (..., 3) of (px, py, z_view); z_view <= 0 is behind the eye."""
+        r, u, f = self.basis()
+        d = np.asarray(points, dtype=np.float64) - np.asarray(self.eye)
+        z = d @ f
+        t = self.tan_half_fov_y
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sx = (d @ r) / (z * t * (width / height))
+            sy = (d @ u) / (z * t)
+        px = np.where(z > 0, (sx + 1.0) * 0.5 * width, 0.0)
+        py = np.where(z > 0, (1.0 - sy) * 0.5 * height, 0.0)
+        return np.stack([px, py, z], axis=-1)
+
+    def gaze_to_dir(self, gaze_px, width: int, height: int) -> np.ndarray:
+        """Gaze point in pixels -> unit world direction from the eye."""
+        g = _check_gaze(gaze_px)
+        return self.ray_dirs(np.array(g[0]), np.array(g[1]), width, height)
+
+    def dir_to_gaze(self, direction, width: int, height: int) -> tuple:
+        """Unit world direction -> gaze point in pixels (it may lie off screen)."""
+        d = np.asarray(_vec3("direction", direction))
+        p = self.project(np.asarray(self.eye) + d, width, height)
+        if p[2] <= 0:
+            raise ValueError(f"direction {tuple(d)!r} points behind the camera")
+        return float(p[0]), float(p[1])
+
+    def params(self, width: int, height: int):
+        """The Warp struct the kernels take."""
+        import warp as wp
+
+        from .kernels.camera import CameraParams
+
+        r, u, f = self.basis()
+        c = CameraParams()
+        c.eye = wp.vec3(*self.eye)
+        c.right = wp.vec3(*r)
+        c.up = wp.vec3(*u)
+        c.forward = wp.vec3(*f)
+        c.tan_half_fov_y = self.tan_half_fov_y
+        c.aspect = float(width) / float(height)
+        c.width = int(width)
+        c.height = int(height)
+        return c
+
+    def rotation_deg_to(self, other: "Camera") -> float:
+        """Angle in degrees between this camera's view direction and ``other``'s."""
+        _, _, f0 = self.basis()
+        _, _, f1 = other.basis()
+        return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(f0, f1))))))
+
+
+def _check_gaze(gaze_px) -> tuple:
+    try:
+        g = tuple(float(c) for c in gaze_px)
+    except TypeError:
+        raise ValueError(f"gaze_px must be 2 finite numbers (x, y) in pixels, got {gaze_px!r}") from None
+    if len(g) != 2:
+        raise ValueError(f"gaze_px must be 2 finite numbers (x, y) in pixels, got {gaze_px!r}")
+    for i, c in enumerate(g):
+        check_finite(f"gaze_px[{i}]", c)
+    return g

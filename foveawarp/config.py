@@ -1,0 +1,409 @@
+"""Frozen configuration dataclasses, one per stage.
+
+Every field states its unit and allowed range; ``__post_init__`` validates and raises ``ValueError``
+naming the field, the value and the allowed range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Optional, Sequence
+
+__all__ = [
+    "FoveationConfig",
+    "SaliencyConfig",
+    "ReorderConfig",
+    "ShadingConfig",
+    "ReconstructionConfig",
+    "DofConfig",
+    "IndirectConfig",
+    "TemporalConfig",
+    "Config",
+    "check_finite",
+    "check_range",
+    "check_int_range",
+    "check_choice",
+]
+
+
+# ---------------------------------------------------------------------------------------------------
+# validation helpers (shared by configs, Camera, ops and FrameLoop)
+
+
+def check_finite(name: str, value) -> float:
+    """Return ``value`` as a float, or raise ``ValueError`` when it is not a finite real number."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be a finite real number, got {value!r}")
+    return v
+
+
+def check_range(name: str, value, lo=None, hi=None, *, lo_open=False, hi_open=False) -> float:
+    """Finite float in [lo, hi] (open ends when asked); the error names the interval."""
+    v = check_finite(name, value)
+    bad = False
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        bad = True
+    if hi is not None and (v > hi or (hi_open and v == hi)):
+        bad = True
+    if bad:
+        left = "(" if lo_open else "["
+        right = ")" if hi_open else "]"
+        lo_s = "-inf" if lo is None else repr(lo)
+        hi_s = "inf" if hi is None else repr(hi)
+        raise ValueError(f"{name} must be in {left}{lo_s}, {hi_s}{right}, got {value!r}")
+    return v
+
+
+def check_int_range(name: str, value, lo=None, hi=None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int,)) and not (
+        hasattr(value, "__index__") and not isinstance(value, float)
+    ):
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
+    v = int(value)
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
+    return v
+
+
+def check_choice(name: str, value, choices: Sequence):
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+    return value
+
+
+def _check_color(name: str, value, lo=0.0, hi=None) -> tuple:
+    try:
+        t = tuple(float(c) for c in value)
+    except TypeError:
+        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}") from None
+    if len(t) != 3:
+        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+    for i, c in enumerate(t):
+        check_range(f"{name}[{i}]", c, lo, hi)
+    return t
+
+
+# ---------------------------------------------------------------------------------------------------
+# stage configs
+
+
+@dataclass(frozen=True)
+class FoveationConfig:
+    """Eccentricity / MAR foveation probability (thesis eq. 2) and the jitter-block guarantee.
+
+    Attributes:
+        mar_slope: MAR slope ``m`` in degrees of MAR per degree of eccentricity, in (0, 1].
+            Guenter et al. 2012 measured 0.022-0.034; default 0.028.
+        mar_fovea_deg: MAR at the fovea ``b`` in degrees, in (0, 1]; default 1/48.
+        min_probability: minimum sampling probability ``xi`` in [0, 1]. It is raised to ``1 / block**2``
+            when lower, so that the expected count of a block is at least one (see ``effective_min_probability``).
+        block: jitter block size ``k`` in pixels, in [1, 64]: every k x k tile holds at least one sample,
+            which bounds the distance from any pixel to its nearest sample by ``k * sqrt(2)``.
+        enabled: False traces every pixel (sampling rate 1).
+    """
+
+    mar_slope: float = 0.028
+    mar_fovea_deg: float = 1.0 / 48.0
+    min_probability: float = 0.05
+    block: int = 4
+    enabled: bool = True
+
+    def __post_init__(self):
+        check_range("FoveationConfig.mar_slope", self.mar_slope, 0.0, 1.0, lo_open=True)
+        check_range("FoveationConfig.mar_fovea_deg", self.mar_fovea_deg, 0.0, 1.0, lo_open=True)
+        check_range("FoveationConfig.min_probability", self.min_probability, 0.0, 1.0)
+        check_int_range("FoveationConfig.block", self.block, 1, 64)
+
+    @property
+    def effective_min_probability(self) -> float:
+        """``max(min_probability, 1 / block**2)``: the xi used by the sampling map."""
+        return max(float(self.min_probability), 1.0 / float(self.block * self.block))
+
+
+@dataclass(frozen=True)
+class SaliencyConfig:
+    """Saliency terms of thesis eq. 3: ``clip(max(dA, dN, V, p) * F_DoF, xi, 1)``.
+
+    Attributes:
+        use_albedo: include the CIE-Lab albedo gradient term ``dA``.
+        use_normal: include the normal-buffer gradient term ``dN``.
+        use_velocity: include the normalized screen velocity ``V`` (skipped when nothing moved).
+        use_dof: multiply by the depth-of-field factor (skipped for a pinhole camera).
+        albedo_scale: gain applied to the normalized Lab gradient before clipping, >= 0.
+        normal_scale: gain applied to the normalized normal gradient, >= 0.
+        velocity_scale_px: velocity in pixels per frame that maps to V = 1, > 0.
+        sigma1_m: half width of the in-focus depth range around the focus depth, metres, >= 0.
+        sigma2_m: depth range over which F_DoF falls linearly from 1 to 0 beyond sigma1, metres, > 0.
+        dof_floor: the smallest value F_DoF takes (so defocused regions keep some rays), in [0, 1].
+    """
+
+    use_albedo: bool = True
+    use_normal: bool = True
+    use_velocity: bool = True
+    use_dof: bool = True
+    albedo_scale: float = 1.0
+    normal_scale: float = 1.0
+    velocity_scale_px: float = 8.0
+    sigma1_m: float = 0.5
+    sigma2_m: float = 2.0
+    dof_floor: float = 0.0
+
+    def __post_init__(self):
+        check_range("SaliencyConfig.albedo_scale", self.albedo_scale, 0.0, None)
+        check_range("SaliencyConfig.normal_scale", self.normal_scale, 0.0, None)
+        check_range("SaliencyConfig.velocity_scale_px", self.velocity_scale_px, 0.0, None, lo_open=True)
+        check_range("SaliencyConfig.sigma1_m", self.sigma1_m, 0.0, None)
+        check_range("SaliencyConfig.sigma2_m", self.sigma2_m, 0.0, None, lo_open=True)
+        check_range("SaliencyConfig.dof_floor", self.dof_floor, 0.0, 1.0)
+
+    @property
+    def any_enabled(self) -> bool:
+        return self.use_albedo or self.use_normal or self.use_velocity or self.use_dof
+
+
+REORDER_STRATEGIES = ("none", "rows", "rows+balance", "scan", "tile")
+
+
+@dataclass(frozen=True)
+class ReorderConfig:
+    """How the sampled pixels become a work list for the tracing kernel.
+
+    Attributes:
+        strategy: one of "none" (every pixel launched, unsampled threads exit), "rows" (thesis strategy 1,
+            row CSR), "rows+balance" (strategies 1 + 2), "scan" (prefix-sum compaction, raster order),
+            "tile" (prefix-sum compaction over screen tiles in Morton order).
+        balance_rows: rows per balancing block for "rows+balance", in [1, 1024].
+        tile: tile edge in pixels for "tile", a power of two in [2, 64] (8 x 8 = 64 rays: two warps).
+    """
+
+    strategy: str = "tile"
+    balance_rows: int = 8
+    tile: int = 8
+
+    def __post_init__(self):
+        check_choice("ReorderConfig.strategy", self.strategy, REORDER_STRATEGIES)
+        check_int_range("ReorderConfig.balance_rows", self.balance_rows, 1, 1024)
+        check_int_range("ReorderConfig.tile", self.tile, 2, 64)
+        if self.tile & (self.tile - 1):
+            raise ValueError(f"ReorderConfig.tile must be a power of two in [2, 64], got {self.tile!r}")
+
+
+@dataclass(frozen=True)
+class ShadingConfig:
+    """Direct lighting, ambient occlusion and tone mapping.
+
+    Attributes:
+        shadows: trace one shadow ray per light (offset origin).
+        ambient: ambient radiance (linear RGB), each channel >= 0.
+        specular: Blinn-Phong specular weight in [0, 1].
+        shininess: Blinn-Phong exponent in [1, 4096].
+        ao_samples: ambient-occlusion rays per shaded pixel, in [0, 256]; 0 disables AO.
+        ao_radius_rel: AO ray length as a fraction of the scene's bounding-box diagonal, in (0, 10].
+        area_light_samples: shadow rays per area light, in [1, 256].
+        indirect: "none" or "lighttree" (one-bounce indirect from the light quad-tree, see IndirectConfig).
+        background: linear RGB radiance of rays that miss, each channel >= 0.
+        exposure: linear scale before tone mapping, > 0.
+        white_point: Uncharted 2 linear white point, > 0.
+        seed: base seed of the per-pixel random streams (AO and area-light samples).
+    """
+
+    shadows: bool = True
+    ambient: tuple = (0.03, 0.03, 0.035)
+    specular: float = 0.15
+    shininess: float = 48.0
+    ao_samples: int = 0
+    ao_radius_rel: float = 0.1
+    area_light_samples: int = 4
+    indirect: str = "none"
+    background: tuple = (0.02, 0.02, 0.03)
+    exposure: float = 2.0
+    white_point: float = 11.2
+    seed: int = 1
+
+    def __post_init__(self):
+        object.__setattr__(self, "ambient", _check_color("ShadingConfig.ambient", self.ambient))
+        object.__setattr__(self, "background", _check_color("ShadingConfig.background", self.background))
+        check_range("ShadingConfig.specular", self.specular, 0.0, 1.0)
+        check_range("ShadingConfig.shininess", self.shininess, 1.0, 4096.0)
+        check_int_range("ShadingConfig.ao_samples", self.ao_samples, 0, 256)
+        check_range("ShadingConfig.ao_radius_rel", self.ao_radius_rel, 0.0, 10.0, lo_open=True)
+        check_int_range("ShadingConfig.area_light_samples", self.area_light_samples, 1, 256)
+        check_choice("ShadingConfig.indirect", self.indirect, ("none", "lighttree"))
+        check_range("ShadingConfig.exposure", self.exposure, 0.0, None, lo_open=True)
+        check_range("ShadingConfig.white_point", self.white_point, 0.0, None, lo_open=True)
+        check_int_range("ShadingConfig.seed", self.seed, 0, 2**31 - 1)
+
+
+JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Voronoi (JFA) + bounded Sibson reconstruction of the sparse shading buffer.
+
+    Attributes:
+        jfa_variant: one of "jfa", "jfa+1", "jfa+2", "1+jfa" (Rong & Tan 2006 variants).
+        sibson: interpolate with discrete Sibson (False: plain Voronoi / nearest-seed color).
+        sibson_window: half window J in pixels of the bounded gather, in [1, 256]; None derives it from the
+            foveation block size so that it covers the largest nearest-seed radius the block guarantee allows.
+        bounded_jfa_start: start JFA at the step implied by the block guarantee instead of half the image.
+    """
+
+    jfa_variant: str = "1+jfa"
+    sibson: bool = True
+    sibson_window: Optional[int] = None
+    bounded_jfa_start: bool = True
+
+    def __post_init__(self):
+        check_choice("ReconstructionConfig.jfa_variant", self.jfa_variant, JFA_VARIANTS)
+        if self.sibson_window is not None:
+            check_int_range("ReconstructionConfig.sibson_window", self.sibson_window, 1, 256)
+
+
+@dataclass(frozen=True)
+class DofConfig:
+    """Thin-lens depth of field by pixel-intensity scatter (Lee, Kim, Choi).
+
+    Attributes:
+        aperture_m: lens diameter E in metres, >= 0; 0 is a pinhole camera (the pass is skipped).
+        focal_length_m: focal length F in metres, > 0.
+        focus_depth_m: focus distance Z_f in metres (> focal_length_m); None focuses at the gaze point's depth.
+        px_per_m: screen pixels per metre of circle of confusion on the sensor, > 0 (the C_r -> C factor).
+        gamma: foreground amplification exponent of K = (Z_f / Z_p)^gamma, >= 0.
+        eps_px: loose in-focus range in pixels of the background-leak correction, > 0.
+        max_coc_px: largest circle-of-confusion diameter in pixels, in [1, 128].
+        foreground_fix: apply the foreground (virtual visibility) correction.
+        background_fix: apply the background-leak correction.
+    """
+
+    aperture_m: float = 0.0
+    focal_length_m: float = 0.05
+    focus_depth_m: Optional[float] = None
+    px_per_m: float = 20000.0
+    gamma: float = 2.0
+    eps_px: float = 1.0
+    max_coc_px: float = 16.0
+    foreground_fix: bool = True
+    background_fix: bool = True
+
+    def __post_init__(self):
+        check_range("DofConfig.aperture_m", self.aperture_m, 0.0, 10.0)
+        check_range("DofConfig.focal_length_m", self.focal_length_m, 0.0, 10.0, lo_open=True)
+        if self.focus_depth_m is not None:
+            check_range("DofConfig.focus_depth_m", self.focus_depth_m, self.focal_length_m, None, lo_open=True)
+        check_range("DofConfig.px_per_m", self.px_per_m, 0.0, None, lo_open=True)
+        check_range("DofConfig.gamma", self.gamma, 0.0, 16.0)
+        check_range("DofConfig.eps_px", self.eps_px, 0.0, None, lo_open=True)
+        check_range("DofConfig.max_coc_px", self.max_coc_px, 1.0, 128.0)
+
+    @property
+    def enabled(self) -> bool:
+        return self.aperture_m > 0.0
+
+
+@dataclass(frozen=True)
+class IndirectConfig:
+    """One-bounce indirect light from a light quad-tree over a reflective shadow map (Ki & Oh).
+
+    Attributes:
+        rsm_size: RSM edge in texels (N x N VPLs), a power of two in [8, 2048].
+        depth_threshold: relative depth difference (fraction of the scene's bounding-box diagonal) below
+            which children join a cluster, in (0, 1]; paper 0.05.
+        normal_threshold: minimum dot(n_child, n_avg) for a valid cluster, in [-1, 1]; paper 0.9.
+        start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes), >= 0; paper 3 (8 x 8).
+        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]; paper 6 (for 512^2).
+        d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
+        strength: scale of the indirect term, >= 0.
+    """
+
+    rsm_size: int = 256
+    depth_threshold: float = 0.05
+    normal_threshold: float = 0.9
+    start_level: int = 3
+    limit_level: int = 6
+    d_min_rel: float = 0.02
+    strength: float = 1.0
+
+    def __post_init__(self):
+        check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
+        if self.rsm_size & (self.rsm_size - 1):
+            raise ValueError(f"IndirectConfig.rsm_size must be a power of two in [8, 2048], got {self.rsm_size!r}")
+        check_range("IndirectConfig.depth_threshold", self.depth_threshold, 0.0, 1.0, lo_open=True)
+        check_range("IndirectConfig.normal_threshold", self.normal_threshold, -1.0, 1.0)
+        max_level = int(round(math.log2(self.rsm_size)))
+        check_int_range("IndirectConfig.start_level", self.start_level, 0, max_level)
+        check_int_range("IndirectConfig.limit_level", self.limit_level, self.start_level, max_level)
+        check_range("IndirectConfig.d_min_rel", self.d_min_rel, 0.0, 1.0, lo_open=True)
+        check_range("IndirectConfig.strength", self.strength, 0.0, None)
+
+
+@dataclass(frozen=True)
+class TemporalConfig:
+    """Temporal reprojection (thesis A2.6 cache test and A4 history).
+
+    Attributes:
+        enabled: reuse reprojected history in unsampled pixels.
+        max_history_frames: history values older than this many frames are dropped, in [1, 1024].
+        depth_eps_rel: cache-test tolerance as a fraction of the current depth, in (0, 1]: a hit needs
+            ``|depth_prev(uv_prev) - |pos - eye_prev|| < depth_eps_rel * depth``.
+        cut_threshold_deg: a camera rotation above this many degrees between frames is a cut, in (0, 180].
+        refresh_fraction: fraction of the normal samples still traced when the view and scene are static and
+            history has converged, in [0, 1].
+    """
+
+    enabled: bool = True
+    max_history_frames: int = 16
+    depth_eps_rel: float = 0.01
+    cut_threshold_deg: float = 30.0
+    refresh_fraction: float = 0.25
+
+    def __post_init__(self):
+        check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)
+        check_range("TemporalConfig.depth_eps_rel", self.depth_eps_rel, 0.0, 1.0, lo_open=True)
+        check_range("TemporalConfig.cut_threshold_deg", self.cut_threshold_deg, 0.0, 180.0, lo_open=True)
+        check_range("TemporalConfig.refresh_fraction", self.refresh_fraction, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Config:
+    """All stage configs. Build variants with ``dataclasses.replace`` or ``Config.with_(...)``."""
+
+    foveation: FoveationConfig = field(default_factory=FoveationConfig)
+    saliency: SaliencyConfig = field(default_factory=SaliencyConfig)
+    reorder: ReorderConfig = field(default_factory=ReorderConfig)
+    shading: ShadingConfig = field(default_factory=ShadingConfig)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    dof: DofConfig = field(default_factory=DofConfig)
+    indirect: IndirectConfig = field(default_factory=IndirectConfig)
+    temporal: TemporalConfig = field(default_factory=TemporalConfig)
+
+    def __post_init__(self):
+        expected = {
+            "foveation": FoveationConfig,
+            "saliency": SaliencyConfig,
+            "reorder": ReorderConfig,
+            "shading": ShadingConfig,
+            "reconstruction": ReconstructionConfig,
+            "dof": DofConfig,
+            "indirect": IndirectConfig,
+            "temporal": TemporalConfig,
+        }
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, expected[f.name]):
+                raise ValueError(f"Config.{f.name} must be a {expected[f.name].__name__}, got {type(v).__name__}")
+
+    def with_(self, **stage_overrides) -> "Config":
+        """Copy with some fields of some stages replaced: ``cfg.with_(foveation={"block": 8})``."""
+        changes = {}
+        for stage, over in stage_overrides.items():
+            if not hasattr(self, stage):
+                raise ValueError(f"Config has no stage {stage!r}; stages: {[f.name for f in fields(self)]}")
+            cur = getattr(self, stage)
+            changes[stage] = over if not isinstance(over, dict) else replace(cur, **over)
+        return replace(self, **changes)

@@ -1,0 +1,1 @@
+"""Warp kernels only (``@wp.func`` / ``@wp.kernel``); orchestration lives outside this package."""

@@ -1,0 +1,88 @@
+"""G-buffer: one primary ray per pixel against the scene BVH (thesis A1, traced instead of rasterized)."""
+
+import warp as wp
+
+from .camera import CameraParams, camera_project, camera_ray_dir
+
+# reprojection UV of pixels with no previous position (miss, or behind the previous eye)
+NO_REPROJ = -1.0e4
+
+
+@wp.func
+def shading_normal(mesh: wp.uint64, face: int, u: float, v: float, face_n: wp.vec3,
+                   vnormals: wp.array(dtype=wp.vec3), smooth: wp.array(dtype=wp.uint8),
+                   indices: wp.array(dtype=wp.int32)) -> wp.vec3:
+    n = face_n
+    if smooth[face] != wp.uint8(0):
+        i0 = indices[face * 3 + 0]
+        i1 = indices[face * 3 + 1]
+        i2 = indices[face * 3 + 2]
+        s = vnormals[i0] * u + vnormals[i1] * v + vnormals[i2] * (1.0 - u - v)
+        ls = wp.length(s)
+        if ls > 1.0e-12:
+            s = s / ls
+            # keep the interpolated normal on the geometric normal's side
+            if wp.dot(s, face_n) > 0.0:
+                n = s
+    return n
+
+
+@wp.kernel(enable_backward=False)
+def gbuffer_kernel(
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    points_prev: wp.array(dtype=wp.vec3),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    face_albedo: wp.array(dtype=wp.vec3),
+    cam: CameraParams,
+    cam_prev: CameraParams,
+    max_t: float,
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_albedo: wp.array2d(dtype=wp.vec3),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_velocity: wp.array2d(dtype=wp.vec2),
+    out_reproj: wp.array2d(dtype=wp.vec2),
+):
+    y, x = wp.tid()
+    px = float(x) + 0.5
+    py = float(y) + 0.5
+    d = camera_ray_dir(cam, px, py)
+    q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
+    if q.result:
+        p = cam.eye + d * q.t
+        fn = q.normal
+        if wp.dot(fn, d) > 0.0:
+            fn = -fn  # face the viewer
+        n = shading_normal(mesh, q.face, q.u, q.v, fn, vnormals, smooth, indices)
+        i0 = indices[q.face * 3 + 0]
+        i1 = indices[q.face * 3 + 1]
+        i2 = indices[q.face * 3 + 2]
+        # the same surface point at the previous frame's vertex positions (object motion)
+        pp = points_prev[i0] * q.u + points_prev[i1] * q.v + points_prev[i2] * (1.0 - q.u - q.v)
+        pr = camera_project(cam_prev, pp)
+        uv = wp.vec2(NO_REPROJ, NO_REPROJ)
+        vel = wp.vec2(0.0, 0.0)
+        if pr[2] > 0.0:
+            uv = wp.vec2(pr[0], pr[1])
+            vel = wp.vec2(px - pr[0], py - pr[1])
+        out_pos[y, x] = p
+        out_normal[y, x] = n
+        out_depth[y, x] = q.t
+        out_albedo[y, x] = face_albedo[q.face]
+        out_face[y, x] = q.face
+        out_hit[y, x] = wp.uint8(1)
+        out_velocity[y, x] = vel
+        out_reproj[y, x] = uv
+    else:
+        out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_depth[y, x] = max_t
+        out_albedo[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_face[y, x] = -1
+        out_hit[y, x] = wp.uint8(0)
+        out_velocity[y, x] = wp.vec2(0.0, 0.0)
+        out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)

@@ -1,0 +1,207 @@
+"""Shading of G-buffer points: direct light with shadow rays, Lambert + Blinn-Phong, ambient (with optional
+ambient occlusion), emission. Launched over a full frame, a pixel list (compacted work) or a mask."""
+
+import warp as wp
+
+from .rng import cosine_hemisphere, pixel_rng
+
+
+@wp.struct
+class LightParams:
+    kind: int  # 0 point, 1 spot
+    position: wp.vec3
+    direction: wp.vec3
+    cos_outer: float
+    cos_inner: float
+    intensity: wp.vec3
+
+
+@wp.struct
+class AreaLightParams:
+    corner: wp.vec3
+    edge_u: wp.vec3
+    edge_v: wp.vec3
+    radiance: wp.vec3
+
+
+@wp.struct
+class ShadeParams:
+    mesh: wp.uint64
+    num_lights: int
+    num_area_lights: int
+    shadows: int
+    ambient: wp.vec3
+    specular: float
+    shininess: float
+    ao_samples: int
+    ao_radius: float
+    area_samples: int
+    background: wp.vec3
+    ray_eps: float
+    seed: int
+    frame: int
+    width: int
+    eye: wp.vec3
+
+
+@wp.func
+def visible(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, eps: float, to: wp.vec3, dist: float) -> float:
+    """1 when nothing blocks the segment from p (offset along n) to p + to * dist, else 0."""
+    o = p + n * eps
+    if dist <= 2.0 * eps:
+        return 1.0
+    q = wp.mesh_query_ray(mesh, o, to, dist - 2.0 * eps)
+    if q.result:
+        return 0.0
+    return 1.0
+
+
+@wp.func
+def spot_factor(l: LightParams, to_point: wp.vec3) -> float:
+    if l.kind == 0:
+        return 1.0
+    c = wp.dot(to_point, l.direction)
+    return wp.smoothstep(l.cos_outer, wp.max(l.cos_inner, l.cos_outer + 1.0e-6), c)
+
+
+@wp.func
+def shade_point(
+    sp: ShadeParams,
+    pixel: int,
+    p: wp.vec3,
+    n: wp.vec3,
+    albedo: wp.vec3,
+    face: int,
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    v = wp.normalize(sp.eye - p)
+    diffuse = albedo / wp.pi
+    col = wp.vec3(0.0, 0.0, 0.0)
+    norm_spec = (sp.shininess + 8.0) / (8.0 * wp.pi)
+    for li in range(sp.num_lights):
+        l = lights[li]
+        dl = l.position - p
+        dist2 = wp.dot(dl, dl)
+        if dist2 > 1.0e-30:
+            dist = wp.sqrt(dist2)
+            wi = dl / dist
+            cos_i = wp.dot(n, wi)
+            if cos_i > 0.0:
+                att = spot_factor(l, -wi)
+                if att > 0.0:
+                    vis = 1.0
+                    if sp.shadows != 0:
+                        vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
+                    if vis > 0.0:
+                        h = wp.normalize(wi + v)
+                        spec = sp.specular * norm_spec * wp.pow(wp.max(wp.dot(n, h), 0.0), sp.shininess)
+                        e = l.intensity * (att * cos_i / dist2)
+                        col += wp.cw_mul(e, diffuse * (1.0 - sp.specular) + wp.vec3(spec, spec, spec))
+    rng = pixel_rng(sp.seed, sp.frame, pixel)
+    for ai in range(sp.num_area_lights):
+        a = area_lights[ai]
+        an = wp.cross(a.edge_u, a.edge_v)
+        area = wp.length(an)
+        if area > 1.0e-30:
+            an = an / area
+            acc = wp.vec3(0.0, 0.0, 0.0)
+            for s in range(sp.area_samples):
+                q = a.corner + a.edge_u * wp.randf(rng) + a.edge_v * wp.randf(rng)
+                dl = q - p
+                dist2 = wp.dot(dl, dl)
+                if dist2 > 1.0e-30:
+                    dist = wp.sqrt(dist2)
+                    wi = dl / dist
+                    cos_i = wp.dot(n, wi)
+                    cos_l = -wp.dot(an, wi)
+                    if cos_i > 0.0 and cos_l > 0.0:
+                        vis = 1.0
+                        if sp.shadows != 0:
+                            vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
+                        acc += a.radiance * (vis * cos_i * cos_l / dist2)
+            col += wp.cw_mul(diffuse, acc * (area / float(sp.area_samples)))
+    amb = wp.cw_mul(albedo, sp.ambient)
+    if sp.ao_samples > 0:
+        unocc = float(0.0)
+        for s in range(sp.ao_samples):
+            d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+            unocc += visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius)
+        amb = amb * (unocc / float(sp.ao_samples))
+    return col + amb + face_emission[face]
+
+
+@wp.kernel(enable_backward=False)
+def shade_full_kernel(
+    sp: ShadeParams,
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+):
+    y, x = wp.tid()
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        return
+    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                            area_lights, face_emission)
+
+
+@wp.kernel(enable_backward=False)
+def shade_list_kernel(
+    sp: ShadeParams,
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
+    i = wp.tid()
+    if i >= count[0]:
+        return
+    idx = work[i]
+    y = idx // sp.width
+    x = idx - y * sp.width
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        return
+    out[y, x] = shade_point(sp, idx, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights, area_lights,
+                            face_emission)
+
+
+@wp.kernel(enable_backward=False)
+def shade_masked_kernel(
+    sp: ShadeParams,
+    mask: wp.array2d(dtype=wp.uint8),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
+    y, x = wp.tid()
+    if mask[y, x] == wp.uint8(0):
+        return
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        return
+    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                            area_lights, face_emission)

@@ -1,0 +1,32 @@
+"""Uncharted 2 filmic tone map (Hable 2010) with exposure, white point and display gamma 2.2."""
+
+import warp as wp
+
+
+@wp.func
+def hable(x: float) -> float:
+    a = 0.15
+    b = 0.50
+    c = 0.10
+    d = 0.20
+    e = 0.02
+    f = 0.30
+    return ((x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f)) - e / f
+
+
+@wp.func
+def tonemap_value(x: float, exposure: float, white: float) -> float:
+    v = wp.max(x, 0.0)
+    if not wp.isfinite(v):
+        v = 0.0
+    t = hable(exposure * v) / hable(white)
+    t = wp.clamp(t, 0.0, 1.0)
+    return wp.pow(t, 1.0 / 2.2)
+
+
+@wp.kernel(enable_backward=False)
+def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3)):
+    y, x = wp.tid()
+    c = hdr[y, x]
+    out[y, x] = wp.vec3(tonemap_value(c[0], exposure, white), tonemap_value(c[1], exposure, white),
+                        tonemap_value(c[2], exposure, white))
