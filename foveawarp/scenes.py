@@ -159,7 +159,7 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
     b.add_box((0.36, 0.3, 0.32), (0.6, 0.6, 0.6), WHITE, yaw_rad=math.radians(-17), name="short_block",
               motion=short_motion)
     lights = [Light(kind="spot", position=(0.0, 1.97, 0.0), direction=(0.0, -1.0, 0.0), cone_deg=60.0,
-                    intensity=(5.0, 4.6, 4.0), penumbra=0.3)]
+                    intensity=(9.0, 8.3, 7.2), penumbra=0.3)]
     areas = []
     if area_light:
         areas.append(AreaLight(corner=(-0.25, 1.99, -0.25), edge_u=(0.0, 0.0, 0.5), edge_v=(0.5, 0.0, 0.0),
@@ -193,7 +193,7 @@ def bunny_in_box(path=None, bvh_constructor: str = "sah") -> Scene:
     v = (v - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])) * s + np.array([-0.15, 0.0, -0.1])
     b.add_mesh(v, f, WHITE, normals=vn, smooth=vn is not None, name="bunny")
     lights = [Light(kind="spot", position=(0.0, 1.97, 0.0), direction=(0.0, -1.0, 0.0), cone_deg=60.0,
-                    intensity=(5.0, 4.6, 4.0), penumbra=0.3)]
+                    intensity=(9.0, 8.3, 7.2), penumbra=0.3)]
     cam = Camera(eye=(0.0, 1.0, 3.4), target=(0.0, 0.8, 0.0), up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 12.0, 6.0), name="bunny-in-box",
                    bvh_constructor=bvh_constructor)
@@ -241,7 +241,7 @@ def _exposed_faces(occ: np.ndarray, color_of):
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(cols)
 
 
-def city(seed: int = 7, size: int = 192, block: int = 16, street: int = 4, max_height: int = 44,
+def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_height: int = 44,
          bvh_constructor: str = "sah") -> Scene:
     """Seeded voxel city (1 voxel = 1 m): city blocks of buildings with window recesses and roof detail.
 
@@ -310,12 +310,15 @@ def city(seed: int = 7, size: int = 192, block: int = 16, street: int = 4, max_h
     v = v - np.array([c, 0.0, c])
     b = SceneBuilder()
     b.add_mesh(v, f, np.clip(alb, 0, 1), name="city")
+    sun = np.array([0.35 * size, 4.0 * max_height, 0.25 * size])
+    fill = np.array([-0.4 * size, 2.0 * max_height, 0.5 * size])
     lights = [
-        Light(kind="point", position=(0.3 * size, 3.0 * max_height, 0.2 * size), intensity=(1.2e5, 1.1e5, 1.0e5)),
+        Light(kind="point", position=tuple(sun), intensity=tuple(np.array([1.0, 0.95, 0.85]) * 2.5 * (sun @ sun))),
+        Light(kind="point", position=tuple(fill), intensity=tuple(np.array([0.45, 0.5, 0.6]) * 1.0 * (fill @ fill))),
         Light(kind="spot", position=(-0.1 * size, 1.5 * max_height, -0.1 * size), direction=(0.3, -1.0, 0.25),
               cone_deg=35.0, intensity=(1.5e4, 1.3e4, 1.1e4)),
     ]
-    cam = Camera(eye=(-0.42 * size, 0.45 * max_height, 0.42 * size), target=(0.05 * size, 6.0, -0.05 * size),
+    cam = Camera(eye=(-0.45 * size, 1.3 * max_height, 0.45 * size), target=(0.05 * size, 0.0, -0.05 * size),
                  up=(0.0, 1.0, 0.0), fov_y_deg=60.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 10.0, 10.0), name="city",
                    bvh_constructor=bvh_constructor)

@@ -11,7 +11,8 @@ def hable(x: float) -> float:
     d = 0.20
     e = 0.02
     f = 0.30
-    return ((x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f)) - e / f
+    # ((x(ax + cb) + de) / (x(ax + b) + df)) - e/f over one denominator, so that hable(0) is exactly 0
+    return x * (f * (a * x + c * b) - e * (a * x + b)) / (f * (x * (a * x + b) + d * f))
 
 
 @wp.func

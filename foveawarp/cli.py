@@ -1,0 +1,277 @@
+"""`foveawarp` console script: demo, render, warmup, bench."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main"]
+
+
+def _parse_gaze(s: str):
+    try:
+        x, y = (float(v) for v in s.split(","))
+    except Exception:
+        raise argparse.ArgumentTypeError(f"--gaze must be X,Y in pixels, got {s!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"--gaze must be finite, got {s!r}")
+    return x, y
+
+
+def _positive_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}")
+    return v
+
+
+def _default_device(dev):
+    import warp as wp
+
+    from ._util import init_warp
+
+    init_warp()
+    if dev is not None:
+        return dev
+    return "cuda:0" if wp.is_cuda_available() else "cpu"
+
+
+def _gaze_path(i: int, n: int, w: int, h: int):
+    """A Lissajous gaze path over the middle of the screen."""
+    t = i / max(n, 1)
+    return (w * (0.5 + 0.3 * math.sin(2 * math.pi * t)), h * (0.5 + 0.25 * math.sin(4 * math.pi * t + 0.5)))
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    import imageio.v2 as imageio
+
+    imageio.imwrite(str(path), (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8))
+
+
+def _try_mp4(frames_dir: Path, pngs: list, fps: int = 24):
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401
+    except Exception:
+        return None
+    out = frames_dir / "animation.mp4"
+    try:
+        with imageio.get_writer(str(out), fps=fps, macro_block_size=1) as wr:
+            for p in pngs:
+                wr.append_data(imageio.imread(str(p)))
+    except Exception as e:  # ffmpeg missing at run time
+        print(f"(no MP4: {e})", file=sys.stderr)
+        return None
+    return out
+
+
+def _panel(frame, ref_img=None) -> np.ndarray:
+    """Side-by-side panel: sampling map, sparse shading, reconstruction, reference, error (thesis Figs 40-45)."""
+    img = frame.numpy()
+    parts = []
+    ex = frame.extras
+    smap = frame.sampling_map.numpy().astype(np.float32)
+    parts.append(np.repeat(smap[..., None], 3, axis=2))
+    if "sparse" in ex:
+        parts.append(ex["sparse"])
+    parts.append(img)
+    if ref_img is not None:
+        parts.append(ref_img)
+        err = np.abs(img - ref_img).mean(axis=2)
+        err = np.clip(err * 8.0, 0, 1)
+        parts.append(np.stack([err, err * 0.3, 1.0 - err], axis=2) * (err[..., None] > 0.002))
+    return np.concatenate(parts, axis=1)
+
+
+def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: Path, debug=False, dof=False,
+                     panel=True, desc="frames"):
+    from tqdm import tqdm
+
+    import foveawarp as fw
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scene = fw.load_scene(scene_name)
+    loop = fw.FrameLoop(scene, width, height, device=device)
+    ref_loop = fw.FrameLoop(scene, width, height, device=device) if panel else None
+    all_stats, pngs = [], []
+    fps = 30.0
+    for i in tqdm(range(frames), desc=desc, unit="frame"):
+        t = i / fps
+        cam = scene.camera_at(t)
+        g = gaze if gaze is not None else _gaze_path(i, frames, width, height)
+        frame = loop.render(cam, gaze_px=g, time=t)
+        ref = ref_loop.render_reference(cam, time=t).numpy() if panel else None
+        img = _panel(frame, ref) if panel else frame.numpy()
+        p = out_dir / f"frame_{i:04d}.png"
+        _write_png(p, img)
+        pngs.append(p)
+        st = {k: v for k, v in frame.stats.items()}
+        if ref is not None:
+            from .metrics import psnr
+
+            st["psnr_vs_reference"] = psnr(frame.numpy(), ref)
+        all_stats.append(st)
+        if debug:
+            _write_debug(loop, frame, out_dir, i)
+    if dof:
+        _write_dof(scene, width, height, device, out_dir)
+    mp4 = _try_mp4(out_dir, pngs)
+    summary = {
+        "scene": scene.name, "triangles": scene.num_triangles, "width": width, "height": height,
+        "device": str(loop.device), "frames": all_stats, "mp4": str(mp4.name) if mp4 else None,
+    }
+    (out_dir / "stats.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    return summary
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return str(o)
+
+
+def _write_debug(loop, frame, out_dir: Path, i: int) -> None:
+    """Debug views of the sampling stage: probability, saliency, binary map, cache hits."""
+    st = getattr(loop, "sampling", None)
+    views = []
+    for name in ("probability", "saliency", "sample_map", "cache_hit"):
+        a = getattr(st, name, None) if st is not None else None
+        if a is None:
+            continue
+        v = a.numpy().astype(np.float32)
+        views.append(np.repeat(v[..., None], 3, axis=2))
+    if views:
+        _write_png(out_dir / f"debug_{i:04d}.png", np.concatenate(views, axis=1))
+
+
+def _write_dof(scene, width, height, device, out_dir: Path) -> None:
+    try:
+        from .dof_reference import render_dof_comparison
+    except ImportError:
+        print("depth of field comparison not available in this build", file=sys.stderr)
+        return
+    imgs = render_dof_comparison(scene, scene.camera, width, height, device=device)
+    _write_png(out_dir / "dof_comparison.png", np.concatenate(list(imgs.values()), axis=1))
+    (out_dir / "dof_comparison.txt").write_text("left to right: " + ", ".join(imgs.keys()) + "\n")
+
+
+def cmd_demo(args) -> int:
+    device = _default_device(args.device)
+    import warp as wp
+
+    cuda = wp.get_device(device).is_cuda
+    w = args.width or (1920 if cuda else 160)
+    h = args.height or (1080 if cuda else 90)
+    n = args.frames or (60 if cuda else 8)
+    t0 = time.perf_counter()
+    s = _render_sequence(args.scene, w, h, n, device, None, Path(args.out), debug=False, panel=True, desc="demo")
+    ms = [f.get("ms_frame", float("nan")) for f in s["frames"]]
+    print(f"demo: {n} frames of {s['scene']} at {w}x{h} on {s['device']} in {time.perf_counter() - t0:.1f} s "
+          f"(median frame {np.median(ms):.1f} ms incl. timing syncs); output in {args.out}/")
+    return 0
+
+
+def cmd_render(args) -> int:
+    device = _default_device(args.device)
+    s = _render_sequence(args.scene, args.width, args.height, args.frames, device, args.gaze, Path(args.out),
+                         debug=args.debug, dof=args.dof, panel=args.panel, desc="render")
+    print(f"render: {len(s['frames'])} frames of {s['scene']} at {args.width}x{args.height} on {s['device']}; "
+          f"output in {args.out}/")
+    return 0
+
+
+def cmd_warmup(args) -> int:
+    """Compile every kernel module for the device ahead of time."""
+    import importlib
+    import pkgutil
+
+    import warp as wp
+
+    from . import kernels
+
+    device = _default_device(args.device)
+    t0 = time.perf_counter()
+    names = []
+    for m in pkgutil.iter_modules(kernels.__path__):
+        mod = importlib.import_module(f"{kernels.__name__}.{m.name}")
+        names.append(m.name)
+        wp.load_module(mod, device=device)
+    print(f"warmup: compiled/loaded {len(names)} kernel modules ({', '.join(sorted(names))}) for {device} "
+          f"in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    import runpy
+
+    script = Path(__file__).resolve().parent.parent / "benchmarks" / f"{args.name}.py"
+    if not script.is_file():
+        print(f"benchmark {args.name!r} not found at {script} (benchmarks ship with the source checkout)",
+              file=sys.stderr)
+        return 2
+    sys.argv = [str(script)] + (["--device", args.device] if args.device else []) + (["--quick"] if args.quick
+                                                                                      else [])
+    runpy.run_path(str(script), run_name="__main__")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="foveawarp", description="Foveated real-time ray tracing with NVIDIA Warp")
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    d = sub.add_parser("demo", help="render a short foveated animation of the default scene with a moving gaze")
+    d.add_argument("--scene", default="cornell")
+    d.add_argument("--device", default=None, help='"cpu", "cuda:0", ... (default: CUDA when present)')
+    d.add_argument("--width", type=_positive_int, default=None)
+    d.add_argument("--height", type=_positive_int, default=None)
+    d.add_argument("--frames", type=_positive_int, default=None)
+    d.add_argument("--out", default="foveawarp-out/demo")
+    d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser("render", help="render frames of a scene (built-in name or mesh file)")
+    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny | PATH")
+    r.add_argument("--width", type=_positive_int, default=640)
+    r.add_argument("--height", type=_positive_int, default=360)
+    r.add_argument("--frames", type=_positive_int, default=1)
+    r.add_argument("--device", default=None)
+    r.add_argument("--gaze", type=_parse_gaze, default=None, help="X,Y in pixels (default: a moving gaze)")
+    r.add_argument("--out", default="foveawarp-out/render")
+    r.add_argument("--debug", action="store_true", help="also write the sampling-map debug views")
+    r.add_argument("--dof", action="store_true", help="also write the depth-of-field comparison")
+    r.add_argument("--no-panel", dest="panel", action="store_false", help="write only the foveated image")
+    r.set_defaults(func=cmd_render)
+
+    w = sub.add_parser("warmup", help="compile every kernel module for a device ahead of time")
+    w.add_argument("--device", default=None)
+    w.set_defaults(func=cmd_warmup)
+
+    b = sub.add_parser("bench", help="run a benchmark script (default: quality, the time-versus-error sweep)")
+    b.add_argument("name", nargs="?", default="quality")
+    b.add_argument("--device", default=None)
+    b.add_argument("--quick", action="store_true")
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as e:
+        print(f"foveawarp: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

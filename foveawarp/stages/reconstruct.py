@@ -1,0 +1,218 @@
+"""Reconstruction stage: Jump Flooding Voronoi over the filled pixels, then bounded Sibson interpolation
+(ALGORITHMS.md A5-A6). Allocates every buffer in ``__init__``; ``run`` only launches kernels."""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import warp as wp
+
+from .._util import check_image_size, get_device
+from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
+from ..kernels.jfa import jfa_init_kernel, jfa_step_kernel
+from ..kernels.sibson import (
+    sibson_gather_kernel,
+    sibson_resolve_kernel,
+    sibson_scatter_kernel,
+    voronoi_finalize_kernel,
+)
+
+__all__ = [
+    "ReconstructStage",
+    "jfa_steps",
+    "jfa_start_step_for_block",
+    "max_seed_distance_for_block",
+    "sibson_window_for_block",
+]
+
+_CUDA_BLOCK = 256  # threads per block of the tiled reduction on CUDA (the CPU runs blocks of 1)
+
+
+def max_seed_distance_for_block(block: int) -> float:
+    """Largest possible distance in pixels from a pixel to its nearest seed when every ``block`` x ``block``
+    tile (aligned at multiples of ``block``; partial tiles at the right/bottom edges included) holds a seed.
+
+    A pixel and a seed of its own tile differ by at most ``block - 1`` in x and in y, so the bound is
+    ``(block - 1) * sqrt(2)``; it is reached (a pixel in one corner, the only seeds of the neighbouring
+    tiles farther away). ``block`` in [1, 64]."""
+    b = check_int_range("block", block, 1, 64)
+    return (b - 1) * math.sqrt(2.0)
+
+
+def jfa_start_step_for_block(block: int) -> int:
+    """First JFA step (pixels) for masks with the block guarantee: the smallest power of two >= the
+    nearest-seed distance bound ``(block - 1) * sqrt(2)`` (1 for block 1). Steps k, k/2, ..., 1 can carry a
+    seed up to ``2k - 1`` pixels per axis, about twice the bound, which leaves room for JFA's propagation
+    errors. ``block`` in [1, 64]."""
+    d = max_seed_distance_for_block(block)
+    k = 1
+    while k < d:
+        k *= 2
+    return k
+
+
+def sibson_window_for_block(block: int) -> int:
+    """Half window J (pixels) of the bounded Sibson gather that is exact under the block guarantee.
+
+    q reaches p only when ``|p - q| <= r_q <= (block - 1) sqrt(2)``, so integer offsets satisfy
+    ``max(|dx|, |dy|) <= floor((block - 1) sqrt(2)) = isqrt(2 (block - 1)^2)``. Returns at least 1 (the
+    smallest ``ReconstructionConfig.sibson_window``). ``block`` in [1, 64]."""
+    b = check_int_range("block", block, 1, 64)
+    return max(1, math.isqrt(2 * (b - 1) * (b - 1)))
+
+
+def jfa_steps(width: int, height: int, variant: str = "1+jfa", start_step: Optional[int] = None) -> list:
+    """The step lengths (pixels) of the JFA passes, in launch order.
+
+    Full JFA: N/2, N/4, ..., 1 with N = max(width, height) rounded up to a power of two (no pass when N = 1).
+    ``start_step`` (>= 1) replaces N/2 when smaller; each next step is ``ceil(k / 2)``, down to 1.
+    Variants (Rong & Tan 2006): "jfa+1" appends a step-1 pass, "jfa+2" appends steps 2 and 1,
+    "1+jfa" prepends a step-1 pass."""
+    w, h = check_image_size(width, height)
+    check_choice("variant", variant, JFA_VARIANTS)
+    n = 1
+    while n < max(w, h):
+        n *= 2
+    k = n // 2
+    if start_step is not None:
+        k = min(k, check_int_range("start_step", start_step, 1, 16384))
+    steps = []
+    while k >= 1:
+        steps.append(k)
+        k = (k + 1) // 2 if k > 1 else 0
+    if variant == "jfa+1":
+        steps = steps + [1]
+    elif variant == "jfa+2":
+        steps = steps + [2, 1]
+    elif variant == "1+jfa":
+        steps = [1] + steps
+    return steps
+
+
+class ReconstructStage:
+    """Fill the unsampled pixels of a sparse shading buffer from its seeds (the nonzero ``seed_mask`` pixels).
+
+    Args:
+        width, height: image size in pixels, each in [1, 16384].
+        config: a :class:`ReconstructionConfig` (JFA variant, Sibson on/off, window J, bounded JFA start).
+        block: the sampling map's jitter block ``k`` in [1, 64] (``FoveationConfig.block``): it sets the bounded
+            JFA start step and, when ``config.sibson_window`` is None, the window J. Both rely on the mask
+            holding a seed in every aligned ``block`` x ``block`` tile.
+        device: Warp device.
+        exact_sibson: use Park et al.'s exact scatter (atomics; cost grows with the empty area) instead of
+            the bounded gather. For references and benchmarks.
+        window: overrides the half window J in pixels, in [1, 256] (default: config / block).
+        start_step: overrides the first JFA step in pixels, in [1, 16384] (default: config / block).
+
+    Buffers (all on ``device``, overwritten by each ``run``):
+        nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found.
+        voronoi: (H, W) ``wp.vec4``, (rgb of the nearest seed, squared distance to it in pixels^2; -1: none).
+        max_radius: (1,) float32, the largest nearest-seed distance r_q in pixels (0 without seeds).
+        max_radius_sq: (1,) int32, its square (exact), pixels^2.
+        unreached: (1,) int32, pixels for which no seed was found (all of them without seeds; nonzero with a
+            bounded JFA start also flags a mask that broke the block guarantee).
+    """
+
+    def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
+                 device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
+                 start_step: Optional[int] = None):
+        self.width, self.height = check_image_size(width, height)
+        if config is None:
+            config = ReconstructionConfig()
+        if not isinstance(config, ReconstructionConfig):
+            raise ValueError(f"config must be a ReconstructionConfig, got {type(config).__name__}")
+        self.config = config
+        self.block = check_int_range("block", block, 1, 64)
+        self.device = get_device(device)
+        self.exact_sibson = bool(exact_sibson)
+        if window is not None:
+            self.window = check_int_range("window", window, 1, 256)
+        elif config.sibson_window is not None:
+            self.window = int(config.sibson_window)
+        else:
+            self.window = sibson_window_for_block(self.block)
+        if start_step is not None:
+            self.start_step = check_int_range("start_step", start_step, 1, 16384)
+        else:
+            self.start_step = jfa_start_step_for_block(self.block) if config.bounded_jfa_start else None
+        self.steps = jfa_steps(self.width, self.height, config.jfa_variant, self.start_step)
+
+        shape = (self.height, self.width)
+        dev = self.device
+        self.nearest = wp.empty(shape, dtype=wp.vec2i, device=dev)
+        self._pong = wp.empty(shape, dtype=wp.vec2i, device=dev) if self.steps else None
+        self.voronoi = wp.zeros(shape, dtype=wp.vec4, device=dev)
+        self.max_radius = wp.zeros(1, dtype=wp.float32, device=dev)
+        self.max_radius_sq = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.unreached = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._accum = wp.zeros(shape, dtype=wp.vec4, device=dev) if self.exact_sibson else None
+        self._block_dim = _CUDA_BLOCK if dev.is_cuda else 1
+        n = self.width * self.height
+        self._num_blocks = (n + self._block_dim - 1) // self._block_dim
+
+    # -- checks (host-side attribute reads only: no sync, no allocation) --------------------------------------
+    def _check(self, name, arr, dtype):
+        if not isinstance(arr, wp.array) or arr.dtype != dtype or tuple(arr.shape) != (self.height, self.width):
+            got = f"{type(arr).__name__} {getattr(arr, 'dtype', None)} {tuple(getattr(arr, 'shape', ()))}"
+            raise ValueError(f"{name} must be a ({self.height}, {self.width}) wp.array of {dtype.__name__}, "
+                             f"got {got}")
+        if arr.device != self.device:
+            raise ValueError(f"{name} must be on {self.device}, got {arr.device}")
+
+    # -- passes ------------------------------------------------------------------------------------------------
+    def run_jfa(self, seed_mask) -> None:
+        """Jump flooding: ``nearest`` <- nearest seed of every pixel. ``seed_mask``: (H, W) uint8, nonzero = seed."""
+        self._check("seed_mask", seed_mask, wp.uint8)
+        dim = (self.height, self.width)
+        # ping-pong so that the last pass writes self.nearest
+        bufs = [self.nearest, self._pong]
+        cur = len(self.steps) % 2
+        wp.launch(jfa_init_kernel, dim=dim, inputs=[seed_mask], outputs=[bufs[cur]], device=self.device)
+        for k in self.steps:
+            wp.launch(jfa_step_kernel, dim=dim, inputs=[bufs[cur], int(k)], outputs=[bufs[1 - cur]],
+                      device=self.device)
+            cur = 1 - cur
+
+    def run_interpolate(self, color_in, color_out, nearest=None) -> None:
+        """Voronoi buffer and statistics from ``nearest`` (default: this stage's), then Sibson (or the plain
+        Voronoi color when ``config.sibson`` is False) into ``color_out``. ``color_in`` is read at seeds only."""
+        self._check("color_in", color_in, wp.vec3)
+        self._check("color_out", color_out, wp.vec3)
+        if nearest is None:
+            nearest = self.nearest
+        else:
+            self._check("nearest", nearest, wp.vec2i)
+        dev = self.device
+        sibson = self.config.sibson or self.exact_sibson
+        self.max_radius.zero_()
+        self.max_radius_sq.zero_()
+        self.unreached.zero_()
+        wp.launch_tiled(
+            voronoi_finalize_kernel, dim=[self._num_blocks],
+            inputs=[nearest, color_in, 0 if sibson else 1],
+            outputs=[self.voronoi, color_out, self.max_radius_sq, self.max_radius, self.unreached],
+            block_dim=self._block_dim, device=dev,
+        )
+        if not sibson:
+            return
+        dim = (self.height, self.width)
+        if self.exact_sibson:
+            self._accum.zero_()
+            wp.launch(sibson_scatter_kernel, dim=dim, inputs=[nearest, self.voronoi], outputs=[self._accum],
+                      device=dev)
+            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[nearest, self.voronoi, self._accum],
+                      outputs=[color_out], device=dev)
+        else:
+            wp.launch(sibson_gather_kernel, dim=dim,
+                      inputs=[nearest, self.voronoi, int(self.window), self.max_radius_sq],
+                      outputs=[color_out], device=dev)
+
+    def run(self, color_in, seed_mask, color_out) -> None:
+        """One frame: JFA over ``seed_mask`` ((H, W) uint8), then interpolation of ``color_in`` ((H, W) vec3,
+        read at seeds only) into ``color_out`` ((H, W) vec3; may not alias ``color_in``). Seeds keep their
+        color. Launches only: no allocation, no host synchronization (CUDA-graph capturable)."""
+        if color_in is color_out:
+            raise ValueError("color_out must be a different array from color_in")
+        self.run_jfa(seed_mask)
+        self.run_interpolate(color_in, color_out)

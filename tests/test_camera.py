@@ -1,0 +1,98 @@
+"""Camera: projection round trips and matrices against independent NumPy formulas."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import foveawarp as fw
+
+finite = st.floats(-50, 50, allow_nan=False)
+
+
+def _lookat_np(eye, target, up):
+    # independent Gram-Schmidt construction of the camera frame
+    f = np.asarray(target, float) - np.asarray(eye, float)
+    f = f / np.sqrt((f * f).sum())
+    upv = np.asarray(up, float)
+    r = np.array([f[1] * upv[2] - f[2] * upv[1], f[2] * upv[0] - f[0] * upv[2], f[0] * upv[1] - f[1] * upv[0]])
+    r = r / np.sqrt((r * r).sum())
+    u = np.array([r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0]])
+    return r, u, f
+
+
+@settings(max_examples=60, deadline=None)
+@given(ex=finite, ey=finite, ez=finite, tx=finite, ty=finite, tz=finite, fov=st.floats(5.0, 170.0),
+       px=st.floats(0, 64), py=st.floats(0, 48))
+def test_ray_then_project_round_trip(ex, ey, ez, tx, ty, tz, fov, px, py):
+    eye, tgt = (ex, ey, ez), (tx, ty, tz)
+    d = np.subtract(tgt, eye)
+    if np.linalg.norm(d) < 1e-3 or abs(d[1]) / np.linalg.norm(d) > 0.999:
+        return
+    cam = fw.Camera(eye=eye, target=tgt, up=(0, 1, 0), fov_y_deg=fov)
+    w, h = 64, 48
+    dirs = cam.ray_dirs(np.array([px]), np.array([py]), w, h)
+    pts = np.asarray(eye) + dirs * 3.7
+    back = cam.project(pts, w, h)[0]
+    assert back[2] > 0
+    np.testing.assert_allclose(back[:2], [px, py], atol=1e-6 * max(1.0, w))
+
+
+def test_matrices_match_projection():
+    cam = fw.Camera(eye=(1.0, 2.0, 5.0), target=(0.2, 0.8, -1.0), up=(0, 1, 0), fov_y_deg=50.0)
+    w, h = 80, 50
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(100, 3)) + np.array([0.2, 0.8, -1.0])
+    V = cam.view_matrix()
+    P = cam.projection_matrix(w / h, 0.01, 100.0)
+    hom = np.c_[pts, np.ones(len(pts))] @ (P @ V).T
+    ndc = hom[:, :3] / hom[:, 3:4]
+    px = (ndc[:, 0] + 1) * 0.5 * w
+    py = (1 - ndc[:, 1]) * 0.5 * h
+    proj = cam.project(pts, w, h)
+    front = proj[:, 2] > 0
+    np.testing.assert_allclose(proj[front, 0], px[front], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(proj[front, 1], py[front], rtol=1e-9, atol=1e-9)
+    # view-space z equals the distance along the independently built forward axis
+    r, u, f = _lookat_np(cam.eye, cam.target, cam.up)
+    np.testing.assert_allclose(proj[:, 2], (pts - cam.eye) @ f, rtol=1e-12)
+
+
+def test_pixel_centre_ray_directions_against_pinhole_formula():
+    cam = fw.Camera(eye=(0, 0, 0), target=(0, 0, -1), up=(0, 1, 0), fov_y_deg=90.0)
+    w, h = 4, 2
+    xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = cam.ray_dirs(xs, ys, w, h)
+    # with fov 90 the image plane at distance 1 spans [-aspect, aspect] x [-1, 1]
+    x_plane = (xs / w * 2 - 1) * (w / h)
+    y_plane = 1 - ys / h * 2
+    expect = np.stack([x_plane, y_plane, -np.ones_like(xs)], -1)
+    expect /= np.linalg.norm(expect, axis=-1, keepdims=True)
+    np.testing.assert_allclose(d, expect, atol=1e-12)
+
+
+def test_gaze_direction_round_trip():
+    cam = fw.Camera(eye=(0, 1, 3), target=(0, 1, 0), fov_y_deg=60)
+    for g in [(10.0, 20.0), (160.0, 90.0), (-200.0, 50.0), (500.0, -300.0)]:
+        d = cam.gaze_to_dir(g, 320, 180)
+        back = cam.dir_to_gaze(d, 320, 180)
+        np.testing.assert_allclose(back, g, atol=1e-6)
+
+
+@pytest.mark.parametrize("fov", [0.0, -5.0, 180.0, 200.0, float("nan"), float("inf")])
+def test_bad_fov(fov):
+    with pytest.raises(ValueError, match="fov_y_deg"):
+        fw.Camera(fov_y_deg=fov)
+
+
+def test_bad_camera_vectors():
+    with pytest.raises(ValueError, match="target"):
+        fw.Camera(eye=(1, 1, 1), target=(1, 1, 1))
+    with pytest.raises(ValueError, match="up"):
+        fw.Camera(eye=(0, 0, 0), target=(0, 1, 0), up=(0, 1, 0))
+    with pytest.raises(ValueError, match="eye"):
+        fw.Camera(eye=(0, float("nan"), 0))
+    with pytest.raises(ValueError, match="gaze_px"):
+        fw.Camera().gaze_to_dir((float("nan"), 1.0), 10, 10)
