@@ -45,7 +45,7 @@ def as_wp(a, dtype, device, *, name: str = "array", ndim: int | None = None, sha
         raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(arr.shape)}")
     if ndim is not None and arr.ndim != ndim:
         raise ValueError(f"{name} must have {ndim} dimensions, got shape {tuple(arr.shape)}")
-    np_dtype = wp.dtype_to_numpy(wp.types.type_scalar_type(dtype))
+    np_dtype = wp.dtype_to_numpy(getattr(dtype, "_wp_scalar_type_", dtype))
     return wp.array(np.ascontiguousarray(arr, dtype=np_dtype), dtype=dtype, device=dev)
 
 
