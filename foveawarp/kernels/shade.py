@@ -205,3 +205,32 @@ def shade_masked_kernel(
         return
     out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
                             area_lights, face_emission)
+
+
+@wp.kernel(enable_backward=False)
+def shade_rows_kernel(
+    sp: ShadeParams,
+    coords: wp.array2d(dtype=wp.vec2i),
+    counts: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """Row-CSR launch (thesis strategies 1/2): thread (v, u) shades coords[v, u] when u < counts[v]."""
+    v, u = wp.tid()
+    if u >= counts[v]:
+        return
+    c = coords[v, u]
+    x = c[0]
+    y = c[1]
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        return
+    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                            area_lights, face_emission)

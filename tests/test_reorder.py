@@ -1,0 +1,120 @@
+"""Compaction / reordering against NumPy references (thesis A3 strategies 1 and 2, scan and Morton tiles)."""
+
+import numpy as np
+import pytest
+import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import foveawarp as fw
+from foveawarp.stages.reorder import ReorderStage
+
+
+def morton_ref(tx, ty):
+    """Bit-by-bit interleave (independent of the stage's magic-number version)."""
+    code = 0
+    for b in range(16):
+        code |= ((tx >> b) & 1) << (2 * b)
+        code |= ((ty >> b) & 1) << (2 * b + 1)
+    return code
+
+
+def tile_order_ref(mask, tile):
+    h, w = mask.shape
+    out = []
+    tiles = [(morton_ref(tx, ty), ty, tx) for ty in range((h + tile - 1) // tile) for tx in range((w + tile - 1) // tile)]
+    for _, ty, tx in sorted(tiles):
+        for y in range(ty * tile, min(h, ty * tile + tile)):
+            for x in range(tx * tile, min(w, tx * tile + tile)):
+                if mask[y, x]:
+                    out.append(y * w + x)
+    return np.array(out, dtype=np.int64)
+
+
+def rows_ref(mask):
+    h, w = mask.shape
+    coords = [[(x, y) for x in range(w) if mask[y, x]] for y in range(h)]
+    return coords
+
+
+def balance_ref(rows, k):
+    rows = [list(r) for r in rows]
+    for b0 in range(0, len(rows), k):
+        blk = list(range(b0, min(b0 + k, len(rows))))
+        while True:
+            lens = [len(rows[r]) for r in blk]
+            imax = blk[int(np.argmax(lens))]  # argmax/argmin take the first (lowest index) on ties
+            imin = blk[int(np.argmin(lens))]
+            if len(rows[imax]) - len(rows[imin]) <= 1:
+                break
+            rows[imin].append(rows[imax].pop())
+    return rows
+
+
+MASKS = {
+    "random30": lambda r: r.random((45, 67)) < 0.3,
+    "foveated": lambda r: r.random((45, 67)) < np.clip(
+        1.0 - np.hypot(*np.meshgrid(np.arange(67) - 20, np.arange(45) - 30)) / 40.0, 0.05, 1.0),
+    "empty": lambda r: np.zeros((45, 67), bool),
+    "full": lambda r: np.ones((45, 67), bool),
+}
+
+
+@pytest.mark.parametrize("kind", list(MASKS))
+def test_compact_row_and_tile(kind, device, rng):
+    m = MASKS[kind](rng)
+    row = fw.ops.compact(m, order="row", device=device)
+    np.testing.assert_array_equal(row, np.flatnonzero(m))
+    tile = fw.ops.compact(m, order="tile", tile=8, device=device)
+    np.testing.assert_array_equal(tile, tile_order_ref(m, 8))
+    assert len(np.unique(tile)) == len(tile) == m.sum()
+
+
+@pytest.mark.parametrize("kind", list(MASKS))
+@pytest.mark.parametrize("k", [0, 1, 4, 8])
+def test_reorder_rows_strategies(kind, k, device, rng):
+    m = MASKS[kind](rng)
+    coords, counts = fw.ops.reorder_rows(m, balance_rows=k, device=device)
+    ref = rows_ref(m)
+    if k:
+        ref = balance_ref(ref, k)
+    np.testing.assert_array_equal(counts, [len(r) for r in ref])
+    for y, r in enumerate(ref):
+        np.testing.assert_array_equal(coords[y, : len(r)], np.array(r, dtype=np.int32).reshape(-1, 2))
+    # every sampled pixel appears exactly once
+    allc = np.concatenate([coords[y, : counts[y]] for y in range(m.shape[0])]) if counts.sum() else np.zeros((0, 2))
+    got = np.sort(allc[:, 1].astype(np.int64) * m.shape[1] + allc[:, 0]) if len(allc) else np.zeros(0)
+    np.testing.assert_array_equal(got, np.flatnonzero(m))
+    if k:
+        for b0 in range(0, m.shape[0], k):
+            c = counts[b0:b0 + k]
+            assert c.max() - c.min() <= 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.bool_, st.tuples(st.integers(1, 19), st.integers(1, 23))), st.integers(1, 5))
+def test_compaction_properties(mask, k):
+    row = fw.ops.compact(mask, order="row", device="cpu")
+    np.testing.assert_array_equal(row, np.flatnonzero(mask))
+    tile = fw.ops.compact(mask, order="tile", tile=4, device="cpu")
+    np.testing.assert_array_equal(np.sort(tile), np.flatnonzero(mask))
+    _, counts = fw.ops.reorder_rows(mask, balance_rows=k, device="cpu")
+    assert counts.sum() == mask.sum()
+
+
+def test_count_stays_on_device_and_list_is_capacity_sized(device, rng):
+    m = rng.random((30, 40)) < 0.2
+    st_ = ReorderStage(40, 30, fw.ReorderConfig(strategy="tile"), device)
+    st_.run(wp.array(m.astype(np.uint8), dtype=wp.uint8, device=device))
+    assert st_.work.shape[0] == 1200 and isinstance(st_.count, wp.array)
+    assert int(st_.count.numpy()[0]) == m.sum()
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="order"):
+        fw.ops.compact(np.ones((4, 4)), order="zigzag")
+    with pytest.raises(ValueError, match="mask"):
+        fw.ops.compact(np.ones(4))
+    with pytest.raises(ValueError, match="balance_rows"):
+        fw.ops.reorder_rows(np.ones((4, 4)), balance_rows=-1)
