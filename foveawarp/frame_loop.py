@@ -16,7 +16,7 @@ from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
 from .config import Config
 from .kernels.gbuffer import gbuffer_kernel
-from .kernels.shade import ShadeParams, shade_full_kernel, shade_list_kernel, shade_masked_kernel
+from .kernels.shade import ShadeParams, shade_full_kernel, shade_list_kernel, shade_masked_kernel, shade_rows_kernel
 from .kernels.tonemap import tonemap_kernel
 from .scene import DeviceScene, Scene, load_scene
 
@@ -54,9 +54,35 @@ class FrameLoop:
         self.radiance = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.image = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.full_map = wp.ones((h, w), dtype=wp.uint8, device=dev)
+        from .stages.dof import DofStage
+        from .stages.indirect import IndirectStage
+
+        cfg = self.config
+        self.dof = DofStage(w, h, cfg.dof, dev) if cfg.dof.enabled else None
+        self.dof_out = wp.zeros((h, w), dtype=wp.vec3, device=dev) if cfg.dof.enabled else None
+        self.indirect = (IndirectStage(self.dscene, cfg.indirect, dev) if cfg.shading.indirect == "lighttree"
+                         else None)
+        self.sampling = self.reorder = self.temporal = self.reconstruct = self.recon = None
         self.frame_index = 0
         self.prev_camera: Optional[Camera] = None
+        self._ref_prev_camera: Optional[Camera] = None
         self._stats: dict = {}
+
+    def _ensure_foveated_stages(self) -> None:
+        """Allocate the foveated stages' buffers (once, on the first ``render``)."""
+        if self.sampling is not None:
+            return
+        from .stages.reconstruct import ReconstructStage
+        from .stages.reorder import ReorderStage
+        from .stages.sampling import SamplingStage
+        from .stages.temporal import TemporalStage
+
+        w, h, dev, cfg = self.width, self.height, self.device, self.config
+        self.sampling = SamplingStage(w, h, cfg, dev)
+        self.reorder = ReorderStage(w, h, cfg.reorder, dev)
+        self.temporal = TemporalStage(w, h, cfg.temporal, dev)
+        self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev)
+        self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
 
     # -- helpers ---------------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -149,39 +175,227 @@ class FrameLoop:
                   float(sc.white_point)], outputs=[out], device=self.device)
 
     # -- public ------------------------------------------------------------------------------------------
-    def render_reference(self, camera: Optional[Camera] = None, *, time: Optional[float] = None) -> Frame:
-        """G-buffer + shading at every pixel, full resolution, no reuse (the error reference)."""
+    def render_reference(self, camera: Optional[Camera] = None, *, time: Optional[float] = None,
+                         gaze_px=None, dof: bool = True) -> Frame:
+        """G-buffer + shading (+ indirect, + depth of field when configured, focused at ``gaze_px``) at every
+        pixel, full resolution, no reuse: the error reference. It does not disturb the foveated history."""
         camera = self._check_camera(camera)
         self._stats = {}
         t0 = _now()
         with self._stage("scene"):
             self._advance_scene(time)
         with self._stage("gbuffer"):
-            self._gbuffer(camera, self.prev_camera or camera)
+            self._gbuffer(camera, self._ref_prev_camera or camera)
         with self._stage("shade"):
             self.shade_full(camera)
+        with self._stage("indirect"):
+            if self.indirect is not None:
+                self.indirect.update()
+                self.indirect.run_full(self.gbuffer, self.radiance)
+        hdr = self.radiance
+        with self._stage("dof"):
+            if self.config.dof.enabled and dof:
+                cfgd = self.config.dof
+                focus = (cfgd.focus_depth_m if cfgd.focus_depth_m is not None else
+                         self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit,
+                                                 (self.width * 0.5, self.height * 0.5) if gaze_px is None else
+                                                 _check_gaze(gaze_px), fov_y_deg=camera.fov_y_deg))
+                self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, focus, self.dof_out,
+                             fov_y_deg=camera.fov_y_deg)
+                hdr = self.dof_out
         with self._stage("tonemap"):
-            self._tonemap(self.radiance, self.image)
+            self._tonemap(hdr, self.image)
         wp.synchronize_device(self.device)
         n = self.width * self.height
         stats = dict(self._stats)
         stats.update(sampling_rate=1.0, cache_hit_rate=0.0, rays_traced=n, frame_index=self.frame_index,
                      ms_frame=(_now() - t0) * 1e3, skipped={})
-        self.prev_camera = camera
-        self.frame_index += 1
+        self._ref_prev_camera = camera
         return Frame(self.image, self.full_map, self.gbuffer, stats)
 
-    def render(self, camera: Optional[Camera] = None, gaze_px=None, *, time: Optional[float] = None) -> Frame:
-        """Render one foveated frame for ``camera`` with the gaze at ``gaze_px`` (pixels; None = centre;
-        off screen is valid). ``time`` (seconds) moves animated objects."""
+    def render(self, camera: Optional[Camera] = None, gaze_px=None, *, time: Optional[float] = None,
+               cut: bool = False) -> Frame:
+        """Render one foveated frame for ``camera`` with the gaze at ``gaze_px`` (pixels; None = screen centre;
+        off screen is valid). ``time`` (seconds) moves animated objects; ``cut=True`` forces a camera cut (no
+        reprojection from the previous frame)."""
         camera = self._check_camera(camera)
         gaze = (self.width * 0.5, self.height * 0.5) if gaze_px is None else _check_gaze(gaze_px)
-        frame = self.render_reference(camera, time=time)
-        frame.stats["gaze_px"] = gaze
-        frame.stats["skipped"] = {
-            "foveation": "foveated stages not built yet: reference path",
-        }
-        return frame
+        self._ensure_foveated_stages()
+        cfg = self.config
+        self._stats = {}
+        skipped: dict = {}
+        t0 = _now()
+        with self._stage("scene"):
+            geometry_moved = self._advance_scene(time)
+        first = self.prev_camera is None
+        if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
+            cut = True
+        if first or cut:
+            skipped["reprojection"] = "first frame" if first else "camera cut"
+            self.temporal.reset()
+            self.dscene.reset_history()
+        prev_cam = camera if (first or cut) else self.prev_camera
+        camera_moved = prev_cam != camera
+        moving = bool(geometry_moved or camera_moved)
+        if not self.scene.is_animated:
+            skipped["bvh_refit"] = "static scene"
+        with self._stage("gbuffer"):
+            self._gbuffer(camera, prev_cam)
+
+        foveated = cfg.foveation.enabled
+        with self._stage("sampling"):
+            if foveated:
+                self.sampling.run(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
+                                  first_frame=first or cut, eye_prev=prev_cam.eye)
+                smap = self.sampling.sample_map
+                skipped.update(self.sampling.skipped)
+            else:
+                smap = self.full_map
+                skipped["sampling"] = "foveation disabled: sampling rate 1"
+        strategy = cfg.reorder.strategy if foveated else "full"
+        with self._stage("reorder"):
+            if strategy in ("scan", "tile", "rows", "rows+balance"):
+                self.reorder.run(smap)
+            elif not foveated:
+                skipped["reorder"] = "sampling rate 1: every pixel traced"
+        with self._stage("shade"):
+            self._trace(camera, smap, strategy)
+        with self._stage("indirect"):
+            self._indirect(smap, strategy, skipped)
+        with self._stage("temporal"):
+            if foveated:
+                self.temporal.run(smap, self.sampling.cache_hit, self.sampling.prev_index, self.radiance,
+                                  use_history=not (first or cut))
+        with self._stage("reconstruct"):
+            if foveated:
+                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
+                hdr = self.recon
+            else:
+                skipped["reconstruct"] = "sampling rate 1: nothing to fill"
+                hdr = self.radiance
+        with self._stage("dof"):
+            if cfg.dof.enabled:
+                focus = (cfg.dof.focus_depth_m if cfg.dof.focus_depth_m is not None else
+                         self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze,
+                                                 fov_y_deg=camera.fov_y_deg))
+                self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, focus, self.dof_out,
+                             fov_y_deg=camera.fov_y_deg)
+                hdr = self.dof_out
+            else:
+                skipped["dof"] = "pinhole camera (aperture 0)"
+        with self._stage("tonemap"):
+            self._tonemap(hdr, self.image)
+        if foveated:
+            self.sampling.end_frame(self.gbuffer, self.temporal.filled)
+        n = self.width * self.height
+        stats = _LazyStats(dict(self._stats))
+        stats["skipped"] = skipped
+        stats["gaze_px"] = gaze
+        stats["frame_index"] = self.frame_index
+        stats["strategy"] = strategy
+        if foveated:
+            ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
+            stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
+            stats.defer("cache_hit_rate", lambda: float(nh.numpy()[0]) / n)
+            stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
+        else:
+            stats.update(sampling_rate=1.0, cache_hit_rate=0.0, rays_traced=n + n * self._rays_per_sample())
+        if self.timing:
+            wp.synchronize_device(self.device)
+            stats["ms_frame"] = (_now() - t0) * 1e3
+        self.prev_camera = camera
+        self.frame_index += 1
+        extras = {"sparse": self.temporal.color, "filled": self.temporal.filled} if foveated else {}
+        return Frame(self.image, smap, self.gbuffer, stats, extras)
+
+    def _rays_per_sample(self) -> int:
+        """Secondary rays per shaded pixel (shadow rays, area-light samples, AO rays)."""
+        sc = self.config.shading
+        r = self.dscene.num_lights * (1 if sc.shadows else 0)
+        r += self.dscene.num_area_lights * sc.area_light_samples * (1 if sc.shadows else 0)
+        return r + sc.ao_samples
+
+    def _trace(self, camera: Camera, smap, strategy: str) -> None:
+        if strategy == "full":
+            self.shade_full(camera)
+        elif strategy == "none":
+            self.shade_masked(camera, smap)
+        elif strategy in ("rows", "rows+balance"):
+            wp.launch(shade_rows_kernel, dim=(self.height, self.width),
+                      inputs=[self.shade_params(camera), self.reorder.coords, self.reorder.counts,
+                              *self._shade_inputs()], outputs=[self.radiance], device=self.device)
+        else:
+            self.shade_list(camera, self.reorder.work, self.reorder.count)
+
+    def _indirect(self, smap, strategy: str, skipped: dict) -> None:
+        if self.indirect is None:
+            skipped["indirect"] = "ShadingConfig.indirect is 'none'"
+            return
+        self.indirect.update()
+        skipped.update(self.indirect.skipped)
+        if strategy == "full":
+            self.indirect.run_full(self.gbuffer, self.radiance)
+            return
+        if strategy not in ("scan", "tile"):
+            # the row and masked launches have no flat list: compact one for the gather
+            self.reorder.run(smap, strategy="scan")
+        self.indirect.run_list(self.gbuffer, self.reorder.work, self.reorder.count, self.radiance, self.width)
+
+
+class _LazyStats(dict):
+    """A dict whose device-counter entries are read (one small host copy) only when first accessed."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self._pending = {}
+
+    def defer(self, key, fn) -> None:
+        self._pending[key] = fn
+
+    def _resolve(self) -> None:
+        if self._pending:
+            pending, self._pending = self._pending, {}
+            for k, fn in pending.items():
+                dict.__setitem__(self, k, fn())
+
+    def __getitem__(self, k):
+        self._resolve()
+        return dict.__getitem__(self, k)
+
+    def __contains__(self, k):
+        return k in self._pending or dict.__contains__(self, k)
+
+    def __iter__(self):
+        self._resolve()
+        return dict.__iter__(self)
+
+    def __len__(self):
+        self._resolve()
+        return dict.__len__(self)
+
+    def __repr__(self):
+        self._resolve()
+        return dict.__repr__(self)
+
+    def get(self, k, default=None):
+        self._resolve()
+        return dict.get(self, k, default)
+
+    def keys(self):
+        self._resolve()
+        return dict.keys(self)
+
+    def items(self):
+        self._resolve()
+        return dict.items(self)
+
+    def values(self):
+        self._resolve()
+        return dict.values(self)
+
+    def copy(self):
+        self._resolve()
+        return dict(self)
 
 
 def _now() -> float:
