@@ -39,6 +39,21 @@ def psnr(a, b, mask=None, data_range: float = 1.0) -> float:
 
 def ssim(a, b, mask=None) -> float:
     """SSIM (scikit-image, Gaussian weights, sigma 1.5, data_range 1), averaged over ``mask`` when given."""
+    val, smap = _ssim_map(a, b)
+    if mask is None:
+        return val
+    return _masked_mean(smap, mask)
+
+
+def _masked_mean(smap, mask) -> float:
+    m = np.asarray(mask, dtype=bool)
+    if not m.any():
+        return float("nan")
+    return float(smap[m].mean())
+
+
+def _ssim_map(a, b):
+    """(mean SSIM, per-pixel SSIM map averaged over channels)."""
     from skimage.metrics import structural_similarity
 
     x, y = _img(a, "a"), _img(b, "b")
@@ -50,14 +65,9 @@ def ssim(a, b, mask=None) -> float:
     if min(x.shape[:2]) < 7:
         raise ValueError(f"ssim needs images at least 7 x 7, got {x.shape[:2]}")
     val, smap = structural_similarity(x, y, **kw)
-    if mask is None:
-        return float(val)
-    m = np.asarray(mask, dtype=bool)
-    if not m.any():
-        return float("nan")
     if smap.ndim == 3:
         smap = smap.mean(axis=2)
-    return float(smap[m].mean())
+    return float(val), smap
 
 
 def eccentricity_np(width: int, height: int, gaze_px, fov_y_deg: float) -> np.ndarray:
@@ -84,10 +94,11 @@ def region_metrics(img, ref, gaze_px, fov_y_deg: float) -> dict:
     """PSNR and SSIM over the whole frame and each eccentricity region."""
     x, y = _img(img, "img"), _img(ref, "ref")
     h, w = x.shape[:2]
-    out = {"psnr": psnr(x, y), "ssim": ssim(x, y)}
+    val, smap = _ssim_map(x, y)
+    out = {"psnr": psnr(x, y), "ssim": val}
     for k, m in region_masks(w, h, gaze_px, fov_y_deg).items():
         out[f"psnr_{k}"] = psnr(x, y, mask=m)
-        out[f"ssim_{k}"] = ssim(x, y, mask=m)
+        out[f"ssim_{k}"] = _masked_mean(smap, m)
     return out
 
 
