@@ -215,7 +215,7 @@ def dof_gather_kernel(
 
     ``out`` may be ``color``: a thread reads ``color`` only at its own pixel."""
     y, x = wp.tid()
-    wn = window[y / tile, x / tile]
+    wn = window[y // tile, x // tile]
     c_q = coc[y, x]
     y0 = wp.max(y - wn, 0)
     y1 = wp.min(y + wn, p.height - 1)
@@ -277,16 +277,22 @@ def dof_focus_at_pixel_kernel(
 ):
     """out_focus[0] = view depth (metres) at the pixel holding the gaze point (clamped onto the screen);
     FOCUS_FAR_M where that pixel is a miss or its depth is not positive and finite."""
-    gx = wp.clamp(gaze_x, 0.0, float(p.width) - 0.5)
-    gy = wp.clamp(gaze_y, 0.0, float(p.height) - 0.5)
+    gx = gaze_x
+    gy = gaze_y
     if wp.isnan(gx):
         gx = 0.5 * float(p.width)
     if wp.isnan(gy):
         gy = 0.5 * float(p.height)
+    gx = wp.clamp(gx, 0.0, float(p.width) - 0.5)
+    gy = wp.clamp(gy, 0.0, float(p.height) - 0.5)
     x = wp.clamp(int(gx), 0, p.width - 1)
     y = wp.clamp(int(gy), 0, p.height - 1)
+    is_hit = int(1)
+    if p.use_hit != 0:
+        if hit[y, x] == wp.uint8(0):
+            is_hit = 0
     f = FOCUS_FAR_M
-    if p.use_hit == 0 or hit[y, x] != wp.uint8(0):
+    if is_hit != 0:
         z = view_depth(p, depth[y, x], x, y)
         if z > 0.0 and z < FOCUS_FAR_M:
             f = z
