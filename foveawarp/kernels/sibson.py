@@ -9,10 +9,11 @@ Two forms of the same sum:
   farther q can reach p.
 * ``sibson_scatter_kernel`` + ``sibson_resolve_kernel``: Park's scatter with atomics (the exact reference).
 
-Both read the "Voronoi buffer" written by ``voronoi_finalize_kernel``: per pixel q, ``vec4(rgb, r2)`` with
-rgb the (finite) color of q's nearest seed and r2 = ``r_q^2`` in pixels^2 (-1 where q has no seed).
-Seeds always output their own color; pixels that received nothing output their Voronoi color (0 without a
-seed), so no output is NaN/Inf.
+Both read the Voronoi buffers written by ``voronoi_finalize_kernel``: per pixel q, ``vor_color`` (the finite
+color of q's nearest seed; 0 where q has none) and ``vor_r2`` = ``r_q^2`` in pixels^2 (exact int32; 0 exactly
+at seeds; -1 where q has no seed). The gather reads the 4-byte r2 at every tap and the color only at the taps
+that cover p. Seeds always output their own color; pixels that received nothing output their Voronoi color
+(0 without a seed), so no output is NaN/Inf.
 """
 
 import warp as wp
@@ -22,7 +23,8 @@ from .jfa import seed_dist2
 
 @wp.func
 def isqrt(n: int) -> int:
-    """floor(sqrt(n)) for n >= 0 (0 for n < 0), exact for every int32."""
+    """floor(sqrt(n)); 0 for n <= 0. Exact for n < 46340^2, which covers every squared distance of a
+    16384 x 16384 image ((r + 1)^2 would overflow int32 above)."""
     if n <= 0:
         return 0
     r = int(wp.sqrt(float(n)))
@@ -40,18 +42,13 @@ def finite_or_zero(c: wp.vec3) -> wp.vec3:
     return wp.vec3(0.0, 0.0, 0.0)
 
 
-@wp.func
-def is_seed(nearest: wp.array2d(dtype=wp.vec2i), x: int, y: int) -> bool:
-    s = nearest[y, x]
-    return s[0] == x and s[1] == y
-
-
 @wp.kernel(enable_backward=False)
 def voronoi_finalize_kernel(
     nearest: wp.array2d(dtype=wp.vec2i),
     color_in: wp.array2d(dtype=wp.vec3),
     write_out: int,
-    vor: wp.array2d(dtype=wp.vec4),
+    vor_color: wp.array2d(dtype=wp.vec3),
+    vor_r2: wp.array2d(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
     max_r2: wp.array(dtype=wp.int32),
     max_radius: wp.array(dtype=wp.float32),
@@ -59,9 +56,9 @@ def voronoi_finalize_kernel(
 ):
     """Tiled launch over the flattened image (any block size; 1 on the CPU).
 
-    Writes ``vor`` (and the Voronoi color to ``color_out`` when ``write_out`` != 0), and reduces per block the
-    largest r2 (into ``max_r2`` / ``max_radius``, pixels^2 / pixels) and the count of pixels without a seed.
-    The three statistics must be zeroed before the launch.
+    Writes ``vor_color`` / ``vor_r2`` (and the Voronoi color to ``color_out`` when ``write_out`` != 0), and
+    reduces per block the largest r2 (into ``max_r2`` / ``max_radius``, pixels^2 / pixels) and the count of
+    pixels without a seed (into ``unreached``). The three statistics must be zeroed before the launch.
     """
     blk, lane = wp.tid()
     h = nearest.shape[0]
@@ -74,14 +71,15 @@ def voronoi_finalize_kernel(
         x = idx - y * w
         s = nearest[y, x]
         c = wp.vec3(0.0, 0.0, 0.0)
-        r2w = float(-1.0)
+        r2w = int(-1)
         if s[0] >= 0:
             c = finite_or_zero(color_in[s[1], s[0]])
             r2 = seed_dist2(x, y, s)
-            r2w = float(r2)
+            r2w = r2
         else:
             missing = 1
-        vor[y, x] = wp.vec4(c[0], c[1], c[2], r2w)
+        vor_color[y, x] = c
+        vor_r2[y, x] = r2w
         if write_out != 0:
             color_out[y, x] = c
     # cooperative block reductions: every thread of the block reaches them
@@ -98,19 +96,18 @@ def voronoi_finalize_kernel(
 
 @wp.kernel(enable_backward=False)
 def sibson_gather_kernel(
-    nearest: wp.array2d(dtype=wp.vec2i),
-    vor: wp.array2d(dtype=wp.vec4),
+    vor_color: wp.array2d(dtype=wp.vec3),
+    vor_r2: wp.array2d(dtype=wp.int32),
     window: int,
     max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
 ):
     """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
     y, x = wp.tid()
-    h = vor.shape[0]
-    w = vor.shape[1]
-    v = vor[y, x]
-    own = wp.vec3(v[0], v[1], v[2])
-    if is_seed(nearest, x, y):
+    h = vor_r2.shape[0]
+    w = vor_r2.shape[1]
+    own = vor_color[y, x]
+    if vor_r2[y, x] == 0:  # a seed keeps its color
         color_out[y, x] = own
         return
     # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc
@@ -125,9 +122,8 @@ def sibson_gather_kernel(
         x0 = wp.max(-dxm, -x)
         x1 = wp.min(dxm, w - 1 - x)
         for dx in range(x0, x1 + 1):
-            q = vor[y + dy, x + dx]
-            if float(dx * dx + dy * dy) <= q[3]:
-                acc = acc + wp.vec3(q[0], q[1], q[2])
+            if dx * dx + dy * dy <= vor_r2[y + dy, x + dx]:
+                acc = acc + vor_color[y + dy, x + dx]
                 n = n + 1
     if n > 0:
         color_out[y, x] = acc / float(n)
@@ -137,22 +133,22 @@ def sibson_gather_kernel(
 
 @wp.kernel(enable_backward=False)
 def sibson_scatter_kernel(
-    nearest: wp.array2d(dtype=wp.vec2i),
-    vor: wp.array2d(dtype=wp.vec4),
+    vor_color: wp.array2d(dtype=wp.vec3),
+    vor_r2: wp.array2d(dtype=wp.int32),
     accum: wp.array2d(dtype=wp.vec4),
 ):
     """Park et al.'s scatter: q adds ``vec4(color(seed(q)), 1)`` to every p with ``|p - q| <= r_q``.
 
-    ``accum`` must be zeroed first. Cost is the sum of the disc areas (unbounded radius)."""
+    ``accum`` must be zeroed first. Cost is the sum of the disc areas, about N / seed density taps in all for
+    N pixels: slow with few seeds at large sizes (a lone seed makes it quadratic in N)."""
     y, x = wp.tid()
-    h = vor.shape[0]
-    w = vor.shape[1]
-    s = nearest[y, x]
-    if s[0] < 0:
+    h = vor_r2.shape[0]
+    w = vor_r2.shape[1]
+    r2 = vor_r2[y, x]
+    if r2 < 0:
         return
-    r2 = seed_dist2(x, y, s)
-    v = vor[y, x]
-    add = wp.vec4(v[0], v[1], v[2], 1.0)
+    c = vor_color[y, x]
+    add = wp.vec4(c[0], c[1], c[2], 1.0)
     r = isqrt(r2)
     y0 = wp.max(-r, -y)
     y1 = wp.min(r, h - 1 - y)
@@ -166,17 +162,16 @@ def sibson_scatter_kernel(
 
 @wp.kernel(enable_backward=False)
 def sibson_resolve_kernel(
-    nearest: wp.array2d(dtype=wp.vec2i),
-    vor: wp.array2d(dtype=wp.vec4),
+    vor_color: wp.array2d(dtype=wp.vec3),
+    vor_r2: wp.array2d(dtype=wp.int32),
     accum: wp.array2d(dtype=wp.vec4),
     color_out: wp.array2d(dtype=wp.vec3),
 ):
     """Average of the scattered colors; seeds keep their color; nothing received -> Voronoi color."""
     y, x = wp.tid()
-    v = vor[y, x]
-    own = wp.vec3(v[0], v[1], v[2])
+    own = vor_color[y, x]
     a = accum[y, x]
-    if is_seed(nearest, x, y) or a[3] <= 0.0:
+    if vor_r2[y, x] == 0 or a[3] <= 0.0:
         color_out[y, x] = own
     else:
         color_out[y, x] = wp.vec3(a[0], a[1], a[2]) / a[3]

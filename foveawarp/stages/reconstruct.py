@@ -107,7 +107,9 @@ class ReconstructStage:
 
     Buffers (all on ``device``, overwritten by each ``run``):
         nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found.
-        voronoi: (H, W) ``wp.vec4``, (rgb of the nearest seed, squared distance to it in pixels^2; -1: none).
+        voronoi_color: (H, W) ``wp.vec3``, color of the nearest seed (0 where none was found).
+        radius_sq: (H, W) int32, squared distance r_q^2 to the nearest seed in pixels^2 (0 exactly at seeds,
+            -1 where none was found).
         max_radius: (1,) float32, the largest nearest-seed distance r_q in pixels (0 without seeds).
         max_radius_sq: (1,) int32, its square (exact), pixels^2.
         unreached: (1,) int32, pixels for which no seed was found (all of them without seeds; nonzero with a
@@ -142,7 +144,8 @@ class ReconstructStage:
         dev = self.device
         self.nearest = wp.empty(shape, dtype=wp.vec2i, device=dev)
         self._pong = wp.empty(shape, dtype=wp.vec2i, device=dev) if self.steps else None
-        self.voronoi = wp.zeros(shape, dtype=wp.vec4, device=dev)
+        self.voronoi_color = wp.zeros(shape, dtype=wp.vec3, device=dev)
+        self.radius_sq = wp.zeros(shape, dtype=wp.int32, device=dev)
         self.max_radius = wp.zeros(1, dtype=wp.float32, device=dev)
         self.max_radius_sq = wp.zeros(1, dtype=wp.int32, device=dev)
         self.unreached = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -191,21 +194,20 @@ class ReconstructStage:
         wp.launch_tiled(
             voronoi_finalize_kernel, dim=[self._num_blocks],
             inputs=[nearest, color_in, 0 if sibson else 1],
-            outputs=[self.voronoi, color_out, self.max_radius_sq, self.max_radius, self.unreached],
+            outputs=[self.voronoi_color, self.radius_sq, color_out, self.max_radius_sq, self.max_radius,
+                     self.unreached],
             block_dim=self._block_dim, device=dev,
         )
         if not sibson:
             return
         dim = (self.height, self.width)
+        vor = [self.voronoi_color, self.radius_sq]
         if self.exact_sibson:
             self._accum.zero_()
-            wp.launch(sibson_scatter_kernel, dim=dim, inputs=[nearest, self.voronoi], outputs=[self._accum],
-                      device=dev)
-            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[nearest, self.voronoi, self._accum],
-                      outputs=[color_out], device=dev)
+            wp.launch(sibson_scatter_kernel, dim=dim, inputs=vor, outputs=[self._accum], device=dev)
+            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*vor, self._accum], outputs=[color_out], device=dev)
         else:
-            wp.launch(sibson_gather_kernel, dim=dim,
-                      inputs=[nearest, self.voronoi, int(self.window), self.max_radius_sq],
+            wp.launch(sibson_gather_kernel, dim=dim, inputs=[*vor, int(self.window), self.max_radius_sq],
                       outputs=[color_out], device=dev)
 
     def run(self, color_in, seed_mask, color_out) -> None:
