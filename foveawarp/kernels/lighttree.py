@@ -1,0 +1,449 @@
+"""One-bounce diffuse indirect light from a light quad-tree over a reflective shadow map (Ki & Oh;
+ALGORITHMS.md C). Kernels only; ``stages/indirect.py`` owns the buffers and the launch order.
+
+Storage. The quad-tree is one flat array per quantity holding every level, coarsest first: level ``L`` has
+``2^L x 2^L`` nodes starting at ``level_offset(L) = (4^L - 1) / 3``, and within a level the nodes are in
+Morton (Z) order, so the four children of node ``m`` of level ``L`` are ``4m .. 4m + 3`` of level ``L + 1``.
+The leaf level ``log2(rsm_size)`` is the RSM itself: RSM texel (row i, column j) is leaf ``morton(i, j)``.
+
+RSM. Texel (i, j) of the ``N x N`` map is the direction given by an EQUAL-AREA map of the square onto the
+spot cone: the square [-1, 1]^2 -> unit disk by Shirley & Chiu's concentric map, then disk radius ``r`` ->
+polar angle by ``cos(theta) = 1 - r^2 (1 - cos_outer)`` (Lambert's equal-area projection restricted to the
+cap). Every texel therefore subtends the same solid angle ``2 pi (1 - cos_outer) / N^2``. A point light uses
+the whole sphere (``cos_outer = -1``). Per texel the VPL stores
+``flux = intensity * spot_factor(direction) * solid_angle * albedo(hit face)`` (albedo IS in the flux: it is
+the flux the surface reflects), the hit position, the normal facing the light, and the depth (distance from
+the light). Misses store zero flux.
+
+Pyramid. A node's flux is the SUM of its children's flux; position, normal and depth are averages weighted by
+the children's scalar flux weight ``w = flux.r + flux.g + flux.b`` (the averaged normal is renormalized).
+Zero-flux children (misses, black surfaces, outside the spot) emit nothing: they get weight 0 in the averages
+and are ignored by the similarity tests. A node is VALID when every child of non-zero weight is close to the
+average (``|depth_c - depth_avg| < depth_tol`` and ``dot(n_c, n_avg) > normal_threshold``) AND every child is
+itself valid; single VPLs (leaves) and all-zero nodes are valid. The second condition makes validity monotone
+(a valid cluster never hides an invalid sub-cluster), so the paper's per-level rule "a node contributes when
+it is valid (or on the limit level) and its parent is not" selects exactly the nodes a top-down descent stops
+at: a partition of the VPLs.
+
+Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4):
+``E(x) = 1/pi * sum_c Phi_c max(0, n_c.(x - x_c)) max(0, n.(x_c - x)) / max(|x - x_c|^2, d_min^2)^2`` and
+``L = albedo / pi * E * strength``. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
+``Phi cos / pi`` (Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the
+physical unoccluded one-bounce radiance, on the same scale as the direct term of ``shade.py``.
+"""
+
+import warp as wp
+
+from .gbuffer import shading_normal
+from .rng import onb_from
+from .shade import LightParams, spot_factor
+
+
+@wp.struct
+class IndirectParams:
+    """Everything the indirect gather reads: the quad-tree (per-receiver traversal) or a flat VPL list
+    (the light cut, all VPLs, or the sampled VPLs) and the shading constants."""
+
+    tree_flux: wp.array(dtype=wp.vec3)
+    tree_pos: wp.array(dtype=wp.vec3)
+    tree_normal: wp.array(dtype=wp.vec3)
+    tree_valid: wp.array(dtype=wp.uint8)
+    list_flux: wp.array(dtype=wp.vec3)
+    list_pos: wp.array(dtype=wp.vec3)
+    list_normal: wp.array(dtype=wp.vec3)
+    list_count: wp.array(dtype=wp.int32)
+    use_tree: int  # 1: descend the tree per receiver; 0: sum the list[0:list_count[0]]
+    start_level: int
+    limit_level: int
+    d_min2: float  # squared distance clamp, > 0
+    scale: float  # strength / pi^2 (albedo / pi times the VPL's 1 / pi)
+    enabled: int  # 0: nothing to add (no light)
+
+
+# ---------------------------------------------------------------------------------------------------
+# indexing
+
+
+@wp.func
+def part1by1(v: int) -> int:
+    """Spread the low 16 bits of v to the even bit positions."""
+    x = v & 0x0000FFFF
+    x = (x | (x << 8)) & 0x00FF00FF
+    x = (x | (x << 4)) & 0x0F0F0F0F
+    x = (x | (x << 2)) & 0x33333333
+    x = (x | (x << 1)) & 0x55555555
+    return x
+
+
+@wp.func
+def morton2(row: int, col: int) -> int:
+    """Morton index of (row, col): column bits on even positions, row bits on odd positions."""
+    return part1by1(col) | (part1by1(row) << 1)
+
+
+@wp.func
+def level_offset(level: int) -> int:
+    """First index of ``level`` in the flat pyramid: (4^L - 1) / 3."""
+    return ((1 << (2 * level)) - 1) // 3
+
+
+@wp.func
+def flux_weight(f: wp.vec3) -> float:
+    return f[0] + f[1] + f[2]
+
+
+# ---------------------------------------------------------------------------------------------------
+# RSM
+
+
+@wp.func
+def concentric_disk(u: float, v: float) -> wp.vec2:
+    """Shirley & Chiu's area-preserving map of the square [-1, 1]^2 onto the unit disk."""
+    if u == 0.0 and v == 0.0:
+        return wp.vec2(0.0, 0.0)
+    r = float(0.0)
+    phi = float(0.0)
+    if wp.abs(u) > wp.abs(v):
+        r = u
+        phi = (wp.pi / 4.0) * (v / u)
+    else:
+        r = v
+        phi = (wp.pi / 2.0) - (wp.pi / 4.0) * (u / v)
+    return wp.vec2(r * wp.cos(phi), r * wp.sin(phi))
+
+
+@wp.func
+def cone_direction(axis: wp.vec3, cos_outer: float, u: float, v: float) -> wp.vec3:
+    """Unit direction of square coordinates (u, v) in [-1, 1]^2 under the equal-area square -> cone map."""
+    d = concentric_disk(u, v)
+    r2 = d[0] * d[0] + d[1] * d[1]
+    cos_t = wp.clamp(1.0 - r2 * (1.0 - cos_outer), -1.0, 1.0)
+    sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+    r = wp.sqrt(r2)
+    a = float(0.0)
+    b = float(0.0)
+    if r > 1.0e-20:
+        a = sin_t * d[0] / r
+        b = sin_t * d[1] / r
+    return wp.normalize(onb_from(axis, a, b, cos_t))
+
+
+@wp.kernel(enable_backward=False)
+def rsm_kernel(
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    face_albedo: wp.array(dtype=wp.vec3),
+    lights: wp.array(dtype=LightParams),
+    light_index: int,
+    size: int,
+    max_t: float,
+    out_flux: wp.array(dtype=wp.vec3),
+    out_pos: wp.array(dtype=wp.vec3),
+    out_normal: wp.array(dtype=wp.vec3),
+    out_depth: wp.array(dtype=float),
+    out_valid: wp.array(dtype=wp.uint8),
+):
+    """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
+    i, j = wp.tid()
+    l = lights[light_index]
+    cos_outer = float(-1.0)  # point light: the whole sphere
+    if l.kind == 1:
+        cos_outer = wp.clamp(l.cos_outer, -1.0, 1.0)
+    solid_angle = 2.0 * wp.pi * (1.0 - cos_outer) / float(size * size)
+    inv = 2.0 / float(size)
+    u = (float(j) + 0.5) * inv - 1.0
+    v = (float(i) + 0.5) * inv - 1.0
+    axis = l.direction
+    la = wp.length(axis)
+    if la > 1.0e-20:
+        axis = axis / la
+    else:
+        axis = wp.vec3(0.0, -1.0, 0.0)
+    d = cone_direction(axis, cos_outer, u, v)
+    k = morton2(i, j)
+    flux = wp.vec3(0.0, 0.0, 0.0)
+    p = l.position
+    n = wp.vec3(0.0, 0.0, 0.0)
+    depth = float(0.0)
+    q = wp.mesh_query_ray(mesh, l.position, d, max_t)
+    if q.result:
+        fn = q.normal
+        if wp.dot(fn, d) > 0.0:
+            fn = -fn  # face the light
+        n = shading_normal(mesh, q.face, q.u, q.v, fn, vnormals, smooth, indices)
+        p = l.position + d * q.t
+        depth = q.t
+        e = l.intensity * (spot_factor(l, d) * solid_angle)
+        flux = wp.cw_mul(e, face_albedo[q.face])
+    out_flux[k] = flux
+    out_pos[k] = p
+    out_normal[k] = n
+    out_depth[k] = depth
+    out_valid[k] = wp.uint8(1)  # single VPLs are always valid
+
+
+# ---------------------------------------------------------------------------------------------------
+# pyramid
+
+
+@wp.kernel(enable_backward=False)
+def pyramid_level_kernel(
+    c_flux: wp.array(dtype=wp.vec3),
+    c_pos: wp.array(dtype=wp.vec3),
+    c_normal: wp.array(dtype=wp.vec3),
+    c_depth: wp.array(dtype=float),
+    c_valid: wp.array(dtype=wp.uint8),
+    depth_tol: float,
+    normal_threshold: float,
+    p_flux: wp.array(dtype=wp.vec3),
+    p_pos: wp.array(dtype=wp.vec3),
+    p_normal: wp.array(dtype=wp.vec3),
+    p_depth: wp.array(dtype=float),
+    p_valid: wp.array(dtype=wp.uint8),
+):
+    """One level of the light quad-tree from the level below (children 4m .. 4m + 3)."""
+    m = wp.tid()
+    c0 = 4 * m
+    fsum = wp.vec3(0.0, 0.0, 0.0)
+    wsum = float(0.0)
+    psum = wp.vec3(0.0, 0.0, 0.0)
+    nsum = wp.vec3(0.0, 0.0, 0.0)
+    dsum = float(0.0)
+    kids_valid = int(1)
+    for k in range(4):
+        f = c_flux[c0 + k]
+        w = flux_weight(f)
+        fsum += f
+        if c_valid[c0 + k] == wp.uint8(0):
+            kids_valid = 0
+        if w > 0.0:
+            wsum += w
+            psum += c_pos[c0 + k] * w
+            nsum += c_normal[c0 + k] * w
+            dsum += c_depth[c0 + k] * w
+    valid = int(1)
+    pos = wp.vec3(0.0, 0.0, 0.0)
+    nrm = wp.vec3(0.0, 0.0, 0.0)
+    depth = float(0.0)
+    if wsum > 0.0:
+        pos = psum / wsum
+        depth = dsum / wsum
+        ln = wp.length(nsum)
+        if ln > 1.0e-30:
+            nrm = nsum / ln
+        valid = kids_valid
+        for k in range(4):
+            if flux_weight(c_flux[c0 + k]) > 0.0:
+                if not (wp.abs(c_depth[c0 + k] - depth) < depth_tol):
+                    valid = 0
+                if not (wp.dot(c_normal[c0 + k], nrm) > normal_threshold):
+                    valid = 0
+    else:
+        fsum = wp.vec3(0.0, 0.0, 0.0)
+    p_flux[m] = fsum
+    p_pos[m] = pos
+    p_normal[m] = nrm
+    p_depth[m] = depth
+    p_valid[m] = wp.uint8(valid)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the light cut (view independent: the same cluster set for every receiver)
+
+
+@wp.func
+def node_contributes(valid: wp.array(dtype=wp.uint8), flux: wp.array(dtype=wp.vec3), level: int, m: int,
+                     start_level: int, limit_level: int) -> int:
+    """1 when node m of ``level`` is a cluster of the cut: valid (or on the limit level), its parent not
+    valid (or the node is on the start level), and it emits something."""
+    node = level_offset(level) + m
+    if flux_weight(flux[node]) <= 0.0:
+        return 0
+    if level != limit_level and valid[node] == wp.uint8(0):
+        return 0
+    if level > start_level:
+        if valid[level_offset(level - 1) + (m >> 2)] != wp.uint8(0):
+            return 0
+    return 1
+
+
+@wp.kernel(enable_backward=False)
+def cut_flags_kernel(
+    valid: wp.array(dtype=wp.uint8),
+    flux: wp.array(dtype=wp.vec3),
+    start_level: int,
+    limit_level: int,
+    flags: wp.array(dtype=wp.int32),
+):
+    """flags[g] for the nodes of levels start..limit, g = node - level_offset(start_level)."""
+    g = wp.tid()
+    node = level_offset(start_level) + g
+    level = start_level
+    while level < limit_level and node >= level_offset(level + 1):
+        level += 1
+    flags[g] = node_contributes(valid, flux, level, node - level_offset(level), start_level, limit_level)
+
+
+@wp.kernel(enable_backward=False)
+def cut_scatter_kernel(
+    flags: wp.array(dtype=wp.int32),
+    slots: wp.array(dtype=wp.int32),  # exclusive prefix sum of flags
+    base: int,  # level_offset(start_level)
+    flux: wp.array(dtype=wp.vec3),
+    pos: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    out_flux: wp.array(dtype=wp.vec3),
+    out_pos: wp.array(dtype=wp.vec3),
+    out_normal: wp.array(dtype=wp.vec3),
+    out_count: wp.array(dtype=wp.int32),
+):
+    g = wp.tid()
+    n = flags.shape[0]
+    cap = out_flux.shape[0]  # >= 4^limit, which bounds any cut; the guard only protects memory
+    if g == n - 1:
+        out_count[0] = wp.min(slots[g] + flags[g], cap)
+    if flags[g] != 0 and slots[g] < cap:
+        s = slots[g]
+        out_flux[s] = flux[base + g]
+        out_pos[s] = pos[base + g]
+        out_normal[s] = normal[base + g]
+
+
+@wp.kernel(enable_backward=False)
+def gather_samples_kernel(
+    texels: wp.array(dtype=wp.int32),  # Morton indices into the leaf level
+    weight: float,
+    leaf_flux: wp.array(dtype=wp.vec3),
+    leaf_pos: wp.array(dtype=wp.vec3),
+    leaf_normal: wp.array(dtype=wp.vec3),
+    out_flux: wp.array(dtype=wp.vec3),
+    out_pos: wp.array(dtype=wp.vec3),
+    out_normal: wp.array(dtype=wp.vec3),
+):
+    """The sampled-RSM VPL list: each sample stands for ``weight`` = N^2 / samples VPLs."""
+    k = wp.tid()
+    t = texels[k]
+    out_flux[k] = leaf_flux[t] * weight
+    out_pos[k] = leaf_pos[t]
+    out_normal[k] = leaf_normal[t]
+
+
+# ---------------------------------------------------------------------------------------------------
+# gather
+
+
+@wp.func
+def vpl_term(x: wp.vec3, n: wp.vec3, flux: wp.vec3, xp: wp.vec3, np_: wp.vec3, d_min2: float) -> wp.vec3:
+    """Phi max(0, n_p.(x - x_p)) max(0, n.(x_p - x)) / max(|x - x_p|^2, d_min^2)^2 (without the 1/pi)."""
+    d = x - xp
+    ce = wp.dot(np_, d)
+    cr = -wp.dot(n, d)
+    if ce <= 0.0 or cr <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    r2 = wp.max(wp.dot(d, d), d_min2)
+    return flux * (ce * cr / (r2 * r2))
+
+
+@wp.func
+def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    count = ip.list_count[0]
+    for k in range(count):
+        acc += vpl_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k], ip.d_min2)
+    return acc
+
+
+@wp.func
+def gather_tree(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Top-down descent from every start-level node without a stack: depth-first in Morton order, stopping
+    at valid or limit-level nodes (the paper's breadth-first passes select the same clusters)."""
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    level = ip.start_level
+    m = int(0)
+    end = 1 << (2 * ip.start_level)
+    done = int(0)
+    while done == 0:
+        node = level_offset(level) + m
+        if level >= ip.limit_level or ip.tree_valid[node] != wp.uint8(0):
+            f = ip.tree_flux[node]
+            if flux_weight(f) > 0.0:
+                acc += vpl_term(x, n, f, ip.tree_pos[node], ip.tree_normal[node], ip.d_min2)
+            # next node: the next sibling, climbing while this was the last child
+            m += 1
+            while level > ip.start_level and (m & 3) == 0:
+                m = m >> 2
+                level -= 1
+            if level == ip.start_level and m >= end:
+                done = 1
+        else:
+            level += 1
+            m = m * 4
+    return acc
+
+
+@wp.func
+def indirect_radiance(ip: IndirectParams, x: wp.vec3, n: wp.vec3, albedo: wp.vec3) -> wp.vec3:
+    """albedo / pi * E(x) * strength at the receiver (x, n); zero for a zero normal."""
+    if ip.enabled == 0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    e = wp.vec3(0.0, 0.0, 0.0)
+    if ip.use_tree != 0:
+        e = gather_tree(ip, x, n)
+    else:
+        e = gather_list(ip, x, n)
+    return wp.cw_mul(albedo, e) * ip.scale
+
+
+@wp.kernel(enable_backward=False)
+def indirect_points_kernel(
+    ip: IndirectParams,
+    pos: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    albedo: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
+):
+    """out[i] = indirect radiance at receiver i (overwrites)."""
+    i = wp.tid()
+    out[i] = indirect_radiance(ip, pos[i], normal[i], albedo[i])
+
+
+@wp.kernel(enable_backward=False)
+def indirect_full_kernel(
+    ip: IndirectParams,
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    radiance: wp.array2d(dtype=wp.vec3),
+):
+    """radiance[y, x] += indirect radiance at every hit pixel."""
+    y, x = wp.tid()
+    if hit[y, x] == wp.uint8(0):
+        return
+    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])
+
+
+@wp.kernel(enable_backward=False)
+def indirect_list_kernel(
+    ip: IndirectParams,
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    width: int,
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    radiance: wp.array2d(dtype=wp.vec3),
+):
+    """radiance at the flat pixel indices work[0:count[0]] (y * width + x) += indirect radiance."""
+    i = wp.tid()
+    if i >= count[0]:
+        return
+    idx = work[i]
+    y = idx // width
+    x = idx - y * width
+    if hit[y, x] == wp.uint8(0):
+        return
+    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])
