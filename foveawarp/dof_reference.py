@@ -35,7 +35,12 @@ from .kernels.dof import FOCUS_FAR_M, FOCUS_MIN_REL, thin_lens_kernel
 from .kernels.tonemap import tonemap_kernel
 
 __all__ = ["thin_lens_aperture_m", "render_thin_lens", "render_dof_comparison", "resolve_focus_m",
-           "COMPARISON_VARIANTS"]
+           "COMPARISON_VARIANTS", "DEFAULT_COMPARISON_DOF"]
+
+# the lens of render_dof_comparison / render_thin_lens when none is given: focus at the gaze depth; a point
+# 2 m nearer or farther than a 4 m focus gets a CoC of about 10 px (clamped at 16 px in the scatter)
+DEFAULT_COMPARISON_DOF = DofConfig(aperture_m=0.05, focal_length_m=0.05, focus_depth_m=None, px_per_m=20000.0,
+                                   max_coc_px=16.0)
 
 # image name -> (foreground_fix, background_fix) of the scatter variants in render_dof_comparison
 COMPARISON_VARIANTS = {
@@ -90,24 +95,27 @@ def resolve_focus_m(loop_or_scene, camera: Camera, dof_config: DofConfig, *, gaz
     if w is None or h is None:
         raise ValueError("width and height are needed when loop_or_scene is not a FrameLoop")
     loop = _as_loop(loop_or_scene, w, h, device)
-    loop.render_reference(camera)
+    loop.render_reference(camera, dof=False)
     stage = DofStage(loop.width, loop.height, dof_config, loop.device)
     gaze = (loop.width * 0.5, loop.height * 0.5) if gaze_px is None else gaze_px
     stage.focus_at_pixel(loop.gbuffer.depth, loop.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
     return float(stage.focus_m.numpy()[0])
 
 
-def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int, dof_config: DofConfig,
-                     samples: int = 64, device=None, *, gaze_px=None, return_hdr: bool = False):
+def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int,
+                     dof_config: Optional[DofConfig] = None, samples: int = 64, device=None, *, gaze_px=None,
+                     return_hdr: bool = False):
     """Distributed ray tracing through a thin lens (module docstring) with ``samples`` lens rays per pixel,
-    shaded with the FrameLoop's ``shade_point`` (direct light, shadows, ambient) and tone mapped.
+    shaded with the FrameLoop's ``shade_point`` (direct light, shadows, ambient, AO when configured) and tone
+    mapped. The light quad-tree's indirect term (``ShadingConfig.indirect="lighttree"``) is not traced.
 
     Args:
         loop_or_scene: a FrameLoop of size (width, height) (its scene, shading config and device are used),
             or a Scene / scene name (a FrameLoop with the default Config is built).
         camera: the pinhole camera whose eye is the lens centre.
         width, height: image size in pixels.
-        dof_config: aperture, focal length, px_per_m and focus (None: the view depth at ``gaze_px``).
+        dof_config: aperture, focal length, px_per_m and focus (focus None: the view depth at ``gaze_px``);
+            None uses :data:`DEFAULT_COMPARISON_DOF`.
         samples: lens samples per pixel, in [1, 4096]; ``samples * width * height`` must stay below 2^31.
         return_hdr: also return the linear radiance.
 
@@ -117,6 +125,8 @@ def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int, dof
     """
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a foveawarp.Camera, got {type(camera).__name__}")
+    if dof_config is None:
+        dof_config = DEFAULT_COMPARISON_DOF
     if not isinstance(dof_config, DofConfig):
         raise ValueError(f"dof_config must be a foveawarp.DofConfig, got {type(dof_config).__name__}")
     samples = check_int_range("samples", samples, 1, 4096)
@@ -142,8 +152,9 @@ def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int, dof
     return img
 
 
-def render_dof_comparison(loop_or_scene, camera: Camera, width: int, height: int, dof_config: DofConfig,
-                          samples: int = 64, device=None, *, gaze_px=None, method: str = "gather") -> dict:
+def render_dof_comparison(loop_or_scene, camera: Camera, width: int, height: int,
+                          dof_config: Optional[DofConfig] = None, samples: int = 64, device=None, *, gaze_px=None,
+                          method: str = "gather") -> dict:
     """Display-referred (H, W, 3) float32 images of one view, keyed by name:
 
     - ``pinhole``: the FrameLoop's reference render (no depth of field);
@@ -153,17 +164,23 @@ def render_dof_comparison(loop_or_scene, camera: Camera, width: int, height: int
 
     The scatter runs on the linear radiance with the G-buffer's depth (converted to view depth) and is then
     tone mapped, as the reference averages radiance before its tone map. Focus: ``dof_config.focus_depth_m``
-    or the view depth at ``gaze_px`` (screen centre when None).
+    or the view depth at ``gaze_px`` (screen centre when None). ``dof_config`` None uses
+    :data:`DEFAULT_COMPARISON_DOF`. The loop's own DoF setting is not used (``render_reference(dof=False)``):
+    the comparison applies ``dof_config`` itself.
     """
     from .stages.dof import DofStage
 
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a foveawarp.Camera, got {type(camera).__name__}")
+    if dof_config is None:
+        dof_config = DEFAULT_COMPARISON_DOF
+    if not isinstance(dof_config, DofConfig):
+        raise ValueError(f"dof_config must be a foveawarp.DofConfig, got {type(dof_config).__name__}")
     loop = _as_loop(loop_or_scene, width, height, device)
     w, h, dev = loop.width, loop.height, loop.device
     focus = resolve_focus_m(loop, camera, dof_config, gaze_px=gaze_px)
     cfg = replace(dof_config, focus_depth_m=focus)
-    frame = loop.render_reference(camera)
+    frame = loop.render_reference(camera, dof=False)
     images = {"pinhole": frame.numpy().copy()}
     sc = loop.config.shading
     out_hdr = wp.zeros((h, w), dtype=wp.vec3, device=dev)

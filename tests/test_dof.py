@@ -459,3 +459,16 @@ def test_thin_lens_keeps_the_focal_plane_sharp_and_blurs_by_the_coc(device):
     e1, e_small, e_big = err(1.0), err(0.6), err(1.6)
     assert e1 < 0.6 * min(e_small, e_big)
     assert e1 < 0.3 * float(np.abs(pin_hdr - tl_hdr)[crop].mean())
+
+
+def test_dof_comparison_images(device):
+    import foveawarp as fw
+    from foveawarp.dof_reference import COMPARISON_VARIANTS, render_dof_comparison
+
+    scene = fw.load_scene("cornell")
+    imgs = render_dof_comparison(scene, scene.camera, 48, 32, samples=4, device=device)
+    assert set(imgs) == {"pinhole", "thin_lens", *COMPARISON_VARIANTS}
+    for k, v in imgs.items():
+        assert v.shape == (32, 48, 3) and np.all(np.isfinite(v)) and v.min() >= 0.0 and v.max() <= 1.0, k
+    for k in ("scatter", "corrected", "thin_lens"):
+        assert np.abs(imgs[k] - imgs["pinhole"]).max() > 0.05, k  # the default lens blurs visibly

@@ -12,8 +12,8 @@ Buffers written by :func:`dof_prepare_kernel`, read by the scatter and the gathe
   geo  (H, W) vec2  : (R_p^2, c_bg): c_bg = C_p >= 0 marks a background source (Z_p >= Z_f) whose weight is
                       multiplied by the background-leak factor W(C_p, C_q) at each receiver; c_bg = -1 marks a
                       source with a fixed weight.
-The gather (:func:`dof_gather_kernel`) visits, for each receiver, the square window given by the per-tile
-dilated disc reach, so it sums exactly the terms the scatter (:func:`dof_scatter_kernel`) adds.
+The gather (:func:`dof_gather_kernel`) visits, for each receiver, the disc of offsets bounded by its tile's
+dilated max floor(R^2), so it sums exactly the terms the scatter (:func:`dof_scatter_kernel`) adds.
 """
 
 import warp as wp
@@ -171,32 +171,46 @@ def dof_prepare_kernel(
     out_geo[y, x] = wp.vec2(r * r, c_bg)
 
 
+@wp.func
+def isqrt(n: int) -> int:
+    """floor(sqrt(n)) for 0 <= n < 2^24; -1 for n < 0 (an empty range)."""
+    if n < 0:
+        return -1
+    r = int(wp.floor(wp.sqrt(float(n))))
+    if (r + 1) * (r + 1) <= n:
+        r = r + 1
+    if r * r > n:
+        r = r - 1
+    return r
+
+
 @wp.kernel(enable_backward=False)
-def dof_tile_reach_kernel(geo: wp.array2d(dtype=wp.vec2), tile: int, out_reach: wp.array2d(dtype=wp.int32)):
-    """Largest disc reach (pixels) of the sources in each ``tile`` x ``tile`` screen tile."""
+def dof_tile_r2_kernel(geo: wp.array2d(dtype=wp.vec2), tile: int, out_r2: wp.array2d(dtype=wp.int32)):
+    """Largest floor(R_p^2) (pixels^2) of the sources in each ``tile`` x ``tile`` screen tile. For integer
+    offsets, ``dx^2 + dy^2 <= R_p^2`` holds exactly when ``dx^2 + dy^2 <= floor(R_p^2)``."""
     ty, tx = wp.tid()
     h = geo.shape[0]
     w = geo.shape[1]
     m = int(0)
     for y in range(ty * tile, wp.min((ty + 1) * tile, h)):
         for x in range(tx * tile, wp.min((tx + 1) * tile, w)):
-            m = wp.max(m, disc_reach(geo[y, x][0]))
-    out_reach[ty, tx] = m
+            m = wp.max(m, int(wp.floor(geo[y, x][0])))
+    out_r2[ty, tx] = m
 
 
 @wp.kernel(enable_backward=False)
-def dof_tile_dilate_kernel(reach: wp.array2d(dtype=wp.int32), k: int, out_window: wp.array2d(dtype=wp.int32)):
-    """Gather half-window of each tile: the largest reach over the tiles within ``k`` tiles (Chebyshev).
+def dof_tile_dilate_kernel(r2: wp.array2d(dtype=wp.int32), k: int, out_window: wp.array2d(dtype=wp.int32)):
+    """Gather bound of each tile: the largest floor(R^2) over the tiles within ``k`` tiles (Chebyshev).
 
-    A source p covering receiver q has ``|p - q| <= reach_p``; with ``k = ceil(max reach / tile)`` its tile is
-    within k tiles of q's, so the window of q's tile is >= reach_p and holds p."""
+    A source p covering receiver q has ``|p - q| <= R_p``; with ``k = ceil(max R / tile)`` p's tile is within
+    k tiles of q's, so the bound of q's tile is >= floor(R_p^2) and its disc window holds p."""
     ty, tx = wp.tid()
-    nty = reach.shape[0]
-    ntx = reach.shape[1]
+    nty = r2.shape[0]
+    ntx = r2.shape[1]
     m = int(0)
     for j in range(wp.max(ty - k, 0), wp.min(ty + k, nty - 1) + 1):
         for i in range(wp.max(tx - k, 0), wp.min(tx + k, ntx - 1) + 1):
-            m = wp.max(m, reach[j, i])
+            m = wp.max(m, r2[j, i])
     out_window[ty, tx] = m
 
 
@@ -211,20 +225,19 @@ def dof_gather_kernel(
     color: wp.array2d(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """Each receiver q sums the sources p whose disc covers it (the scatter, computed as a gather).
+    """Each receiver q sums the sources p whose disc covers it (the scatter, computed as a gather), visiting
+    the offsets with ``dx^2 + dy^2 <= m``, m = its tile's dilated bound of floor(R^2).
 
     ``out`` may be ``color``: a thread reads ``color`` only at its own pixel."""
     y, x = wp.tid()
-    wn = window[y // tile, x // tile]
+    m = window[y // tile, x // tile]
     c_q = coc[y, x]
-    y0 = wp.max(y - wn, 0)
-    y1 = wp.min(y + wn, p.height - 1)
-    x0 = wp.max(x - wn, 0)
-    x1 = wp.min(x + wn, p.width - 1)
+    wn = isqrt(m)
     acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    for sy in range(y0, y1 + 1):
+    for sy in range(wp.max(y - wn, 0), wp.min(y + wn, p.height - 1) + 1):
         dy = sy - y
-        for sx in range(x0, x1 + 1):
+        xr = isqrt(m - dy * dy)
+        for sx in range(wp.max(x - xr, 0), wp.min(x + xr, p.width - 1) + 1):
             dx = sx - x
             g = geo[sy, sx]
             if float(dx * dx + dy * dy) <= g[0]:

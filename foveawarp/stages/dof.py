@@ -1,6 +1,7 @@
 """Depth-of-field stage: pixel-intensity scatter (Lee, Kim, Choi; ALGORITHMS.md B), computed as a tiled gather.
 
-One frame is four launches: per-pixel preparation (CoC, weights), per-tile disc reach, tile dilation, gather.
+One frame is four launches: per-pixel preparation (CoC, weights), per-tile max disc radius, tile dilation,
+gather.
 ``method="scatter"`` replaces the last two by the atomic scatter + normalization (the reference the gather
 matches within float rounding).
 """
@@ -24,7 +25,7 @@ from ..kernels.dof import (
     dof_prepare_kernel,
     dof_scatter_kernel,
     dof_tile_dilate_kernel,
-    dof_tile_reach_kernel,
+    dof_tile_r2_kernel,
 )
 
 __all__ = ["DofStage", "DOF_METHODS", "check_focus", "disc_reach_host"]
@@ -85,7 +86,8 @@ class DofStage:
         self.geo = wp.zeros((h, w), dtype=wp.vec2, device=dev)
         self.accum = wp.zeros((h, w), dtype=wp.vec4, device=dev) if self.method == "scatter" else None
         self.tiles = ((h + self.tile_px - 1) // self.tile_px, (w + self.tile_px - 1) // self.tile_px)
-        self.tile_reach = wp.zeros(self.tiles, dtype=wp.int32, device=dev)
+        # per tile: max floor(R^2) of its sources, then the max over the neighbouring tiles (pixels^2)
+        self.tile_r2 = wp.zeros(self.tiles, dtype=wp.int32, device=dev)
         self.tile_window = wp.zeros(self.tiles, dtype=wp.int32, device=dev)
         # a source disc reaches at most n_max pixels; its tile is then within ceil(n_max / tile) tiles
         self.max_reach_px = disc_reach_host(max(0.5 * config.max_coc_px, 0.5))
@@ -171,7 +173,7 @@ class DofStage:
             focus_depth_m: view depth of the focal plane in metres: a float (> focal length, else ValueError),
                 a (1,) float32 device array (clamped on the device to (F, 1e30]), or None: the config's
                 ``focus_depth_m`` when set, else :attr:`focus_m` (see :meth:`focus_at_pixel`).
-            color_out: (H, W) vec3 wp.array; may be ``color_in`` with the gather method.
+            color_out: (H, W) vec3 wp.array; may be ``color_in`` (each output pixel reads only its own input).
             fov_y_deg: vertical field of view in degrees, in (0, 180), when ``depth`` is a distance.
         """
         self._check("color_in", color_in, wp.vec3)
@@ -205,9 +207,9 @@ class DofStage:
             wp.launch(dof_normalize_kernel, dim=dim, inputs=[self.accum, color_in], outputs=[color_out],
                       device=dev)
             return
-        wp.launch(dof_tile_reach_kernel, dim=self.tiles, inputs=[self.geo, self.tile_px],
-                  outputs=[self.tile_reach], device=dev)
-        wp.launch(dof_tile_dilate_kernel, dim=self.tiles, inputs=[self.tile_reach, self.dilate_tiles],
+        wp.launch(dof_tile_r2_kernel, dim=self.tiles, inputs=[self.geo, self.tile_px],
+                  outputs=[self.tile_r2], device=dev)
+        wp.launch(dof_tile_dilate_kernel, dim=self.tiles, inputs=[self.tile_r2, self.dilate_tiles],
                   outputs=[self.tile_window], device=dev)
         wp.launch(dof_gather_kernel, dim=dim,
                   inputs=[p, self.coc, self.pm, self.geo, self.tile_window, self.tile_px, color_in],
