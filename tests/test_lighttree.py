@@ -560,6 +560,13 @@ def test_update_caches_until_light_or_geometry_moves(device):
     scene.lights[0] = fw.Light(kind="spot", position=l0.position, direction=l0.direction, cone_deg=40.0,
                                intensity=l0.intensity, penumbra=l0.penumbra)
     assert stage.update() is True and stage.rebuild_reason == "light changed"
+    rsm = stage.rsm_numpy()  # the RSM follows the new cone
+    assert rsm["solid_angle"] == pytest.approx(2 * math.pi * (1 - math.cos(math.radians(40.0))) / 16 ** 2)
+    live = rsm["flux"].sum(-1) > 0
+    d = rsm["position"][live] - np.asarray(l0.position)
+    cosang = (d / np.linalg.norm(d, axis=1, keepdims=True)) @ np.asarray(l0.direction)
+    assert cosang.min() > math.cos(math.radians(40.0)) - 1e-5
+    assert stage.update() is False
     # run_points with the stage's own receiver buffers
     stage.receiver_pos.assign(np.array([[0, 1, 0]] * 4, np.float32))
     stage.receiver_normal.assign(np.array([[0, -1, 0]] * 4, np.float32))

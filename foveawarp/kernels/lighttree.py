@@ -135,8 +135,7 @@ def rsm_kernel(
     vnormals: wp.array(dtype=wp.vec3),
     smooth: wp.array(dtype=wp.uint8),
     face_albedo: wp.array(dtype=wp.vec3),
-    lights: wp.array(dtype=LightParams),
-    light_index: int,
+    l: LightParams,
     size: int,
     max_t: float,
     out_flux: wp.array(dtype=wp.vec3),
@@ -147,7 +146,6 @@ def rsm_kernel(
 ):
     """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
     i, j = wp.tid()
-    l = lights[light_index]
     cos_outer = float(-1.0)  # point light: the whole sphere
     if l.kind == 1:
         cos_outer = wp.clamp(l.cos_outer, -1.0, 1.0)

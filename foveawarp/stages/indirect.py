@@ -40,6 +40,7 @@ from ..kernels.lighttree import (
     pyramid_level_kernel,
     rsm_kernel,
 )
+from ..kernels.shade import LightParams
 
 __all__ = ["IndirectStage", "poisson_disk", "morton_index", "level_offset", "METHODS"]
 
@@ -131,8 +132,10 @@ class IndirectStage:
         device: must be ``dscene``'s device (None: that device).
         max_receivers: capacity of the stage's own receiver buffers (``receiver_pos``, ``receiver_normal``,
             ``receiver_albedo``, ``receiver_out``) used by :meth:`run_points`; None allocates none.
-        light_index: which light of the scene makes the RSM; None: the first spot light, else light 0.
-            A point light uses the whole sphere of directions.
+        light_index: which light of ``dscene.scene.lights`` makes the RSM; None: the first spot light, else
+            light 0. A point light uses the whole sphere of directions. The light is read from the host
+            ``Light`` (a replaced Light is picked up by the next ``update``; a CUDA graph holding ``build``
+            must then be recaptured, as the light is a kernel argument).
         method: "lighttree" (default), "traverse", "exact" or "sampled" (see the module docstring).
         samples: Poisson-disk samples of the "sampled" method, in [1, rsm_size^2].
         seed: seed of the Poisson-disk pattern.
@@ -245,11 +248,29 @@ class IndirectStage:
 
         self._built_light = None
         self._built_time = None
+        self._lp, self._lp_key = None, None
         self.builds = 0
         self.rebuilt = False
         self.skipped: dict = {}
 
     # -- build --------------------------------------------------------------------------------------------
+    def _light_params(self) -> LightParams:
+        """The light as a kernel argument, from the host Light (rebuilt only when the Light changed; the same
+        conversion as DeviceScene)."""
+        l = self.light
+        key = _light_key(l)
+        if self._lp_key != key:
+            p = LightParams()
+            p.kind = 0 if l.kind == "point" else 1
+            p.position = wp.vec3(*l.position)
+            p.direction = wp.vec3(*l.direction)
+            outer = math.radians(min(l.cone_deg, 180.0))
+            p.cos_outer = math.cos(outer)
+            p.cos_inner = math.cos(outer * (1.0 - l.penumbra))
+            p.intensity = wp.vec3(*l.intensity)
+            self._lp, self._lp_key = p, key
+        return self._lp
+
     @property
     def light(self):
         """The host :class:`~foveawarp.scene.Light` that makes the RSM (None when the scene has none)."""
@@ -295,8 +316,8 @@ class IndirectStage:
         """Trace the RSM of the light into the leaf level."""
         ds, n = self.dscene, self.rsm_size
         wp.launch(rsm_kernel, dim=(n, n),
-                  inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo, ds.lights,
-                          self.light_index, n, self._max_t],
+                  inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+                          self._light_params(), n, self._max_t],
                   outputs=list(self._levels[self.leaf_level]), device=self.device)
 
     def load_rsm(self, flux, position, normal, depth) -> None:
