@@ -1,0 +1,65 @@
+"""Reprojection cache test (thesis eq. 4, after Nehab et al. 2007; ALGORITHMS.md A2.6).
+
+A pixel's history is reusable (a cache hit) when all of these hold:
+    * the current pixel hit a surface (``hit != 0``);
+    * its previous-frame pixel position ``uv_prev`` (the G-buffer's ``reproj_uv``, continuous pixels, centre
+      of pixel (x, y) at (x + 0.5, y + 0.5)) lies on screen: ``0 <= u < width`` and ``0 <= v < height``;
+    * the previous pixel, looked up by nearest pixel ``(floor(u), floor(v))``, held a valid color;
+    * ``|depth_prev(uv_prev) - |pos - eye_prev|| < depth_eps_rel * depth`` (the absolute value, as
+      clarified in ALGORITHMS.md; ``depth`` is the current distance from the eye, metres, so the tolerance
+      scales with distance like the depth precision of the G-buffer).
+"""
+
+import warp as wp
+
+
+@wp.func
+def cache_lookup(
+    uv: wp.vec2,
+    pos: wp.vec3,
+    hit: wp.uint8,
+    depth: float,
+    depth_prev: wp.array2d(dtype=float),
+    valid_prev: wp.array2d(dtype=wp.uint8),
+    eye_prev: wp.vec3,
+    eps_rel: float,
+) -> int:
+    """Flat index ``iy * width + ix`` of the previous pixel on a cache hit, -1 on a miss."""
+    h = depth_prev.shape[0]
+    w = depth_prev.shape[1]
+    if hit == wp.uint8(0):
+        return -1
+    # written so that NaN coordinates fail too
+    if not (uv[0] >= 0.0 and uv[0] < float(w) and uv[1] >= 0.0 and uv[1] < float(h)):
+        return -1
+    ix = wp.min(int(wp.floor(uv[0])), w - 1)
+    iy = wp.min(int(wp.floor(uv[1])), h - 1)
+    if valid_prev[iy, ix] == wp.uint8(0):
+        return -1
+    x = depth_prev[iy, ix] - wp.length(pos - eye_prev)  # thesis eq. 4
+    if wp.abs(x) < eps_rel * depth:
+        return iy * w + ix
+    return -1
+
+
+@wp.kernel(enable_backward=False)
+def cache_test_kernel(
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    position: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    depth: wp.array2d(dtype=float),
+    depth_prev: wp.array2d(dtype=float),
+    valid_prev: wp.array2d(dtype=wp.uint8),
+    eye_prev: wp.vec3,
+    eps_rel: float,
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_prev_index: wp.array2d(dtype=wp.int32),
+):
+    y, x = wp.tid()
+    idx = cache_lookup(reproj_uv[y, x], position[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev, eye_prev,
+                       eps_rel)
+    out_prev_index[y, x] = wp.int32(idx)
+    if idx >= 0:
+        out_hit[y, x] = wp.uint8(1)
+    else:
+        out_hit[y, x] = wp.uint8(0)

@@ -1,0 +1,97 @@
+"""Saliency terms of the sampling map (thesis eq. 3): CIE-Lab albedo gradient, normal gradient, DoF factor.
+
+Conventions:
+    * Albedo is *linear* RGB (the G-buffer's reflectance). It is converted to CIE-Lab (D65, 2 deg observer)
+      with the sRGB primaries, without any transfer function: ``linear_rgb_to_lab(c)`` equals
+      ``skimage.color.rgb2lab(srgb_encode(c))`` (skimage decodes its sRGB input first; we start from the
+      decoded values). Same constants as skimage: ``xyz_from_rgb``, white (0.95047, 1, 1.08883), the
+      0.008856 / 7.787 knee.
+    * Gradients are the 3x3 Sobel operator with edge-clamped (replicated) borders, which equals
+      ``scipy.ndimage.sobel``'s default "reflect" mode for a 3x3 stencil. A step of height h between two
+      neighbours gives a magnitude of ``SOBEL_GAIN * h``.
+"""
+
+import warp as wp
+
+# Sobel response to a unit step between neighbouring pixels (1 + 2 + 1).
+SOBEL_GAIN = 4.0
+# Lab step (Delta E*76 units) across one pixel that saturates dA = 1 at SaliencyConfig.albedo_scale = 1.
+# A just-noticeable difference is about 2.3; 20 is a clearly visible edge.
+LAB_STEP_FULL = 20.0
+# Step of a unit-normal component across one pixel that saturates dN = 1 at normal_scale = 1 (~30 deg crease).
+NORMAL_STEP_FULL = 0.5
+
+
+@wp.func
+def lab_f(t: float) -> float:
+    """CIE-Lab companding f(t) (skimage's knee: cube root above 0.008856, linear below)."""
+    if t > 0.008856:
+        return wp.cbrt(t)
+    return 7.787 * t + 16.0 / 116.0
+
+
+@wp.func
+def linear_rgb_to_lab(c: wp.vec3) -> wp.vec3:
+    """Linear sRGB-primaries RGB -> CIE-Lab (D65, 2 deg). L in [0, 100] for inputs in [0, 1]."""
+    x = 0.412453 * c[0] + 0.357580 * c[1] + 0.180423 * c[2]
+    y = 0.212671 * c[0] + 0.715160 * c[1] + 0.072169 * c[2]
+    z = 0.019334 * c[0] + 0.119193 * c[1] + 0.950227 * c[2]
+    fx = lab_f(x / 0.95047)
+    fy = lab_f(y)
+    fz = lab_f(z / 1.08883)
+    return wp.vec3(116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz))
+
+
+@wp.func
+def sobel_max_channel(a00: wp.vec3, a01: wp.vec3, a02: wp.vec3, a10: wp.vec3, a12: wp.vec3,
+                      a20: wp.vec3, a21: wp.vec3, a22: wp.vec3) -> float:
+    """max over the 3 channels of the Sobel gradient magnitude; aRC = sample at row y-1+R, column x-1+C."""
+    gx = (a02 + 2.0 * a12 + a22) - (a00 + 2.0 * a10 + a20)
+    gy = (a20 + 2.0 * a21 + a22) - (a00 + 2.0 * a01 + a02)
+    m0 = gx[0] * gx[0] + gy[0] * gy[0]
+    m1 = gx[1] * gx[1] + gy[1] * gy[1]
+    m2 = gx[2] * gx[2] + gy[2] * gy[2]
+    return wp.sqrt(wp.max(m0, wp.max(m1, m2)))
+
+
+@wp.func
+def sobel_vec3(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
+    """Sobel gradient magnitude at (x, y) of a 3-channel image, max over the channels (edge-clamped)."""
+    h = a.shape[0]
+    w = a.shape[1]
+    xm = wp.max(x - 1, 0)
+    xp = wp.min(x + 1, w - 1)
+    ym = wp.max(y - 1, 0)
+    yp = wp.min(y + 1, h - 1)
+    return sobel_max_channel(a[ym, xm], a[ym, x], a[ym, xp], a[y, xm], a[y, xp], a[yp, xm], a[yp, x], a[yp, xp])
+
+
+@wp.func
+def dof_factor(depth: float, focus: float, sigma1: float, sigma2: float, dof_floor: float) -> float:
+    """F_DoF: 1 while |depth - focus| <= sigma1, then linear down to ``dof_floor`` at sigma1 + sigma2 and
+    ``dof_floor`` beyond (metres; sigma2 > 0 is validated by SaliencyConfig)."""
+    t = wp.clamp((wp.abs(depth - focus) - sigma1) / sigma2, 0.0, 1.0)
+    return 1.0 - (1.0 - dof_floor) * t
+
+
+# -- kernels (the stage runs lab_kernel as a prepass, so each pixel is converted once, not once per
+# neighbour; the fused sampling kernel calls sobel_vec3 and dof_factor; ops/tests run all of these) ----------
+
+
+@wp.kernel(enable_backward=False)
+def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3)):
+    y, x = wp.tid()
+    out[y, x] = linear_rgb_to_lab(albedo[y, x])
+
+
+@wp.kernel(enable_backward=False)
+def gradient_kernel(a: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    out[y, x] = sobel_vec3(a, x, y)
+
+
+@wp.kernel(enable_backward=False)
+def dof_factor_kernel(depth: wp.array2d(dtype=float), focus: float, sigma1: float, sigma2: float, dof_floor: float,
+                      out: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    out[y, x] = dof_factor(depth[y, x], focus, sigma1, sigma2, dof_floor)

@@ -1,0 +1,395 @@
+"""Foveated sampling map (ALGORITHMS.md A2): eccentricity, MAR probability (thesis eq. 2), saliency
+(thesis eq. 3), stratified binarization with the jitter-block guarantee, and the fused per-frame kernel that
+also runs the reprojection cache test (thesis eq. 4).
+
+Geometry: a pinhole camera, square pixels, pixel centres at (x + 0.5, y + 0.5), row 0 at the top. A pixel
+position (px, py) maps to the camera-space direction (sx, sy, 1) on the image plane at distance 1, with
+``sx = (2 px / W - 1) tan(fov_y / 2) W / H`` and ``sy = (1 - 2 py / H) tan(fov_y / 2)`` (as kernels.camera).
+
+Binarization (``dither_sample``): each aligned ``block`` x ``block`` tile has a rank permutation
+``r in [0, K)``, K = block^2, from a blue-noise rank matrix shared by all tiles, rotated by a per-tile random
+offset and by a per-frame step coprime with K. A pixel is sampled when ``T = (r + u) / K < P`` with ``u`` a
+per-pixel jitter in [0, 1) advanced by a golden-ratio phase every K frames. In a full tile the rank-0 pixel is
+always sampled (T < 1/K), so each pixel's long-run rate is exactly ``max(P, 1/K)`` and every full tile holds
+at least one sample; partial tiles (right/bottom edges) get their guarantee from ``tile_pass_kernel``.
+Over K consecutive frames each pixel takes every rank once: successive frames sample different pixels.
+"""
+
+import warp as wp
+
+from .camera import CameraParams, camera_project
+from .gbuffer import NO_REPROJ
+from .reproject import cache_lookup
+from .saliency import dof_factor, sobel_vec3
+
+# salt of the per-pixel jitter stream (the per-tile rank offsets use the plain seed)
+JITTER_SALT = 0x2545F491
+
+
+@wp.struct
+class SamplingParams:
+    """Per-stage constants (derived from Config once)."""
+
+    mar_slope: float  # deg / deg
+    mar_fovea_deg: float  # deg
+    xi: float  # minimum probability, >= 1 / block^2
+    foveation: int  # 0: every probability is 1
+    use_albedo: int
+    use_normal: int
+    albedo_gain: float  # albedo_scale / (SOBEL_GAIN * LAB_STEP_FULL)
+    normal_gain: float  # normal_scale / (SOBEL_GAIN * NORMAL_STEP_FULL)
+    inv_velocity_px: float  # 1 / velocity_scale_px
+    sigma1_m: float
+    sigma2_m: float
+    dof_floor: float
+    depth_eps_rel: float
+    block: int
+    tiles_x: int
+    num_ranks: int  # block^2
+    seed: int
+
+
+@wp.struct
+class FrameParams:
+    """Per-frame values, written on the device by ``frame_setup_kernel``."""
+
+    gaze: wp.vec2  # pixels
+    tan_half_fov_y: float
+    aspect: float  # width / height
+    w_min_deg: float  # angle per pixel at the gaze point
+    w_far_deg: float  # MAR at the largest eccentricity on screen
+    e_max_deg: float  # largest eccentricity over the screen rectangle
+    focus_m: float
+    dof_on: int
+    use_velocity: int
+    object_velocity: int  # 1: velocity = motion of the object itself (camera motion removed via cam_prev)
+    cam_prev: CameraParams
+    eye_prev: wp.vec3
+    do_cache: int
+    rot: int  # per-frame rank rotation, in [0, K)
+    phase: float  # per-frame jitter phase, in [0, 1)
+
+
+# -- geometry -----------------------------------------------------------------------------------------------
+
+
+@wp.func
+def plane_dir(px: float, py: float, width: float, height: float, tan_half: float) -> wp.vec3:
+    """Unnormalized camera-space direction (sx, sy, 1) through the continuous pixel position (px, py)."""
+    return wp.vec3((2.0 * px / width - 1.0) * tan_half * (width / height), (1.0 - 2.0 * py / height) * tan_half, 1.0)
+
+
+@wp.func
+def angle_deg(a: wp.vec3, b: wp.vec3) -> float:
+    """Angle between two nonzero vectors in degrees (atan2 form: accurate for small angles too)."""
+    return wp.degrees(wp.atan2(wp.length(wp.cross(a, b)), wp.dot(a, b)))
+
+
+@wp.func
+def eccentricity_at(px: float, py: float, gaze: wp.vec2, width: float, height: float, tan_half: float) -> float:
+    """Angle in degrees at the eye between the rays through the gaze point and through (px, py).
+
+    angle = atan2(|g x p|, g.p) with g x p = g x d, d = p - g formed from pixel differences: full relative
+    accuracy near the gaze (small cross product) and, with g.p taken directly, for gazes far off screen too.
+    """
+    g = plane_dir(gaze[0], gaze[1], width, height, tan_half)
+    p = plane_dir(px, py, width, height, tan_half)
+    d = wp.vec3(2.0 * (px - gaze[0]) / width * tan_half * (width / height), -2.0 * (py - gaze[1]) / height * tan_half,
+                0.0)
+    return wp.degrees(wp.atan2(wp.length(wp.cross(g, d)), wp.dot(g, p)))
+
+
+@wp.func
+def arc_max_angle_deg(a: wp.vec3, b: wp.vec3, g: wp.vec3) -> float:
+    """Largest angle (degrees) between g and the directions along the image-plane segment a -> b.
+
+    The segment is a great-circle arc on the sphere of directions; the angle to g along a great circle peaks
+    at the circle's point nearest -g, so the maximum is at an end point or at that point when it lies on the
+    arc (which only happens for gazes far off screen, where some angles exceed 90 degrees).
+    """
+    best = wp.max(angle_deg(a, g), angle_deg(b, g))
+    n = wp.cross(a, b)
+    nn = wp.dot(n, n)
+    if nn > 0.0:
+        q = -g + n * (wp.dot(g, n) / nn)  # projection of -g onto the arc's plane
+        if wp.dot(wp.cross(a, q), n) > 0.0 and wp.dot(wp.cross(q, b), n) > 0.0:
+            best = wp.max(best, angle_deg(q, g))
+    return best
+
+
+@wp.func
+def max_eccentricity_deg(gaze: wp.vec2, width: float, height: float, tan_half: float) -> float:
+    """Largest eccentricity over the closed screen rectangle [0, W] x [0, H] (its outer edges, not the
+    outermost pixel centres): the corners, plus an edge's interior point for gazes far off screen."""
+    g = plane_dir(gaze[0], gaze[1], width, height, tan_half)
+    c0 = plane_dir(0.0, 0.0, width, height, tan_half)
+    c1 = plane_dir(width, 0.0, width, height, tan_half)
+    c2 = plane_dir(width, height, width, height, tan_half)
+    c3 = plane_dir(0.0, height, width, height, tan_half)
+    m = arc_max_angle_deg(c0, c1, g)
+    m = wp.max(m, arc_max_angle_deg(c1, c2, g))
+    m = wp.max(m, arc_max_angle_deg(c2, c3, g))
+    m = wp.max(m, arc_max_angle_deg(c3, c0, g))
+    return m
+
+
+@wp.func
+def foveation_prob(e_deg: float, mar_slope: float, mar_fovea_deg: float, w_min_deg: float, w_far_deg: float,
+                   xi: float) -> float:
+    """Thesis eq. 2: w = m e + b; p = clamp(1 - (w - w_min) / w_far, xi, 1). w_far >= b > 0."""
+    w = mar_slope * e_deg + mar_fovea_deg
+    return wp.clamp(1.0 - (w - w_min_deg) / w_far_deg, xi, 1.0)
+
+
+# -- binarization -------------------------------------------------------------------------------------------
+
+
+@wp.func
+def tile_rank_offset(seed: int, tile: int, num_ranks: int) -> int:
+    s = wp.rand_init(seed, tile)
+    return wp.randi(s, 0, num_ranks)
+
+
+@wp.func
+def dither_rank(x: int, y: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams, rot: int) -> int:
+    """Rank in [0, K) of pixel (x, y) within its aligned block x block tile this frame (a permutation)."""
+    k = sp.block
+    tx = x // k
+    ty = y // k
+    off = tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks)
+    return (ranks[y - ty * k, x - tx * k] + off + rot) % sp.num_ranks
+
+
+@wp.func
+def dither_sample(p: float, x: int, y: int, width: int, height: int, ranks: wp.array2d(dtype=wp.int32),
+                  sp: SamplingParams, rot: int, phase: float) -> wp.uint8:
+    """1 when pixel (x, y) is sampled at probability p this frame (stratified threshold, see module doc)."""
+    r = dither_rank(x, y, ranks, sp, rot)
+    s = wp.rand_init(sp.seed ^ JITTER_SALT, y * width + x)
+    u = wp.randf(s) + phase
+    if u >= 1.0:
+        u = u - 1.0
+    t = (float(r) + u) / float(sp.num_ranks)
+    k = sp.block
+    full = (x // k + 1) * k <= width and (y // k + 1) * k <= height
+    if p >= 1.0 or t < p or (r == 0 and full):
+        return wp.uint8(1)
+    return wp.uint8(0)
+
+
+# -- kernels ------------------------------------------------------------------------------------------------
+
+
+@wp.kernel(enable_backward=False)
+def frame_setup_kernel(
+    gaze_x: float,
+    gaze_y: float,
+    width: int,
+    height: int,
+    tan_half_fov_y: float,
+    mar_slope: float,
+    mar_fovea_deg: float,
+    focus_mode: int,  # 0: no DoF factor, 1: fixed focus_m, 2: depth at the gaze pixel (screen-clamped)
+    focus_m: float,
+    depth: wp.array2d(dtype=float),
+    hit: wp.array2d(dtype=wp.uint8),
+    use_velocity: int,
+    object_velocity: int,
+    cam_prev: CameraParams,
+    eye_prev: wp.vec3,
+    do_cache: int,
+    rot: int,
+    phase: float,
+    out: wp.array(dtype=FrameParams),
+):
+    """One thread: derive the per-frame scalars on the device (no host round trip for the focus depth)."""
+    fw = float(width)
+    fh = float(height)
+    f = FrameParams()
+    f.gaze = wp.vec2(gaze_x, gaze_y)
+    f.tan_half_fov_y = tan_half_fov_y
+    f.aspect = fw / fh
+    g = plane_dir(gaze_x, gaze_y, fw, fh, tan_half_fov_y)
+    step = wp.vec3(2.0 / fw * tan_half_fov_y * (fw / fh), 0.0, 0.0)  # one pixel to the right on the plane
+    f.w_min_deg = wp.degrees(wp.atan2(wp.length(wp.cross(g, step)), wp.dot(g, g) + wp.dot(g, step)))
+    f.e_max_deg = max_eccentricity_deg(f.gaze, fw, fh, tan_half_fov_y)
+    f.w_far_deg = mar_slope * f.e_max_deg + mar_fovea_deg
+    f.dof_on = 0
+    f.focus_m = focus_m
+    if focus_mode == 1:
+        f.dof_on = 1
+    elif focus_mode == 2:
+        gx = wp.clamp(int(wp.floor(wp.clamp(gaze_x, -1.0, fw))), 0, depth.shape[1] - 1)
+        gy = wp.clamp(int(wp.floor(wp.clamp(gaze_y, -1.0, fh))), 0, depth.shape[0] - 1)
+        if hit[gy, gx] != wp.uint8(0):
+            f.dof_on = 1
+            f.focus_m = depth[gy, gx]
+    f.use_velocity = use_velocity
+    f.object_velocity = object_velocity
+    f.cam_prev = cam_prev
+    f.eye_prev = eye_prev
+    f.do_cache = do_cache
+    f.rot = rot
+    f.phase = phase
+    out[0] = f
+
+
+@wp.kernel(enable_backward=False)
+def eccentricity_kernel(frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    fp = frame[0]
+    fw = float(out.shape[1])
+    fh = float(out.shape[0])
+    out[y, x] = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, fw, fh, fp.tan_half_fov_y)
+
+
+@wp.kernel(enable_backward=False)
+def probability_kernel(sp: SamplingParams, frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    fp = frame[0]
+    fw = float(out.shape[1])
+    fh = float(out.shape[0])
+    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, fw, fh, fp.tan_half_fov_y)
+    out[y, x] = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi)
+
+
+@wp.kernel(enable_backward=False)
+def threshold_kernel(
+    probability: wp.array2d(dtype=float),
+    ranks: wp.array2d(dtype=wp.int32),
+    sp: SamplingParams,
+    frame: wp.array(dtype=FrameParams),
+    out_sample: wp.array2d(dtype=wp.uint8),
+):
+    y, x = wp.tid()
+    fp = frame[0]
+    out_sample[y, x] = dither_sample(probability[y, x], x, y, probability.shape[1], probability.shape[0], ranks, sp,
+                                     fp.rot, fp.phase)
+
+
+@wp.kernel(enable_backward=False)
+def tile_pass_kernel(
+    ranks: wp.array2d(dtype=wp.int32),
+    sp: SamplingParams,
+    frame: wp.array(dtype=FrameParams),
+    num_tiles_y: int,
+    sample: wp.array2d(dtype=wp.uint8),
+    cache_hit: wp.array2d(dtype=wp.uint8),
+    num_samples: wp.array(dtype=wp.int32),
+    num_cache_hits: wp.array(dtype=wp.int32),
+):
+    """Launched with ``wp.launch_tiled``: one thread per aligned tile (tile ``b * block_dim + lane`` in raster
+    order). Counts samples and cache hits; a tile with no sample (only partial tiles at the right/bottom edges
+    can have none) gets its lowest-rank pixel sampled. Counts are summed over the thread block first, so the
+    counters see one atomic add per block instead of one per tile."""
+    b, lane = wp.tid()
+    i = b * wp.block_dim() + lane
+    n = int(0)
+    nc = int(0)
+    if i < num_tiles_y * sp.tiles_x:
+        ty = i // sp.tiles_x
+        tx = i - ty * sp.tiles_x
+        k = sp.block
+        x0 = tx * k
+        y0 = ty * k
+        x1 = wp.min(x0 + k, sample.shape[1])
+        y1 = wp.min(y0 + k, sample.shape[0])
+        for yy in range(y0, y1):
+            for xx in range(x0, x1):
+                if sample[yy, xx] != wp.uint8(0):
+                    n = n + 1
+                if cache_hit[yy, xx] != wp.uint8(0):
+                    nc = nc + 1
+        if n == 0:
+            rot = frame[0].rot
+            best = sp.num_ranks
+            bx = x0
+            by = y0
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
+                    r = dither_rank(xx, yy, ranks, sp, rot)
+                    if r < best:
+                        best = r
+                        bx = xx
+                        by = yy
+            sample[by, bx] = wp.uint8(1)
+            n = 1
+    tn = wp.tile_sum(wp.tile(n))
+    tc = wp.tile_sum(wp.tile(nc))
+    if lane == 0:
+        wp.atomic_add(num_samples, 0, wp.int32(tn[0]))
+        wp.atomic_add(num_cache_hits, 0, wp.int32(tc[0]))
+
+
+@wp.kernel(enable_backward=False)
+def sampling_map_kernel(
+    sp: SamplingParams,
+    frame: wp.array(dtype=FrameParams),
+    ranks: wp.array2d(dtype=wp.int32),
+    lab: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    hit: wp.array2d(dtype=wp.uint8),
+    velocity: wp.array2d(dtype=wp.vec2),
+    position: wp.array2d(dtype=wp.vec3),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    depth_prev: wp.array2d(dtype=float),
+    valid_prev: wp.array2d(dtype=wp.uint8),
+    out_probability: wp.array2d(dtype=float),
+    out_saliency: wp.array2d(dtype=float),
+    out_sample: wp.array2d(dtype=wp.uint8),
+    out_cache_hit: wp.array2d(dtype=wp.uint8),
+    out_prev_index: wp.array2d(dtype=wp.int32),
+):
+    """Fused per-pixel pass: eq. 2 probability, eq. 3 saliency, stratified threshold, eq. 4 cache test.
+
+    ``lab`` is the CIE-Lab albedo from ``saliency.lab_kernel`` (any (H, W) vec3 array when use_albedo is 0).
+    Background pixels (hit == 0) have albedo 0 and normal 0 in the G-buffer; they take part in the gradient
+    terms as such (so silhouettes are sampled on both sides) but get no velocity term and no DoF factor (a
+    miss has no surface depth or motion).
+    """
+    y, x = wp.tid()
+    fp = frame[0]
+    w = depth.shape[1]
+    h = depth.shape[0]
+    p = float(1.0)
+    s = float(1.0)
+    if sp.foveation != 0:
+        e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi)
+        s = p
+        # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
+        # remaining terms cannot change it (the fovea skips them)
+        if sp.use_albedo != 0 and s < 1.0:
+            s = wp.max(s, wp.min(sp.albedo_gain * sobel_vec3(lab, x, y), 1.0))
+        if sp.use_normal != 0 and s < 1.0:
+            s = wp.max(s, wp.min(sp.normal_gain * sobel_vec3(normal, x, y), 1.0))
+        if hit[y, x] != wp.uint8(0):
+            if fp.use_velocity != 0 and s < 1.0:
+                v = velocity[y, x]
+                if fp.object_velocity != 0:
+                    # object motion only: where the point would be in the previous frame had it not moved,
+                    # minus where it was
+                    v = wp.vec2(0.0, 0.0)
+                    uv = reproj_uv[y, x]
+                    pr = camera_project(fp.cam_prev, position[y, x])
+                    if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
+                        v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
+                s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
+            if fp.dof_on != 0:
+                s = s * dof_factor(depth[y, x], fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
+        s = wp.clamp(s, sp.xi, 1.0)
+        if wp.isnan(s):
+            s = 1.0
+    out_probability[y, x] = p
+    out_saliency[y, x] = s
+    out_sample[y, x] = dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase)
+    idx = int(-1)
+    if fp.do_cache != 0:
+        idx = cache_lookup(reproj_uv[y, x], position[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev,
+                           fp.eye_prev, sp.depth_eps_rel)
+    out_prev_index[y, x] = wp.int32(idx)
+    if idx >= 0:
+        out_cache_hit[y, x] = wp.uint8(1)
+    else:
+        out_cache_hit[y, x] = wp.uint8(0)

@@ -1,0 +1,336 @@
+"""Sampling stage (ALGORITHMS.md A2): foveation probability, saliency, binarized sampling map and the
+reprojection cache test, as one fused pass plus a tile pass, with every buffer allocated once."""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Optional
+
+import numpy as np
+import warp as wp
+
+from .._util import check_image_size, get_device
+from ..camera import Camera, _check_gaze
+from ..config import Config, check_finite, check_int_range
+from ..kernels.camera import CameraParams
+from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
+from ..kernels.sampling import (
+    FrameParams,
+    SamplingParams,
+    frame_setup_kernel,
+    sampling_map_kernel,
+    tile_pass_kernel,
+)
+
+__all__ = ["SamplingStage", "dither_ranks", "rank_step", "frame_rotation", "launch_tile_pass", "GAZE_LIMIT_PX"]
+
+GOLDEN = 0.6180339887498949
+# Gaze coordinates farther than this from the screen are clamped to it: every angle is then within
+# ~1e-3 deg of its limit, and float32 plane directions stay far from overflow.
+GAZE_LIMIT_PX = 1.0e6
+# threads per block of the tile pass on CUDA (the CPU runs blocks of one thread)
+TILE_PASS_THREADS = 256
+
+
+# -- threshold ranks -------------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def _dither_ranks_cached(block: int) -> np.ndarray:
+    k = block
+    n = k * k
+    if k == 1:
+        return np.zeros((1, 1), dtype=np.int32)
+    # Void-and-cluster style progressive ordering on the k x k torus (Ulichney 1993): each next rank goes to
+    # the free pixel with the least Gaussian "energy" from the ranks already placed (sigma 1.5 px; periodic
+    # images summed so the tile tiles seamlessly). Ties resolve to the first pixel in raster order.
+    sigma = 1.5
+    d = np.arange(k, dtype=np.float64)
+    reps = np.arange(-3, 4)[:, None] * k
+    g1 = np.exp(-((d[None, :] + reps) ** 2) / (2.0 * sigma * sigma)).sum(axis=0)  # periodic 1D Gaussian
+    kernel = np.outer(g1, g1)  # energy at offset (dy, dx)
+    energy = np.zeros((k, k))
+    ranks = np.full((k, k), -1, dtype=np.int32)
+    for r in range(n):
+        masked = np.where(ranks < 0, energy, np.inf)
+        i = int(np.argmin(masked))
+        y, x = divmod(i, k)
+        ranks[y, x] = r
+        energy += np.roll(np.roll(kernel, y, axis=0), x, axis=1)
+    return ranks
+
+
+def dither_ranks(block: int) -> np.ndarray:
+    """(block, block) int32 permutation of 0 .. block^2 - 1 with blue-noise spacing: for every m the pixels of
+    rank < m are spread evenly over the tile (deterministic; cached)."""
+    k = check_int_range("block", block, 1, 64)
+    return _dither_ranks_cached(k).copy()
+
+
+def rank_step(num_ranks: int) -> int:
+    """Per-frame rank rotation: the integer nearest 0.618 K (golden ratio) that is coprime with K, so that K
+    consecutive frames give each pixel every rank once, and consecutive frames are far apart in rank."""
+    if num_ranks <= 1:
+        return 0
+    s0 = int(round(num_ranks * GOLDEN))
+    for d in range(num_ranks):
+        for s in (s0 - d, s0 + d):
+            if 0 < s < num_ranks and math.gcd(s, num_ranks) == 1:
+                return s
+    return 1
+
+
+def frame_rotation(frame_index: int, block: int) -> tuple:
+    """(rot, phase) of frame ``frame_index``: the rank rotation in [0, K) and the jitter phase in [0, 1)."""
+    n = block * block
+    rot = ((frame_index % n) * rank_step(n)) % n
+    phase = math.fmod((frame_index // n) * GOLDEN, 1.0)
+    return int(rot), float(phase)
+
+
+def sampling_params(config: Config, width: int, height: int, seed: int = 0) -> SamplingParams:
+    """The kernels' constant struct for ``config`` at ``width`` x ``height``."""
+    fc, sc, tc = config.foveation, config.saliency, config.temporal
+    sp = SamplingParams()
+    sp.mar_slope = float(fc.mar_slope)
+    sp.mar_fovea_deg = float(fc.mar_fovea_deg)
+    sp.xi = float(fc.effective_min_probability)
+    sp.foveation = 1 if fc.enabled else 0
+    sp.use_albedo = 1 if sc.use_albedo else 0
+    sp.use_normal = 1 if sc.use_normal else 0
+    sp.albedo_gain = float(sc.albedo_scale) / (SOBEL_GAIN * LAB_STEP_FULL)
+    sp.normal_gain = float(sc.normal_scale) / (SOBEL_GAIN * NORMAL_STEP_FULL)
+    sp.inv_velocity_px = 1.0 / float(sc.velocity_scale_px)
+    sp.sigma1_m = float(sc.sigma1_m)
+    sp.sigma2_m = float(sc.sigma2_m)
+    sp.dof_floor = float(sc.dof_floor)
+    sp.depth_eps_rel = float(tc.depth_eps_rel)
+    sp.block = int(fc.block)
+    sp.tiles_x = (width + fc.block - 1) // fc.block
+    sp.num_ranks = int(fc.block * fc.block)
+    sp.seed = int(seed)
+    return sp
+
+
+def launch_tile_pass(ranks, params: SamplingParams, frame_params, tiles: tuple, sample_map, cache_hit, num_samples,
+                     num_cache_hits, device) -> None:
+    """The tile guarantee + counters pass over ``tiles`` = (tiles_y, tiles_x) aligned tiles."""
+    threads = TILE_PASS_THREADS if device.is_cuda else 1
+    n = tiles[0] * tiles[1]
+    wp.launch_tiled(tile_pass_kernel, dim=[(n + threads - 1) // threads],
+                    inputs=[ranks, params, frame_params, tiles[0]],
+                    outputs=[sample_map, cache_hit, num_samples, num_cache_hits], block_dim=TILE_PASS_THREADS,
+                    device=device)
+
+
+def clamp_gaze(gaze, width: int, height: int) -> tuple:
+    gx = min(max(float(gaze[0]), -GAZE_LIMIT_PX), width + GAZE_LIMIT_PX)
+    gy = min(max(float(gaze[1]), -GAZE_LIMIT_PX), height + GAZE_LIMIT_PX)
+    return gx, gy
+
+
+def _eye(name: str, v) -> wp.vec3:
+    try:
+        t = [float(c) for c in v]
+    except TypeError:
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}") from None
+    if len(t) != 3:
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
+    for i, c in enumerate(t):
+        check_finite(f"{name}[{i}]", c)
+    return wp.vec3(*t)
+
+
+# -- stage -----------------------------------------------------------------------------------------------------
+
+
+class SamplingStage:
+    """Foveated sampling map + reprojection cache test for one image size and config.
+
+    Buffers (all (H, W) wp.arrays on ``device``, overwritten by each ``run``):
+        probability: float32, thesis eq. 2 foveation probability p(w) in [xi, 1] (1 when foveation is off).
+        saliency: float32, thesis eq. 3 ``clip(max(dA, dN, V, p) * F_DoF, xi, 1)``: the per-pixel sampling
+            probability that ``sample_map`` follows (long-run rate exactly ``saliency`` in full tiles).
+        sample_map: uint8, 1 where a ray is traced this frame; every aligned block x block tile holds >= 1.
+        cache_hit: uint8, 1 where the reprojected history passes the cache test (0 everywhere when skipped).
+        prev_index: int32, flat index ``y * W + x`` of the previous-frame pixel on a cache hit, else -1.
+        depth_prev, valid_prev: the previous frame's depth (metres) and valid-color mask, set by ``end_frame``.
+        lab: vec3, the CIE-Lab albedo (a prepass, so each pixel is converted once; (1, 1) when unused).
+    Counters (1-element int32 wp.arrays, updated on the device with atomics; read them only for stats):
+        num_samples, num_cache_hits.
+    ``skipped``: dict of what this frame did not compute and why (keys "foveation", "saliency.albedo",
+    "saliency.normal", "saliency.velocity", "saliency.dof", "cache_test").
+
+    Policies: background pixels (G-buffer hit 0: albedo 0, normal 0) enter the gradient terms as they are, so
+    silhouettes get samples on both sides, but get no velocity term and no DoF factor. The DoF focus is
+    ``DofConfig.focus_depth_m`` or else the G-buffer depth at the gaze pixel (gaze clamped to the screen, read
+    on the device); when that pixel is background the DoF factor is 1 for the frame.
+
+    Args:
+        width, height: image size in pixels.
+        config: the full :class:`foveawarp.Config` (foveation, saliency, dof and temporal sections are used).
+        device: Warp device.
+        seed: seed of the threshold pattern, in [0, 2^31 - 1].
+    """
+
+    def __init__(self, width: int, height: int, config: Optional[Config] = None, device=None, *, seed: int = 0):
+        self.width, self.height = check_image_size(width, height)
+        if config is None:
+            config = Config()
+        if not isinstance(config, Config):
+            raise ValueError(f"config must be a foveawarp.Config, got {type(config).__name__}")
+        self.config = config
+        self.seed = check_int_range("seed", seed, 0, 2**31 - 1)
+        self.device = get_device(device)
+        w, h, dev = self.width, self.height, self.device
+        k = config.foveation.block
+        self.block = k
+        self.tiles = ((h + k - 1) // k, (w + k - 1) // k)
+        self.params = sampling_params(config, w, h, self.seed)
+        self.ranks = wp.array(dither_ranks(k), dtype=wp.int32, device=dev)
+        self.frame_params = wp.zeros(1, dtype=FrameParams, device=dev)
+        self._lab_on = bool(config.foveation.enabled and config.saliency.use_albedo)
+        self.lab = wp.zeros((h, w) if self._lab_on else (1, 1), dtype=wp.vec3, device=dev)
+        self.probability = wp.zeros((h, w), dtype=float, device=dev)
+        self.saliency = wp.zeros((h, w), dtype=float, device=dev)
+        self.sample_map = wp.zeros((h, w), dtype=wp.uint8, device=dev)
+        self.cache_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
+        self.prev_index = wp.full((h, w), -1, dtype=wp.int32, device=dev)
+        self.depth_prev = wp.zeros((h, w), dtype=float, device=dev)
+        self.valid_prev = wp.zeros((h, w), dtype=wp.uint8, device=dev)
+        self.num_samples = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.num_cache_hits = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.skipped: dict = {}
+        self._no_cam = CameraParams()
+        self._zero = wp.vec3(0.0, 0.0, 0.0)
+
+    # -- per frame ---------------------------------------------------------------------------------------------
+    def run(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
+            eye_prev=None, camera_prev: Optional[Camera] = None) -> None:
+        """Fill probability, saliency, sample_map, cache_hit, prev_index and the counters for this frame:
+        ``set_frame(...)`` then ``launch(gbuffer)`` (same arguments as ``set_frame``)."""
+        self.set_frame(gbuffer, camera, gaze_px, frame_index, moving=moving, first_frame=first_frame,
+                       eye_prev=eye_prev, camera_prev=camera_prev)
+        self.launch(gbuffer)
+
+    def set_frame(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
+                  eye_prev=None, camera_prev: Optional[Camera] = None) -> None:
+        """Validate this frame's inputs, decide what to skip (``self.skipped``) and launch the one-thread setup
+        kernel that writes every per-frame value (gaze, w_min, w_far, focus depth read from the G-buffer at the
+        gaze pixel, threshold rotation, flags) to ``self.frame_params`` on the device.
+
+        Args:
+            gbuffer: the current :class:`GBuffer` (same size and device).
+            camera: the current camera (its field of view drives the eccentricity).
+            gaze_px: gaze (x, y) in pixels; off screen is valid (the fovea may lie off screen; beyond
+                ``GAZE_LIMIT_PX`` it is clamped); NaN raises ValueError.
+            frame_index: frame counter >= 0; selects the threshold rotation (K = block^2 frames per cycle).
+            moving: whether anything in the scene moved since the previous frame; False skips the velocity term.
+            first_frame: True on the first frame or after a camera cut: the cache test is skipped (no hits).
+            eye_prev: previous eye position (world units); required unless ``first_frame``.
+            camera_prev: optional previous camera; given, the velocity term uses object motion only
+                (camera motion removed), otherwise the G-buffer velocity (which includes camera motion).
+        """
+        w, h = self.width, self.height
+        gaze = _check_gaze(gaze_px)
+        fi = check_int_range("frame_index", frame_index, 0, None)
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a foveawarp.Camera, got {type(camera).__name__}")
+        if gbuffer.width != w or gbuffer.height != h:
+            raise ValueError(f"gbuffer must be {w} x {h}, got {gbuffer.width} x {gbuffer.height}")
+        cfg = self.config
+        fc, sc = cfg.foveation, cfg.saliency
+        skipped = {}
+        do_cache = 1
+        if not cfg.temporal.enabled:
+            do_cache = 0
+            skipped["cache_test"] = "TemporalConfig.enabled is False"
+        elif first_frame:
+            do_cache = 0
+            skipped["cache_test"] = "first frame or camera cut: no history"
+        if do_cache:
+            if eye_prev is None:
+                raise ValueError("eye_prev must be given (the previous eye position) unless first_frame is True")
+            eye_p = _eye("eye_prev", eye_prev)
+        else:
+            eye_p = self._zero
+        use_vel = 0
+        focus_mode, focus = 0, 0.0
+        if not fc.enabled:
+            skipped["foveation"] = "FoveationConfig.enabled is False: every pixel traced"
+            for term in ("albedo", "normal", "velocity", "dof"):
+                skipped[f"saliency.{term}"] = "foveation disabled"
+        else:
+            if not sc.use_albedo:
+                skipped["saliency.albedo"] = "SaliencyConfig.use_albedo is False"
+            if not sc.use_normal:
+                skipped["saliency.normal"] = "SaliencyConfig.use_normal is False"
+            if not sc.use_velocity:
+                skipped["saliency.velocity"] = "SaliencyConfig.use_velocity is False"
+            elif not moving:
+                skipped["saliency.velocity"] = "nothing moved"
+            else:
+                use_vel = 1
+            if not sc.use_dof:
+                skipped["saliency.dof"] = "SaliencyConfig.use_dof is False"
+            elif not cfg.dof.enabled:
+                skipped["saliency.dof"] = "pinhole camera (DofConfig.aperture_m == 0)"
+            elif cfg.dof.focus_depth_m is not None:
+                focus_mode, focus = 1, float(cfg.dof.focus_depth_m)
+            else:
+                focus_mode = 2  # the G-buffer depth at the gaze pixel, read on the device
+        obj_vel = 0
+        cam_prev = self._no_cam
+        if use_vel and camera_prev is not None:
+            if not isinstance(camera_prev, Camera):
+                raise ValueError(f"camera_prev must be a foveawarp.Camera or None, got {type(camera_prev).__name__}")
+            obj_vel = 1
+            cam_prev = camera_prev.params(w, h)
+        rot, phase = frame_rotation(fi, self.block)
+        gx, gy = clamp_gaze(gaze, w, h)
+        self.skipped = skipped
+        wp.launch(frame_setup_kernel, dim=1,
+                  inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope, self.params.mar_fovea_deg,
+                          focus_mode, focus, gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache,
+                          rot, phase],
+                  outputs=[self.frame_params], device=self.device)
+
+    def launch(self, gbuffer) -> None:
+        """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.
+
+        Every argument is fixed (buffers and constants; the per-frame values are read from
+        ``self.frame_params``), so on CUDA this can be captured once in a graph and replayed after each
+        ``set_frame`` as long as the G-buffer arrays stay the same objects.
+        """
+        w, h = self.width, self.height
+        g, dev = gbuffer, self.device
+        self.num_samples.zero_()
+        self.num_cache_hits.zero_()
+        if self._lab_on:
+            wp.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+        wp.launch(sampling_map_kernel, dim=(h, w),
+                  inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity,
+                          g.position, g.reproj_uv, self.depth_prev, self.valid_prev],
+                  outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
+                  device=dev)
+        launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
+                         self.num_samples, self.num_cache_hits, dev)
+
+    def end_frame(self, gbuffer, valid_mask=None) -> None:
+        """Keep this frame's depth and valid-color mask (uint8 (H, W) wp.array; None: the G-buffer hit mask)
+        for the next frame's cache test."""
+        src = gbuffer.hit if valid_mask is None else valid_mask
+        if not isinstance(src, wp.array) or tuple(src.shape) != (self.height, self.width) or src.dtype != wp.uint8:
+            raise ValueError(f"valid_mask must be a ({self.height}, {self.width}) uint8 wp.array, got "
+                             f"{getattr(src, 'shape', None)} {getattr(src, 'dtype', type(src).__name__)}")
+        wp.copy(self.depth_prev, gbuffer.depth)
+        wp.copy(self.valid_prev, src)
+
+    # -- stats (host reads: call only when wanted) ---------------------------------------------------------------
+    def stats(self) -> dict:
+        n = float(self.width * self.height)
+        s = int(self.num_samples.numpy()[0])
+        c = int(self.num_cache_hits.numpy()[0])
+        return {"num_samples": s, "num_cache_hits": c, "sampling_rate": s / n, "cache_hit_rate": c / n,
+                "skipped": dict(self.skipped)}

@@ -1,0 +1,333 @@
+"""Foveation probability (thesis eq. 2) and the stratified sampling map, against independent NumPy references."""
+
+import math
+
+import numpy as np
+import pytest
+import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import foveawarp as fw
+from foveawarp import ops
+from foveawarp.buffers import GBuffer
+from foveawarp.stages.sampling import SamplingStage, dither_ranks, rank_step
+
+# ---------------------------------------------------------------------------------------------------------------
+# independent references (float64): a pinhole with focal length f = (H / 2) / tan(fov_y / 2) in pixels; the ray
+# through pixel position (px, py) is (px - W/2, py - H/2, f) (flipping y would not change any angle)
+
+
+def ref_dirs(px, py, w, h, fov_y_deg):
+    f = 0.5 * h / math.tan(math.radians(fov_y_deg) / 2.0)
+    px, py = np.broadcast_arrays(np.asarray(px, np.float64), np.asarray(py, np.float64))
+    return np.stack([px - 0.5 * w, py - 0.5 * h, np.full(px.shape, f)], axis=-1)
+
+
+def ref_angle_deg(a, b):
+    c = np.linalg.norm(np.cross(a, b), axis=-1)
+    return np.degrees(np.arctan2(c, np.sum(a * b, axis=-1)))
+
+
+def ref_eccentricity(w, h, gaze, fov):
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    g = ref_dirs(gaze[0], gaze[1], w, h, fov)
+    return ref_angle_deg(ref_dirs(xs, ys, w, h, fov), g[None, None, :])
+
+
+def ref_emax(w, h, gaze, fov, n=20001):
+    """Largest eccentricity over the screen rectangle, by brute force along its four edges."""
+    t = np.linspace(0.0, 1.0, n)
+    xs = np.concatenate([t * w, np.full(n, w), t * w, np.zeros(n)])
+    ys = np.concatenate([np.zeros(n), t * h, np.full(n, h), t * h])
+    g = ref_dirs(gaze[0], gaze[1], w, h, fov)
+    return float(ref_angle_deg(ref_dirs(xs, ys, w, h, fov), g[None, :]).max())
+
+
+def ref_probability(w, h, gaze, fov, m, b, xi):
+    e = ref_eccentricity(w, h, gaze, fov)
+    g = ref_dirs(gaze[0], gaze[1], w, h, fov)
+    g1 = ref_dirs(gaze[0] + 1.0, gaze[1], w, h, fov)
+    w_min = float(ref_angle_deg(g, g1))
+    w_far = m * ref_emax(w, h, gaze, fov) + b
+    return np.clip(1.0 - (m * e + b - w_min) / w_far, xi, 1.0)
+
+
+def tile_counts(mask, k):
+    h, w = mask.shape
+    ty, tx = -(-h // k), -(-w // k)
+    pad = np.zeros((ty * k, tx * k), dtype=np.int64)
+    pad[:h, :w] = mask
+    return pad.reshape(ty, k, tx, k).sum(axis=(1, 3))
+
+
+W, H = 96, 72
+GAZES = [(48.0, 36.0), (0.0, 0.0), (96.0, 72.0), (13.25, 60.5), (-50.0, 30.0), (296.0, 172.0), (-960.0, 36.0),
+         (48.0, -5000.0)]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# eccentricity and eq. 2
+
+
+@pytest.mark.parametrize("fov", [30.0, 60.0, 110.0])
+def test_eccentricity_matches_reference(device, fov):
+    for w, h in ((W, H), (37, 53)):
+        for gx, gy in GAZES:
+            gaze = (gx * w / W, gy * h / H)
+            got = ops.eccentricity_deg(w, h, gaze, fov, device=device)
+            ref = ref_eccentricity(w, h, gaze, fov)
+            assert got.shape == (h, w) and got.dtype == np.float32
+            err = np.abs(got - ref).max()
+            assert err < 1e-4, f"gaze {gaze} fov {fov}: max error {err} deg"
+
+
+def test_far_off_screen_gaze_uses_edge_interior_maximum():
+    # gaze 10 screen widths to the left: the largest eccentricity lies mid-way along the right edge, not at a
+    # corner; the reference finds it by brute force, so a corners-only w_far would fail test_probability below
+    w, h, fov, gaze = W, H, 60.0, (-960.0, 36.0)
+    g = ref_dirs(*gaze, w, h, fov)
+    corners = ref_dirs(np.array([0, w, 0, w]), np.array([0, 0, h, h]), w, h, fov)
+    assert ref_emax(w, h, gaze, fov) > ref_angle_deg(corners, g[None]).max() + 0.5
+
+
+@pytest.mark.parametrize("m,b,xi", [(0.028, 1.0 / 48.0, 0.05), (0.022, 0.03, 0.3), (0.2, 0.5, 0.0)])
+def test_foveation_probability_matches_reference(device, m, b, xi):
+    for gaze in GAZES:
+        for fov in (45.0, 100.0):
+            got = ops.foveation_probability(W, H, gaze, fov, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                            device=device)
+            ref = ref_probability(W, H, gaze, fov, m, b, xi)
+            assert np.abs(got - ref).max() < 2e-5, (gaze, fov)
+            assert got.min() >= xi - 1e-7 and got.max() <= 1.0
+
+
+def test_probability_is_one_at_the_gaze_and_falls_off(device):
+    p = ops.foveation_probability(320, 180, (160.0, 90.0), 60.0, mar_slope=0.028, mar_fovea_deg=1 / 48,
+                                  min_probability=0.05, device=device)
+    assert p[90, 160] == 1.0
+    assert p[0, 0] < 0.6 and p[0, 0] == pytest.approx(p[179, 319], abs=1e-6)
+
+
+def test_invalid_inputs_raise():
+    with pytest.raises(ValueError, match="gaze_px"):
+        ops.eccentricity_deg(W, H, (float("nan"), 3.0), 60.0, device="cpu")
+    with pytest.raises(ValueError, match="gaze_px"):
+        ops.foveation_probability(W, H, (1.0, float("inf")), 60.0, mar_slope=0.03, mar_fovea_deg=0.02,
+                                  min_probability=0.1, device="cpu")
+    with pytest.raises(ValueError, match="fov_y_deg"):
+        ops.eccentricity_deg(W, H, (1.0, 2.0), 180.0, device="cpu")
+    with pytest.raises(ValueError, match="mar_slope"):
+        ops.foveation_probability(W, H, (1.0, 2.0), 60.0, mar_slope=0.0, mar_fovea_deg=0.02, min_probability=0.1)
+    with pytest.raises(ValueError, match="min_probability"):
+        ops.foveation_probability(W, H, (1.0, 2.0), 60.0, mar_slope=0.1, mar_fovea_deg=0.02, min_probability=1.5)
+    with pytest.raises(ValueError, match="block"):
+        ops.sample_map(np.ones((4, 4)), block=0)
+    with pytest.raises(ValueError, match="probability"):
+        ops.sample_map(np.full((4, 4), np.nan), block=2)
+
+
+@settings(max_examples=25, deadline=None)
+@given(gx=st.floats(-1e9, 1e9), gy=st.floats(-1e9, 1e9), fov=st.floats(1.0, 179.0),
+       xi=st.floats(0.0, 1.0), m=st.floats(1e-4, 1.0), b=st.floats(1e-4, 1.0))
+def test_probability_finite_for_any_gaze(gx, gy, fov, xi, m, b):
+    p = ops.foveation_probability(17, 11, (gx, gy), fov, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                  device="cpu")
+    e = ops.eccentricity_deg(17, 11, (gx, gy), fov, device="cpu")
+    assert np.isfinite(p).all() and np.isfinite(e).all()
+    assert p.min() >= np.float32(xi) - 1e-6 and p.max() <= 1.0
+    assert e.min() >= 0.0 and e.max() <= 180.0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# binarization
+
+
+def test_dither_ranks_are_blue_noise_permutations():
+    for k in range(1, 17):
+        r = dither_ranks(k)
+        assert r.shape == (k, k) and sorted(r.ravel().tolist()) == list(range(k * k))
+    for k in (3, 4, 5, 8, 16):
+        r = dither_ranks(k)
+        n = k * k
+        for m in range(2, n + 1):
+            ys, xs = np.nonzero(r < m)
+            dx = np.abs(xs[:, None] - xs[None, :])
+            dy = np.abs(ys[:, None] - ys[None, :])
+            d = np.hypot(np.minimum(dx, k - dx), np.minimum(dy, k - dy)) + np.eye(m) * 1e9
+            # the m lowest ranks are spread out: their closest toroidal pair is at least half the spacing of a
+            # perfect lattice of m points (a random permutation fails this for every k here)
+            assert d.min() >= 0.5 * math.sqrt(n / m), (k, m, d.min())
+    for n in (1, 4, 9, 16, 25, 64, 4096):
+        s = rank_step(n)
+        assert n == 1 or math.gcd(s, n) == 1
+
+
+@pytest.mark.parametrize("k,w,h", [(4, 64, 48), (4, 61, 45), (3, 50, 31), (5, 23, 17), (1, 9, 7)])
+def test_every_tile_has_a_sample(device, k, w, h):
+    rng = np.random.default_rng(k * 1000 + w)
+    maps = {"zero": np.zeros((h, w)), "xi": np.full((h, w), 1.0 / (k * k)), "random": rng.random((h, w)) ** 3}
+    for name, p in maps.items():
+        for f in range(0, 40, 7):
+            m = ops.sample_map(p, block=k, frame_index=f, seed=3, device=device)
+            assert m.dtype == np.uint8 and m.shape == (h, w)
+            assert tile_counts(m, k).min() >= 1, (name, f)
+    # p = 0: exactly one sample per tile (the rank-0 pixel of a full tile, the forced pixel of a partial one)
+    m = ops.sample_map(np.zeros((h, w)), block=k, frame_index=5, device=device)
+    assert (tile_counts(m, k) == 1).all()
+    assert ops.sample_map(np.ones((h, w)), block=k, device=device).all()
+
+
+@settings(max_examples=20, deadline=None)
+@given(w=st.integers(1, 40), h=st.integers(1, 40), k=st.integers(1, 9), f=st.integers(0, 10**6),
+       seed=st.integers(0, 2**31 - 1), p=st.floats(-1.0, 2.0))
+def test_tile_guarantee_property(w, h, k, f, seed, p):
+    m = ops.sample_map(np.full((h, w), p), block=k, frame_index=f, seed=seed, device="cpu")
+    assert tile_counts(m, k).min() >= 1
+    if p >= 1.0:
+        assert m.all()
+
+
+def test_constant_probability_is_stratified_per_tile(device):
+    # every full 4 x 4 tile gets floor(16 p) or floor(16 p) + 1 samples (white noise would spread 0 .. 16)
+    k, h, w = 4, 48, 64
+    for p in (0.1, 0.3, 0.55, 0.9):
+        for f in (0, 1, 17):
+            c = tile_counts(ops.sample_map(np.full((h, w), p), block=k, frame_index=f, device=device), k)
+            lo = math.floor(16 * p)
+            assert c.min() >= lo and c.max() <= lo + 1, (p, f, c.min(), c.max())
+            assert abs(c.mean() / 16.0 - p) < 1.0 / 16.0
+
+
+def test_rate_converges_to_probability(device):
+    k, h, w = 4, 48, 64
+    rng = np.random.default_rng(7)
+    ys, xs = np.mgrid[0:h, 0:w]
+    # smooth map over [1/16, 1] plus a noisy patch
+    p = 1.0 / 16 + (15.0 / 16) * (0.5 + 0.5 * np.sin(xs / 9.0) * np.cos(ys / 7.0))
+    p[10:20, 30:50] = 1.0 / 16 + (15.0 / 16) * rng.random((10, 20))
+    frames = 128
+    acc = np.zeros((h, w))
+    for f in range(frames):
+        acc += ops.sample_map(p, block=k, frame_index=f, seed=11, device=device)
+    rate = acc / frames
+    err = np.abs(rate - p)
+    assert err.mean() < 0.006, err.mean()
+    assert err.max() < 0.025, err.max()
+    assert abs(rate.mean() - p.mean()) < 0.002
+
+
+def test_below_floor_rate_is_floor(device):
+    # a map below 1 / k^2 is raised to it (the tile guarantee), exactly over k^2 frames
+    k, h, w = 4, 32, 32
+    p = np.full((h, w), 0.01)
+    acc = sum(ops.sample_map(p, block=k, frame_index=f, device=device).astype(np.int64) for f in range(16))
+    assert (acc == 1).all()  # each pixel sampled exactly once in 16 frames
+
+
+def test_maps_differ_frame_to_frame(device):
+    k, h, w = 4, 48, 64
+    p = np.full((h, w), 0.25)
+    prev = ops.sample_map(p, block=k, frame_index=0, device=device)
+    for f in range(1, 6):
+        cur = ops.sample_map(p, block=k, frame_index=f, device=device)
+        overlap = (cur & prev).sum() / max(prev.sum(), 1)
+        assert overlap < 0.5, (f, overlap)  # independent draws would overlap by ~0.25; a frozen map by 1
+        prev = cur
+    a = ops.sample_map(p, block=k, frame_index=3, seed=1, device=device)
+    b = ops.sample_map(p, block=k, frame_index=3, seed=2, device=device)
+    assert (a != b).any()
+    assert (a == ops.sample_map(p, block=k, frame_index=3, seed=1, device=device)).all()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# stage
+
+
+def _synthetic_gbuffer(w, h, device, depth=3.0):
+    g = GBuffer(w, h, device)
+    g.depth.fill_(depth)
+    g.hit.fill_(1)
+    g.normal.fill_(wp.vec3(0.0, 0.0, 1.0))
+    g.albedo.fill_(wp.vec3(0.5, 0.5, 0.5))
+    return g
+
+
+def test_stage_probability_matches_op_and_counters(device):
+    cfg = fw.Config()
+    cam = fw.Camera(fov_y_deg=50.0)
+    g = _synthetic_gbuffer(W, H, device)
+    stage = SamplingStage(W, H, cfg, device=device)
+    for f, gaze in enumerate([(10.0, 20.0), (-40.0, 90.0)]):
+        stage.run(g, cam, gaze, f, moving=False, first_frame=True)
+        ref = ref_probability(W, H, gaze, 50.0, cfg.foveation.mar_slope, cfg.foveation.mar_fovea_deg,
+                              cfg.foveation.effective_min_probability)
+        prob = stage.probability.numpy()
+        assert np.abs(prob - ref).max() < 2e-5
+        # uniform albedo and normals, no motion, pinhole: saliency is the foveation probability
+        assert np.abs(stage.saliency.numpy() - prob).max() == 0.0
+        s = stage.sample_map.numpy()
+        assert tile_counts(s, cfg.foveation.block).min() >= 1
+        st_ = stage.stats()
+        assert st_["num_samples"] == int(s.sum())
+        assert st_["num_cache_hits"] == 0 == int(stage.cache_hit.numpy().sum())
+        assert set(st_["skipped"]) == {"cache_test", "saliency.velocity", "saliency.dof"}
+
+
+def test_stage_disabled_foveation_samples_everything(device):
+    cfg = fw.Config().with_(foveation={"enabled": False})
+    g = _synthetic_gbuffer(40, 30, device)
+    stage = SamplingStage(40, 30, cfg, device=device)
+    stage.run(g, fw.Camera(), (3.0, 4.0), 0, moving=True, first_frame=True)
+    assert stage.sample_map.numpy().all()
+    assert (stage.probability.numpy() == 1.0).all() and (stage.saliency.numpy() == 1.0).all()
+    assert stage.stats()["num_samples"] == 40 * 30
+    assert "foveation" in stage.skipped
+
+
+def test_stage_rejects_bad_arguments(device):
+    g = _synthetic_gbuffer(16, 12, device)
+    stage = SamplingStage(16, 12, fw.Config(), device=device)
+    with pytest.raises(ValueError, match="gaze_px"):
+        stage.run(g, fw.Camera(), (float("nan"), 1.0), 0, moving=False, first_frame=True)
+    with pytest.raises(ValueError, match="eye_prev"):
+        stage.run(g, fw.Camera(), (1.0, 1.0), 1, moving=False, first_frame=False)
+    with pytest.raises(ValueError, match="frame_index"):
+        stage.run(g, fw.Camera(), (1.0, 1.0), -1, moving=False, first_frame=True)
+    with pytest.raises(ValueError, match="gbuffer"):
+        stage.run(_synthetic_gbuffer(8, 8, device), fw.Camera(), (1.0, 1.0), 0, moving=False, first_frame=True)
+
+
+FRAMES = list(enumerate([(10.0, 20.0), (50.0, 30.0), (90.0, 5.0)]))  # (frame index, gaze)
+
+
+def test_set_frame_then_launch_equals_run(device):
+    g = _synthetic_gbuffer(W, H, device)
+    cam = fw.Camera(fov_y_deg=50.0)
+    a = SamplingStage(W, H, fw.Config(), device=device)
+    b = SamplingStage(W, H, fw.Config(), device=device)
+    for f, gaze in FRAMES:
+        a.run(g, cam, gaze, f, moving=False, first_frame=True)
+        b.set_frame(g, cam, gaze, f, moving=False, first_frame=True)
+        b.launch(g)
+        assert (a.sample_map.numpy() == b.sample_map.numpy()).all()
+        assert (a.saliency.numpy() == b.saliency.numpy()).all()
+
+
+@pytest.mark.needs_cuda
+def test_launch_replays_as_a_cuda_graph():
+    dev = "cuda:0"
+    g = _synthetic_gbuffer(W, H, dev)
+    cam = fw.Camera(fov_y_deg=50.0)
+    ref = SamplingStage(W, H, fw.Config(), device=dev)
+    st_ = SamplingStage(W, H, fw.Config(), device=dev)
+    st_.run(g, cam, (1.0, 1.0), 0, moving=False, first_frame=True)  # load the modules before capturing
+    with wp.ScopedCapture(dev) as capture:
+        st_.launch(g)
+    for f, gaze in FRAMES:
+        ref.run(g, cam, gaze, f, moving=False, first_frame=True)
+        st_.set_frame(g, cam, gaze, f, moving=False, first_frame=True)
+        wp.capture_launch(capture.graph)
+        assert (ref.sample_map.numpy() == st_.sample_map.numpy()).all()
+        assert (ref.probability.numpy() == st_.probability.numpy()).all()
+        assert ref.stats()["num_samples"] == st_.stats()["num_samples"]
