@@ -246,7 +246,8 @@ class FrameLoop:
         with self._stage("sampling"):
             if foveated:
                 self.sampling.run(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
-                                  first_frame=first or cut, eye_prev=prev_cam.eye)
+                                  first_frame=first or cut, eye_prev=None if (first or cut) else prev_cam.eye,
+                                  camera_prev=None if (first or cut) else prev_cam)
                 smap = self.sampling.sample_map
                 skipped.update(self.sampling.skipped)
             else:
