@@ -197,7 +197,12 @@ class Scene:
 
     @property
     def bounds(self) -> tuple:
-        return self.vertices.min(axis=0), self.vertices.max(axis=0)
+        """(min, max) corners of the rest-pose bounding box (computed once)."""
+        key = (id(self.vertices), self.vertices.shape)
+        if getattr(self, "_bounds_key", None) != key:
+            self._bounds = (self.vertices.min(axis=0), self.vertices.max(axis=0))
+            self._bounds_key = key
+        return self._bounds
 
     @property
     def extent(self) -> float:
