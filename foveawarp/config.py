@@ -315,8 +315,11 @@ class IndirectConfig:
         depth_threshold: relative depth difference (fraction of the scene's bounding-box diagonal) below
             which children join a cluster, in (0, 1]; paper 0.05.
         normal_threshold: minimum dot(n_child, n_avg) for a valid cluster, in [-1, 1]; paper 0.9.
-        start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes), >= 0; paper 3 (8 x 8).
-        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]; paper 6 (for 512^2).
+        start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes), >= 0; paper: 8 x 8
+            nodes, i.e. 3.
+        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 4 (16 x 16
+            nodes), the paper's fastest setting (its "limit level 6" counts levels from the 512^2 leaves up);
+            5 and 6 (32^2, 64^2 nodes) are finer and slower (benchmarks/indirect.py).
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
     """
@@ -325,7 +328,7 @@ class IndirectConfig:
     depth_threshold: float = 0.05
     normal_threshold: float = 0.9
     start_level: int = 3
-    limit_level: int = 6
+    limit_level: int = 4
     d_min_rel: float = 0.02
     strength: float = 1.0
 

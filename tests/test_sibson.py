@@ -209,7 +209,12 @@ def test_non_seed_garbage_is_ignored(device, rng):
     for window in (None, 4):
         a = ops.sibson(dirty, m, window=window, device=device)
         assert np.all(np.isfinite(a))
-        assert np.array_equal(a, ops.sibson(colors, m, window=window, device=device))
+        b = ops.sibson(colors, m, window=window, device=device)
+        if window is None:
+            # the exact form accumulates with atomics: on CUDA the summation order (last bits) varies
+            np.testing.assert_allclose(a, b, atol=1e-6, rtol=0)
+        else:
+            assert np.array_equal(a, b)
 
 
 def test_stage_sibson_off_and_stats(device, rng):
