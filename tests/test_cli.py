@@ -40,3 +40,13 @@ def test_bad_arguments():
 def test_warmup(capsys):
     assert main(["warmup", "--device", "cpu"]) == 0
     assert "kernel modules" in capsys.readouterr().out
+
+
+def test_render_debug_and_dof_views(tmp_path):
+    out = tmp_path / "dbg"
+    rc = main(["render", "--scene", "cornell", "--device", "cpu", "--width", "40", "--height", "24", "--frames",
+               "1", "--out", str(out), "--debug", "--dof"])
+    assert rc == 0
+    assert (out / "debug_0000.png").is_file()  # probability | saliency | binary map | cache hits
+    assert (out / "dof_comparison.png").is_file()
+    assert "thin_lens" in (out / "dof_comparison.txt").read_text()
