@@ -82,7 +82,8 @@ def _panel(frame, ref_img=None) -> np.ndarray:
     smap = frame.sampling_map.numpy().astype(np.float32)
     parts.append(np.repeat(smap[..., None], 3, axis=2))
     if "sparse" in ex:
-        parts.append(ex["sparse"])
+        sparse = ex["sparse"].numpy() if hasattr(ex["sparse"], "numpy") else np.asarray(ex["sparse"])
+        parts.append(np.clip(sparse * 2.0, 0.0, 1.0) ** (1.0 / 2.2))  # linear radiance, display gamma
     parts.append(img)
     if ref_img is not None:
         parts.append(ref_img)
