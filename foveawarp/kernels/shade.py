@@ -132,6 +132,29 @@ def shade_point(
     return col + amb + face_emission[face]
 
 
+@wp.func
+def shade_pixel(
+    sp: ShadeParams,
+    x: int,
+    y: int,
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss)."""
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+    else:
+        out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                                area_lights, face_emission)
+
+
 @wp.kernel(enable_backward=False)
 def shade_full_kernel(
     sp: ShadeParams,
@@ -146,11 +169,7 @@ def shade_full_kernel(
     out: wp.array2d(dtype=wp.vec3),
 ):
     y, x = wp.tid()
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        return
-    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                            area_lights, face_emission)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
 
 
 @wp.kernel(enable_backward=False)
@@ -175,11 +194,7 @@ def shade_list_kernel(
     idx = work[i]
     y = idx // sp.width
     x = idx - y * sp.width
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        return
-    out[y, x] = shade_point(sp, idx, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights, area_lights,
-                            face_emission)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
 
 
 @wp.kernel(enable_backward=False)
@@ -200,11 +215,7 @@ def shade_masked_kernel(
     y, x = wp.tid()
     if mask[y, x] == wp.uint8(0):
         return
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        return
-    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                            area_lights, face_emission)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
 
 
 @wp.kernel(enable_backward=False)
@@ -229,8 +240,4 @@ def shade_rows_kernel(
     c = coords[v, u]
     x = c[0]
     y = c[1]
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        return
-    out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                            area_lights, face_emission)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
