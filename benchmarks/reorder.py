@@ -91,7 +91,7 @@ def main():
                             stage.run(mask)
                             comp = time_ms(lambda: stage.run(mask), dev, repeats, args.warmup)["median_ms"]
                             if s in ("rows", "rows+balance"):
-                                sp = loop.shade_params(cam)
+                                sp = loop.upload_shade_params(cam)
 
                                 def trace():
                                     wp.launch(shade_rows_kernel, dim=(h, w),

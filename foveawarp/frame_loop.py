@@ -16,7 +16,14 @@ from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
 from .config import Config
 from .kernels.gbuffer import gbuffer_kernel
-from .kernels.shade import ShadeParams, shade_full_kernel, shade_list_kernel, shade_masked_kernel, shade_rows_kernel
+from .kernels.shade import (
+    ShadeParams,
+    set_shade_params_kernel,
+    shade_full_kernel,
+    shade_list_kernel,
+    shade_masked_kernel,
+    shade_rows_kernel,
+)
 from .kernels.tonemap import tonemap_kernel
 from .scene import DeviceScene, Scene, load_scene
 
@@ -35,10 +42,12 @@ class FrameLoop:
         device: Warp device ("cpu", "cuda:0", ...) or None for Warp's default.
         timing: synchronize after each stage and report ``ms_<stage>`` in ``stats`` (slower; off for
             benchmarks of whole frames, which use CUDA graphs on CUDA).
+        graph: capture the steady-state frame body as a CUDA graph and replay it. None (default): on CUDA
+            when ``timing`` is False. Ignored (eager launches) on the CPU and when ``timing`` is True.
     """
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
-                 timing: bool = True):
+                 timing: bool = True, graph: Optional[bool] = None):
         self.width, self.height = check_image_size(width, height)
         if config is None:
             config = Config()
@@ -67,6 +76,14 @@ class FrameLoop:
         self.prev_camera: Optional[Camera] = None
         self._ref_prev_camera: Optional[Camera] = None
         self._stats: dict = {}
+        self._sp_dev = wp.zeros(1, dtype=ShadeParams, device=dev)
+        if graph is not None and not isinstance(graph, bool):
+            raise ValueError(f"graph must be True, False or None, got {graph!r}")
+        self._graphs_on = bool(dev.is_cuda and not self.timing and graph is not False)
+        self._graphs: dict = {}
+        self._warm_keys: set = set()
+        self._graph_error: Optional[str] = None
+        self._static_frames = 0
 
     def _ensure_foveated_stages(self) -> None:
         """Allocate the foveated stages' buffers (once, on the first ``render``)."""
@@ -153,20 +170,27 @@ class FrameLoop:
         g, ds = self.gbuffer, self.dscene
         return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
+    def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
+        """Write ``shade_params(camera)`` to the (1,) device array the shading kernels read, and return it."""
+        wp.launch(set_shade_params_kernel, dim=1, inputs=[self.shade_params(camera, ao_samples=ao_samples)],
+                  outputs=[self._sp_dev], device=self.device)
+        return self._sp_dev
+
     def shade_full(self, camera: Camera, out=None, *, ao_samples: Optional[int] = None) -> None:
         wp.launch(shade_full_kernel, dim=(self.height, self.width),
-                  inputs=[self.shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
+                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
 
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device)."""
         wp.launch(shade_list_kernel, dim=work.shape[0],
-                  inputs=[self.shade_params(camera, ao_samples=ao_samples), work, count, *self._shade_inputs()],
+                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), work, count,
+                          *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
 
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
         wp.launch(shade_masked_kernel, dim=(self.height, self.width),
-                  inputs=[self.shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
+                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
 
     def _tonemap(self, hdr, out) -> None:
@@ -217,7 +241,14 @@ class FrameLoop:
                cut: bool = False) -> Frame:
         """Render one foveated frame for ``camera`` with the gaze at ``gaze_px`` (pixels; None = screen centre;
         off screen is valid). ``time`` (seconds) moves animated objects; ``cut=True`` forces a camera cut (no
-        reprojection from the previous frame)."""
+        reprojection from the previous frame).
+
+        The frame runs in two parts. The head launches everything that takes this frame's values (scene
+        refit, G-buffer, the sampling stage's per-frame setup, DoF focus, shading parameters, the indirect
+        light's rebuild when needed). The body (sampling map, refresh thinning, reorder, trace, indirect
+        gather, temporal resolve, reconstruction, DoF, tone map) has fixed arguments: on CUDA, with
+        ``timing=False``, it runs eagerly once per configuration, is then captured as a CUDA graph and replayed
+        (``stats['graph']`` says which; a failed capture falls back to eager launches and says why)."""
         camera = self._check_camera(camera)
         gaze = (self.width * 0.5, self.height * 0.5) if gaze_px is None else _check_gaze(gaze_px)
         self._ensure_foveated_stages()
@@ -225,6 +256,7 @@ class FrameLoop:
         self._stats = {}
         skipped: dict = {}
         t0 = _now()
+        # -- head: per-frame values ---------------------------------------------------------------------
         with self._stage("scene"):
             geometry_moved = self._advance_scene(time)
         first = self.prev_camera is None
@@ -234,66 +266,57 @@ class FrameLoop:
             skipped["reprojection"] = "first frame" if first else "camera cut"
             self.temporal.reset()
             self.dscene.reset_history()
-        prev_cam = camera if (first or cut) else self.prev_camera
+        history = not (first or cut)
+        prev_cam = self.prev_camera if history else camera
         camera_moved = prev_cam != camera
         moving = bool(geometry_moved or camera_moved)
         if not self.scene.is_animated:
             skipped["bvh_refit"] = "static scene"
         with self._stage("gbuffer"):
             self._gbuffer(camera, prev_cam)
-
         foveated = cfg.foveation.enabled
+        strategy = cfg.reorder.strategy if foveated else "full"
         with self._stage("sampling"):
             if foveated:
-                self.sampling.run(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
-                                  first_frame=first or cut, eye_prev=None if (first or cut) else prev_cam.eye,
-                                  camera_prev=None if (first or cut) else prev_cam)
-                smap = self.sampling.sample_map
+                self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
+                                        first_frame=not history, eye_prev=prev_cam.eye if history else None,
+                                        camera_prev=prev_cam if history else None)
                 skipped.update(self.sampling.skipped)
             else:
-                smap = self.full_map
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
-        strategy = cfg.reorder.strategy if foveated else "full"
-        with self._stage("reorder"):
-            if strategy in ("scan", "tile", "rows", "rows+balance"):
-                self.reorder.run(smap)
-            elif not foveated:
-                skipped["reorder"] = "sampling rate 1: every pixel traced"
-        with self._stage("shade"):
-            self._trace(camera, smap, strategy)
-        with self._stage("indirect"):
-            self._indirect(smap, strategy, skipped)
-        with self._stage("temporal"):
-            if foveated:
-                self.temporal.run(smap, self.sampling.cache_hit, self.sampling.prev_index, self.radiance,
-                                  use_history=not (first or cut))
-        with self._stage("reconstruct"):
-            if foveated:
-                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
-                hdr = self.recon
+            if cfg.dof.enabled and cfg.dof.focus_depth_m is None:
+                self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
+            self.upload_shade_params(camera)
+        rebuilt = False
+        with self._stage("indirect_build"):
+            if self.indirect is not None:
+                rebuilt = self.indirect.update()
+                skipped.update(self.indirect.skipped)
             else:
-                skipped["reconstruct"] = "sampling rate 1: nothing to fill"
-                hdr = self.radiance
-        with self._stage("dof"):
-            if cfg.dof.enabled:
-                focus = (cfg.dof.focus_depth_m if cfg.dof.focus_depth_m is not None else
-                         self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze,
-                                                 fov_y_deg=camera.fov_y_deg))
-                self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, focus, self.dof_out,
-                             fov_y_deg=camera.fov_y_deg)
-                hdr = self.dof_out
-            else:
-                skipped["dof"] = "pinhole camera (aperture 0)"
-        with self._stage("tonemap"):
-            self._tonemap(hdr, self.image)
-        if foveated:
-            self.sampling.end_frame(self.gbuffer, self.temporal.filled)
+                skipped["indirect"] = "ShadingConfig.indirect is 'none'"
+        # static view: same camera, nothing moved, indirect light unchanged, history kept
+        static = history and not moving and not rebuilt
+        self._static_frames = self._static_frames + 1 if static else 0
+        refresh = self._refresh_due(foveated)
+        if refresh:
+            skipped["trace"] = (f"static view, converged history: only the refresh budget "
+                                f"({cfg.temporal.refresh_fraction:g} of the samples with history) traced")
+        if not foveated:
+            skipped["reorder"] = "sampling rate 1: every pixel traced"
+            skipped["reconstruct"] = "sampling rate 1: nothing to fill"
+        if not cfg.dof.enabled:
+            skipped["dof"] = "pinhole camera (aperture 0)"
+        # -- body: fixed arguments (captured as a CUDA graph in steady state) -----------------------------
+        key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
+        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
         stats["skipped"] = skipped
         stats["gaze_px"] = gaze
         stats["frame_index"] = self.frame_index
         stats["strategy"] = strategy
+        stats["graph"] = graph_state
+        stats["static_frames"] = self._static_frames
         if foveated:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
@@ -307,7 +330,85 @@ class FrameLoop:
         self.prev_camera = camera
         self.frame_index += 1
         extras = {"sparse": self.temporal.color, "filled": self.temporal.filled} if foveated else {}
-        return Frame(self.image, smap, self.gbuffer, stats, extras)
+        return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
+                     extras)
+
+    def _refresh_due(self, foveated: bool) -> bool:
+        """Whether this frame traces only the refresh budget: foveation and history on, a refresh fraction
+        below 1, and a view static for long enough that every pixel was sampled (one full rotation of the
+        block^2 threshold ranks) and the running means filled (``max_history_frames``)."""
+        tc = self.config.temporal
+        if not (foveated and tc.enabled and tc.refresh_fraction < 1.0):
+            return False
+        block = self.config.foveation.block
+        return self._static_frames >= max(block * block, tc.max_history_frames)
+
+    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool) -> None:
+        """The launches of one frame after the head: no host reads, no allocation, the same arguments for the
+        same (strategy, history, refresh, temporal parity, field of view)."""
+        cfg = self.config
+        foveated = strategy != "full"
+        smap = self.sampling.sample_map if foveated else self.full_map
+        with self._stage("sampling"):
+            if foveated:
+                self.sampling.launch(self.gbuffer)
+                if refresh:
+                    s = self.sampling
+                    self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
+                                          cfg.temporal.refresh_fraction)
+        with self._stage("reorder"):
+            if strategy in ("scan", "tile", "rows", "rows+balance"):
+                self.reorder.run(smap)
+        with self._stage("shade"):
+            self._trace(smap, strategy)
+        with self._stage("indirect"):
+            self._indirect(smap, strategy)
+        with self._stage("temporal"):
+            if foveated:
+                self.temporal.run(smap, self.sampling.cache_hit, self.sampling.prev_index, self.radiance,
+                                  use_history=history)
+        with self._stage("reconstruct"):
+            if foveated:
+                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
+                hdr = self.recon
+            else:
+                hdr = self.radiance
+        with self._stage("dof"):
+            if cfg.dof.enabled:
+                self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, cfg.dof.focus_depth_m, self.dof_out,
+                             fov_y_deg=camera.fov_y_deg)
+                hdr = self.dof_out
+        with self._stage("tonemap"):
+            self._tonemap(hdr, self.image)
+        if foveated:
+            self.sampling.end_frame(self.gbuffer, self.temporal.filled)
+
+    def _run_body(self, key, body) -> str:
+        """Run ``body`` eagerly, or (CUDA, graphs on) replay its captured graph for ``key``: the first frame of
+        a key runs eagerly (kernels compile and load), the second is captured and launched, later ones replay.
+        Returns what happened: "eager", "warm-up", "captured", "replayed" or "eager (capture failed: ...)"."""
+        if not self._graphs_on:
+            body()
+            return "eager"
+        g = self._graphs.get(key)
+        if g is not None:
+            wp.capture_launch(g)
+            return "replayed"
+        if key not in self._warm_keys:
+            body()
+            self._warm_keys.add(key)
+            return "warm-up"
+        try:
+            with wp.ScopedCapture(device=self.device) as cap:
+                body()
+        except Exception as e:  # capture impossible on this setup: fall back to eager launches for good
+            self._graphs_on = False
+            self._graph_error = f"{type(e).__name__}: {e}"
+            body()
+            return f"eager (capture failed: {self._graph_error})"
+        self._graphs[key] = cap.graph
+        wp.capture_launch(cap.graph)
+        return "captured"
 
     def _rays_per_sample(self) -> int:
         """Secondary rays per shaded pixel (shadow rays, area-light samples, AO rays)."""
@@ -316,24 +417,28 @@ class FrameLoop:
         r += self.dscene.num_area_lights * sc.area_light_samples * (1 if sc.shadows else 0)
         return r + sc.ao_samples
 
-    def _trace(self, camera: Camera, smap, strategy: str) -> None:
+    def _trace(self, smap, strategy: str) -> None:
+        """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``."""
+        sp, dev = self._sp_dev, self.device
         if strategy == "full":
-            self.shade_full(camera)
+            wp.launch(shade_full_kernel, dim=(self.height, self.width), inputs=[sp, *self._shade_inputs()],
+                      outputs=[self.radiance], device=dev)
         elif strategy == "none":
-            self.shade_masked(camera, smap)
+            wp.launch(shade_masked_kernel, dim=(self.height, self.width), inputs=[sp, smap, *self._shade_inputs()],
+                      outputs=[self.radiance], device=dev)
         elif strategy in ("rows", "rows+balance"):
             wp.launch(shade_rows_kernel, dim=(self.height, self.width),
-                      inputs=[self.shade_params(camera), self.reorder.coords, self.reorder.counts,
-                              *self._shade_inputs()], outputs=[self.radiance], device=self.device)
+                      inputs=[sp, self.reorder.coords, self.reorder.counts, *self._shade_inputs()],
+                      outputs=[self.radiance], device=dev)
         else:
-            self.shade_list(camera, self.reorder.work, self.reorder.count)
+            wp.launch(shade_list_kernel, dim=self.reorder.work.shape[0],
+                      inputs=[sp, self.reorder.work, self.reorder.count, *self._shade_inputs()],
+                      outputs=[self.radiance], device=dev)
 
-    def _indirect(self, smap, strategy: str, skipped: dict) -> None:
+    def _indirect(self, smap, strategy: str) -> None:
+        """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""
         if self.indirect is None:
-            skipped["indirect"] = "ShadingConfig.indirect is 'none'"
             return
-        self.indirect.update()
-        skipped.update(self.indirect.skipped)
         if strategy == "full":
             self.indirect.run_full(self.gbuffer, self.radiance)
             return

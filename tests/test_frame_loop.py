@@ -140,3 +140,131 @@ def test_gaze_off_screen_and_nan(device):
     assert np.all(np.isfinite(f.numpy()))
     with pytest.raises(ValueError, match="gaze_px"):
         loop.render(gaze_px=(float("nan"), 3.0))
+
+
+# -- refresh budget: static camera + scene with converged history ------------------------------------------
+
+
+def _static_run(loop, scene, frames, gazes=None):
+    out = []
+    for i in range(frames):
+        g = (48.0, 32.0) if gazes is None else gazes[i % len(gazes)]
+        f = loop.render(scene.camera, gaze_px=g)
+        out.append((f.numpy().copy(), dict(f.stats), f.extras["filled"].numpy().astype(bool)))
+    return out
+
+
+def test_refresh_budget_on_static_converged_view_matches_full_sampling_path(device):
+    scene = fw.load_scene("cornell")
+    n_conv = max(4 * 4, fw.TemporalConfig().max_history_frames)  # block 4: 16 ranks; 16 history frames
+    frames = n_conv + 8
+    a = _static_run(_loop(scene, device), scene, frames)  # refresh_fraction 0.25 (default)
+    b = _static_run(_loop(scene, device, temporal={"refresh_fraction": 1.0}), scene, frames)
+    ref = _loop(scene, device).render_reference(scene.camera).numpy()
+    for i, ((ia, sa, fa), (ib, sb, fb)) in enumerate(zip(a, b)):
+        assert "trace" not in sb["skipped"]
+        if i < n_conv:  # not yet converged: identical to the non-skipping path
+            assert "trace" not in sa["skipped"], i
+            np.testing.assert_array_equal(ia, ib)
+            continue
+        assert "trace" in sa["skipped"], (i, sa["static_frames"])
+        # the refresh budget traces far fewer rays than the normal sampling map
+        assert sa["sampling_rate"] < 0.6 * sb["sampling_rate"], (i, sa["sampling_rate"], sb["sampling_rate"])
+        # pixels both paths filled agree (history of a static deterministic view is the fresh value)
+        both = fa & fb
+        assert both.mean() > 0.9
+        np.testing.assert_allclose(ia[both], ib[both], atol=2e-5)
+        # and the whole frame is at least as close to the full-resolution reference
+        assert psnr(ia, ref) >= psnr(ib, ref) - 0.5, (i, psnr(ia, ref), psnr(ib, ref))
+
+
+def test_refresh_budget_never_when_view_or_scene_changes(device):
+    scene = fw.load_scene("cornell")
+    loop = _loop(scene, device)
+    for i in range(24):  # the camera moves a little every frame
+        f = loop.render(scene.camera_at(i / 120.0), gaze_px=(48.0, 32.0))
+        assert "trace" not in f.stats["skipped"], i
+        assert f.stats["static_frames"] == 0
+    moving = fw.load_scene("cornell", motion=True)
+    loop = _loop(moving, device)
+    for i in range(24):  # static camera, a moving object
+        f = loop.render(moving.camera, gaze_px=(48.0, 32.0), time=i / 30.0)
+        assert "trace" not in f.stats["skipped"], i
+    # a converged static view, then a cut: the count restarts and the full map is traced again
+    loop = _loop(scene, device)
+    for i in range(18):
+        f = loop.render(scene.camera, gaze_px=(48.0, 32.0))
+    assert "trace" in f.stats["skipped"]
+    f = loop.render(scene.camera, gaze_px=(48.0, 32.0), cut=True)
+    assert "trace" not in f.stats["skipped"] and f.stats["static_frames"] == 0
+    f = loop.render(scene.camera, gaze_px=(48.0, 32.0))
+    assert "trace" not in f.stats["skipped"] and f.stats["static_frames"] == 1
+
+
+def test_refresh_budget_with_moving_gaze_keeps_quality(device):
+    # the gaze may move in a static view: history stays valid, only the sampling map follows the gaze
+    scene = fw.load_scene("cornell")
+    gazes = [(10.0, 10.0), (80.0, 50.0), (48.0, 32.0), (-200.0, 30.0)]
+    a = _static_run(_loop(scene, device), scene, 24, gazes)
+    b = _static_run(_loop(scene, device, temporal={"refresh_fraction": 1.0}), scene, 24, gazes)
+    ref = _loop(scene, device).render_reference(scene.camera).numpy()
+    assert "trace" in a[-1][1]["skipped"]
+    for (ia, sa, _), (ib, sb, _) in zip(a[-4:], b[-4:]):
+        assert np.isfinite(ia).all()
+        assert psnr(ia, ref) >= psnr(ib, ref) - 0.5
+
+
+def test_refresh_fraction_zero_traces_only_pixels_without_history(device):
+    scene = fw.load_scene("cornell")
+    loop = _loop(scene, device, temporal={"refresh_fraction": 0.0})
+    out = _static_run(loop, scene, 20)
+    img, st, filled = out[-1]
+    hit = loop.gbuffer.hit.numpy().astype(bool)
+    smap = loop.sampling.sample_map.numpy().astype(bool)
+    hits = loop.sampling.cache_hit.numpy().astype(bool)
+    assert st["sampling_rate"] == pytest.approx(smap.mean())
+    # traced: the sampled pixels without history (here the background: it has no cache test), and of the
+    # surface pixels only the few whose history is about to expire
+    assert (~hits).sum() == (~hit).sum()
+    assert (smap & hits).sum() <= 0.01 * smap.size, (smap & hits).sum()
+    ref = _loop(scene, device).render_reference(scene.camera).numpy()
+    assert psnr(img, ref) > 60.0
+
+
+# -- CUDA graph of the steady-state frame -------------------------------------------------------------------
+
+
+def test_graph_is_off_on_cpu_and_with_timing():
+    scene = fw.load_scene("cornell")
+    f = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False).render(scene.camera)
+    assert f.stats["graph"] == "eager"
+    with pytest.raises(ValueError, match="graph"):
+        fw.FrameLoop(scene, 32, 24, device="cpu", graph="yes")
+
+
+@pytest.mark.needs_cuda
+@pytest.mark.parametrize("strategy", ["tile", "none", "rows"])
+def test_graph_replay_equals_eager_launches(strategy):
+    """The captured body replays each frame's camera, gaze, frame index (AO noise) and object motion: images
+    and sampling maps are identical to eager launches over a moving sequence, through a refresh phase."""
+    scene = fw.load_scene("cornell", motion=True)
+    over = {"reorder": {"strategy": strategy}, "shading": {"ao_samples": 2},
+            "dof": {"aperture_m": 0.02}, "temporal": {"max_history_frames": 4}}
+    cfg = fw.Config().with_(**over)
+    g = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False)
+    e = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, graph=False)
+    states = []
+    for i in range(40):
+        moving = i < 12
+        cam = scene.camera_at(i / 60.0) if moving else scene.camera_at(12 / 60.0)
+        t = i / 30.0 if moving else 12 / 30.0
+        gaze = (20.0 + 2 * i, 30.0 - i)
+        fg = g.render(cam, gaze_px=gaze, time=t)
+        fe = e.render(cam, gaze_px=gaze, time=t)
+        states.append(fg.stats["graph"])
+        assert fe.stats["graph"] == "eager"
+        np.testing.assert_array_equal(fg.sampling_map.numpy(), fe.sampling_map.numpy(), err_msg=str(i))
+        np.testing.assert_allclose(fg.numpy(), fe.numpy(), atol=1e-6, err_msg=str(i))
+        assert fg.stats["skipped"] == fe.stats["skipped"]
+    assert "captured" in states and states.count("replayed") >= 25, states
+    assert any("trace" in s for s in [fg.stats["skipped"]])  # the refresh phase was reached (and replayed)

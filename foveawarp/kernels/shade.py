@@ -157,7 +157,7 @@ def shade_pixel(
 
 @wp.kernel(enable_backward=False)
 def shade_full_kernel(
-    sp: ShadeParams,
+    spa: wp.array(dtype=ShadeParams),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
     albedo: wp.array2d(dtype=wp.vec3),
@@ -169,12 +169,13 @@ def shade_full_kernel(
     out: wp.array2d(dtype=wp.vec3),
 ):
     y, x = wp.tid()
+    sp = spa[0]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
 
 
 @wp.kernel(enable_backward=False)
 def shade_list_kernel(
-    sp: ShadeParams,
+    spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
@@ -191,6 +192,7 @@ def shade_list_kernel(
     i = wp.tid()
     if i >= count[0]:
         return
+    sp = spa[0]
     idx = work[i]
     y = idx // sp.width
     x = idx - y * sp.width
@@ -199,7 +201,7 @@ def shade_list_kernel(
 
 @wp.kernel(enable_backward=False)
 def shade_masked_kernel(
-    sp: ShadeParams,
+    spa: wp.array(dtype=ShadeParams),
     mask: wp.array2d(dtype=wp.uint8),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
@@ -215,12 +217,13 @@ def shade_masked_kernel(
     y, x = wp.tid()
     if mask[y, x] == wp.uint8(0):
         return
+    sp = spa[0]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
 
 
 @wp.kernel(enable_backward=False)
 def shade_rows_kernel(
-    sp: ShadeParams,
+    spa: wp.array(dtype=ShadeParams),
     coords: wp.array2d(dtype=wp.vec2i),
     counts: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
@@ -237,7 +240,15 @@ def shade_rows_kernel(
     v, u = wp.tid()
     if u >= counts[v]:
         return
+    sp = spa[0]
     c = coords[v, u]
     x = c[0]
     y = c[1]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
+
+
+@wp.kernel(enable_backward=False)
+def set_shade_params_kernel(sp: ShadeParams, out: wp.array(dtype=ShadeParams)):
+    """Write the frame's shading parameters to the device (the entry kernels read them from there, so a
+    captured CUDA graph picks up each frame's eye and frame index)."""
+    out[0] = sp

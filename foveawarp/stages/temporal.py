@@ -5,7 +5,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..config import TemporalConfig
-from ..kernels.temporal import resolve_kernel
+from ..kernels.temporal import refresh_thin_kernel, resolve_kernel
 
 __all__ = ["TemporalStage"]
 
@@ -50,3 +50,15 @@ class TemporalStage:
             device=self.device,
         )
         self._cur = cur
+
+    def refresh(self, sample_map, cache_hit, prev_index, frame_params, num_samples, fraction: float) -> None:
+        """Thin ``sample_map`` (in place; ``num_samples`` decremented on the device) to the refresh budget of a
+        static, converged view: samples with usable history are kept with probability ``fraction``; those
+        without history, or unrefreshed for half of ``max_history_frames`` or more, are always kept. Call
+        before ``run`` of the same frame."""
+        prev = self._cur
+        keep_stale = max(1, int(self.config.max_history_frames) // 2)
+        wp.launch(refresh_thin_kernel, dim=(self.height, self.width),
+                  inputs=[cache_hit, prev_index, self._ha[prev], self._hs[prev], frame_params, float(fraction),
+                          keep_stale],
+                  outputs=[sample_map, num_samples], device=self.device)
