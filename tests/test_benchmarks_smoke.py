@@ -1,0 +1,46 @@
+"""Smoke runs of the benchmark scripts with tiny sizes: they run, write their JSON / markdown and report sanely
+(no timing assertions)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import warp as wp
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _run(args, tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    r = subprocess.run([sys.executable, *args, "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO,
+                       env=env, timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    return r
+
+
+def test_soak_quick(device, tmp_path):
+    frames, warmup, every = 60, 10, 10
+    _run([str(REPO / "benchmarks" / "soak.py"), "--quick", "--device", device, "--frames", str(frames),
+          "--warmup", str(warmup), "--width", "64", "--height", "36", "--check-every", str(every), "--cut-every",
+          "25"], tmp_path)
+    tag = "cuda" if wp.get_device(device).is_cuda else "cpu"
+    res = json.loads((tmp_path / f"soak-{tag}.json").read_text())
+    assert (tmp_path / f"soak-{tag}.md").is_file()
+    assert res["benchmark"] == "soak" and res["resolution"] == "64x36" and res["frames"] == frames
+    assert res["scene"] == "cornell+motion" and res["animated"] is True
+    assert res["commit"] and res["device"] == wp.get_device(device).alias
+    ft = res["frame_time"]
+    assert ft["timed_frames"] == frames - warmup
+    assert 0 < ft["p50_ms"] <= ft["p90_ms"] <= ft["p99_ms"] <= ft["max_ms"]
+    # a memory sample at the first frame after warm-up, every `every` frames, and after the last frame
+    assert [s["frame"] for s in res["memory_samples"]] == [*range(warmup, frames, every), frames - 1]
+    assert res["nan_checks"] == len(res["memory_samples"]) and res["nan_frames"] == []
+    assert res["warmup_cuts"] == [5, 6, 7, 8]
+    assert res["forced_cuts"] == 6  # frames 5-8 (warm-up), 25, 50
+    assert sum(res["graph_states_after_warmup"].values()) == frames - warmup
+    assert res["gaze_off_screen_frames"] > 0
+    assert res["verdict"]["no_nan"] is True and res["verdict"]["memory_flat"] is True
+    if tag == "cuda":
+        assert "mempool_used" in res["memory"]
