@@ -309,6 +309,8 @@ class FrameLoop:
         # -- body: fixed arguments (captured as a CUDA graph in steady state) -----------------------------
         key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
+        if graph_state == "replayed" and foveated:
+            self.temporal.swap()  # the body's only host-side state: the history ping-pong
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
         stats["skipped"] = skipped
@@ -345,7 +347,8 @@ class FrameLoop:
 
     def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool) -> None:
         """The launches of one frame after the head: no host reads, no allocation, the same arguments for the
-        same (strategy, history, refresh, temporal parity, field of view)."""
+        same (strategy, history, refresh, temporal parity, field of view). Its one host-side effect, the
+        temporal ping-pong swap, is repeated by ``render`` after a graph replay."""
         cfg = self.config
         foveated = strategy != "full"
         smap = self.sampling.sample_map if foveated else self.full_map

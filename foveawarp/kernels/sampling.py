@@ -189,6 +189,7 @@ def frame_setup_kernel(
     tan_half_fov_y: float,
     mar_slope: float,
     mar_fovea_deg: float,
+    falloff_deg: float,  # eccentricity of the eq. 2 normalizer; >= e_max: the thesis's (largest on screen)
     focus_mode: int,  # 0: no DoF factor, 1: fixed focus_m, 2: depth at the gaze pixel (screen-clamped)
     focus_m: float,
     depth: wp.array2d(dtype=float),
@@ -213,7 +214,7 @@ def frame_setup_kernel(
     step = wp.vec3(2.0 / fw * tan_half_fov_y * (fw / fh), 0.0, 0.0)  # one pixel to the right on the plane
     f.w_min_deg = wp.degrees(wp.atan2(wp.length(wp.cross(g, step)), wp.dot(g, g) + wp.dot(g, step)))
     f.e_max_deg = max_eccentricity_deg(f.gaze, fw, fh, tan_half_fov_y)
-    f.w_far_deg = mar_slope * f.e_max_deg + mar_fovea_deg
+    f.w_far_deg = mar_slope * wp.min(f.e_max_deg, falloff_deg) + mar_fovea_deg
     f.dof_on = 0
     f.focus_m = focus_m
     if focus_mode == 1:

@@ -29,6 +29,8 @@ GOLDEN = 0.6180339887498949
 # Gaze coordinates farther than this from the screen are clamped to it: every angle is then within
 # ~1e-3 deg of its limit, and float32 plane directions stay far from overflow.
 GAZE_LIMIT_PX = 1.0e6
+# FoveationConfig.falloff_deg None: the normalizer's eccentricity is the screen's largest (thesis eq. 2)
+NO_FALLOFF = 1.0e9
 # threads per block of the tile pass on CUDA (the CPU runs blocks of one thread)
 TILE_PASS_THREADS = 256
 
@@ -292,8 +294,8 @@ class SamplingStage:
         self.skipped = skipped
         wp.launch(frame_setup_kernel, dim=1,
                   inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope, self.params.mar_fovea_deg,
-                          focus_mode, focus, gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache,
-                          rot, phase],
+                          NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg), focus_mode, focus,
+                          gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache, rot, phase],
                   outputs=[self.frame_params], device=self.device)
 
     def launch(self, gbuffer) -> None:

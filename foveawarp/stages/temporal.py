@@ -49,7 +49,12 @@ class TemporalStage:
             outputs=[self.color, self.filled, self._hc[cur], self._ha[cur], self._hs[cur]],
             device=self.device,
         )
-        self._cur = cur
+        self.swap()
+
+    def swap(self) -> None:
+        """Make the history just written the current one (``run`` does it; a replayed CUDA graph of ``run``
+        does not run Python, so its caller swaps)."""
+        self._cur = 1 - self._cur
 
     def refresh(self, sample_map, cache_hit, prev_index, frame_params, num_samples, fraction: float) -> None:
         """Thin ``sample_map`` (in place; ``num_samples`` decremented on the device) to the refresh budget of a
