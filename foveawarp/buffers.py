@@ -20,6 +20,10 @@ class GBuffer:
     FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv")
 
     def __init__(self, width: int, height: int, device):
+        from ._util import check_image_size, get_device
+
+        width, height = check_image_size(width, height)
+        device = get_device(device)
         shape = (height, width)
         self.width, self.height = width, height
         self.position = wp.zeros(shape, dtype=wp.vec3, device=device)

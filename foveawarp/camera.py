@@ -7,21 +7,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import check_finite, check_range
+from .config import check_array, check_finite, check_int_range, check_range, check_vec, show
 
 __all__ = ["Camera"]
 
 
 def _vec3(name: str, v) -> tuple:
-    try:
-        t = tuple(float(c) for c in v)
-    except TypeError:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}") from None
-    if len(t) != 3:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
-    for i, c in enumerate(t):
-        check_finite(f"{name}[{i}]", c)
-    return t
+    return check_vec(name, v, 3)
+
+
+def _size(width, height) -> tuple:
+    return check_int_range("width", width, 1, 16384), check_int_range("height", height, 1, 16384)
 
 
 @dataclass(frozen=True)
@@ -97,7 +93,11 @@ class Camera:
 
     # -- rays and projection (NumPy; the kernels use kernels.camera with the same formulas) ----------
     def ray_dirs(self, px, py, width: int, height: int) -> np.ndarray:
-        """Unit ray directions through continuous pixel positions (centres at x + 0.5)."""
+        """Unit ray directions through continuous pixel positions (centres at x + 0.5); ``px``, ``py`` finite
+        (off screen is valid), ``width``, ``height`` integers in [1, 16384]."""
+        width, height = _size(width, height)
+        px = check_array("px", px)
+        py = check_array("py", py)
         r, u, f = self.basis()
         t = self.tan_half_fov_y
         sx = (2.0 * np.asarray(px, dtype=np.float64) / width - 1.0) * t * (width / height)
@@ -107,6 +107,10 @@ class Camera:
 
     def project(self, points, width: int, height: int) -> np.ndarray:
         """World points (..., 3) -> (..., 3) of (px, py, z_view); z_view <= 0 is behind the eye."""
+        width, height = _size(width, height)
+        points = check_array("points", points)
+        if points.ndim < 1 or points.shape[-1] != 3:
+            raise ValueError(f"points must have shape (..., 3), got {points.shape}")
         r, u, f = self.basis()
         d = np.asarray(points, dtype=np.float64) - np.asarray(self.eye)
         z = d @ f
@@ -121,11 +125,14 @@ class Camera:
     def gaze_to_dir(self, gaze_px, width: int, height: int) -> np.ndarray:
         """Gaze point in pixels -> unit world direction from the eye."""
         g = _check_gaze(gaze_px)
+        width, height = _size(width, height)
         return self.ray_dirs(np.array(g[0]), np.array(g[1]), width, height)
 
     def dir_to_gaze(self, direction, width: int, height: int) -> tuple:
         """Unit world direction -> gaze point in pixels (it may lie off screen)."""
         d = np.asarray(_vec3("direction", direction))
+        if not np.linalg.norm(d) > 0:
+            raise ValueError(f"direction must be a non-zero vector, got {show(direction)}")
         p = self.project(np.asarray(self.eye) + d, width, height)
         if p[2] <= 0:
             raise ValueError(f"direction {tuple(d)!r} points behind the camera")
@@ -137,6 +144,7 @@ class Camera:
 
         from .kernels.camera import CameraParams
 
+        width, height = _size(width, height)
         r, u, f = self.basis()
         c = CameraParams()
         c.eye = wp.vec3(*self.eye)
@@ -151,6 +159,8 @@ class Camera:
 
     def rotation_deg_to(self, other: "Camera") -> float:
         """Angle in degrees between this camera's view direction and ``other``'s."""
+        if not isinstance(other, Camera):
+            raise ValueError(f"other must be a foveawarp.Camera, got {show(other)} ({type(other).__name__})")
         _, _, f0 = self.basis()
         _, _, f1 = other.basis()
         return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(f0, f1))))))
@@ -158,11 +168,9 @@ class Camera:
 
 def _check_gaze(gaze_px) -> tuple:
     try:
-        g = tuple(float(c) for c in gaze_px)
+        g = None if isinstance(gaze_px, (str, bytes)) else tuple(gaze_px)
     except TypeError:
-        raise ValueError(f"gaze_px must be 2 finite numbers (x, y) in pixels, got {gaze_px!r}") from None
-    if len(g) != 2:
-        raise ValueError(f"gaze_px must be 2 finite numbers (x, y) in pixels, got {gaze_px!r}")
-    for i, c in enumerate(g):
-        check_finite(f"gaze_px[{i}]", c)
-    return g
+        g = None
+    if g is None or len(g) != 2:
+        raise ValueError(f"gaze_px must be 2 finite numbers (x, y) in pixels, got {show(gaze_px)}")
+    return tuple(check_finite(f"gaze_px[{i}]", c) for i, c in enumerate(g))

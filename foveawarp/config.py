@@ -7,8 +7,11 @@ naming the field, the value and the allowed range.
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass, field, fields, replace
 from typing import Optional, Sequence
+
+import numpy as np
 
 __all__ = [
     "FoveationConfig",
@@ -24,68 +27,168 @@ __all__ = [
     "check_range",
     "check_int_range",
     "check_choice",
+    "check_bool",
+    "check_vec",
+    "check_array",
+    "interval",
+    "show",
 ]
 
 
 # ---------------------------------------------------------------------------------------------------
-# validation helpers (shared by configs, Camera, ops and FrameLoop)
+# validation helpers (shared by configs, Camera, Scene, ops, stages and FrameLoop)
+#
+# Every message names the parameter, the offending value and the allowed range, e.g.
+#   "FoveationConfig.mar_slope must be a finite number in (0.0, 1.0], got nan"
+#   "width must be an integer in [1, 16384], got 0"
+#   "colors must hold finite real numbers, got nan at index (2, 3, 0)"
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = 60
+_REPR.maxother = 60
+
+
+def show(value) -> str:
+    """A short repr of an offending value (NumPy scalars as Python numbers; long values abbreviated)."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return _REPR.repr(value)
+
+
+def _num(v) -> str:
+    if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)):
+        return str(int(v))
+    return repr(float(v))
+
+
+def interval(lo=None, hi=None, *, lo_open=False, hi_open=False) -> str:
+    """``[lo, hi]`` with open ends as asked and -inf / inf for missing bounds."""
+    left = "(" if lo_open else "["
+    right = ")" if hi_open else "]"
+    lo_s = "-inf" if lo is None else _num(lo)
+    hi_s = "inf" if hi is None else _num(hi)
+    return f"{left}{lo_s}, {hi_s}{right}"
+
+
+def _is_real_scalar(value) -> bool:
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        return False
+    return isinstance(value, (int, float, np.integer, np.floating)) or (
+        hasattr(value, "__float__") and not hasattr(value, "__len__")
+    )
 
 
 def check_finite(name: str, value) -> float:
-    """Return ``value`` as a float, or raise ``ValueError`` when it is not a finite real number."""
+    """Return ``value`` as a float, or raise ``ValueError`` when it is not a finite real number (strings and
+    bools are rejected)."""
+    if not _is_real_scalar(value):
+        raise ValueError(f"{name} must be a finite real number, got {show(value)}")
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite real number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be a finite real number, got {show(value)}") from None
     if not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite real number, got {value!r}")
+        raise ValueError(f"{name} must be a finite real number, got {show(value)}")
     return v
 
 
 def check_range(name: str, value, lo=None, hi=None, *, lo_open=False, hi_open=False) -> float:
-    """Finite float in [lo, hi] (open ends when asked); the error names the interval."""
-    v = check_finite(name, value)
-    bad = False
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        bad = True
-    if hi is not None and (v > hi or (hi_open and v == hi)):
-        bad = True
-    if bad:
-        left = "(" if lo_open else "["
-        right = ")" if hi_open else "]"
-        lo_s = "-inf" if lo is None else repr(lo)
-        hi_s = "inf" if hi is None else repr(hi)
-        raise ValueError(f"{name} must be in {left}{lo_s}, {hi_s}{right}, got {value!r}")
+    """Finite float in [lo, hi] (open ends when asked); the error names the interval, also for NaN, Inf and
+    values that are not real numbers."""
+    rng = interval(lo, hi, lo_open=lo_open, hi_open=hi_open)
+    try:
+        v = check_finite(name, value)
+    except ValueError:
+        raise ValueError(f"{name} must be a finite number in {rng}, got {show(value)}") from None
+    if (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and (v > hi or (hi_open and v == hi))):
+        raise ValueError(f"{name} must be in {rng}, got {show(value)}")
     return v
 
 
 def check_int_range(name: str, value, lo=None, hi=None) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int,)) and not (
-        hasattr(value, "__index__") and not isinstance(value, float)
+    """An integer (Python or NumPy; not bool, not float) in [lo, hi]."""
+    rng = f"[{'-inf' if lo is None else int(lo)}, {hi if hi is not None else 'inf'}]"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) and not (
+        hasattr(value, "__index__") and not isinstance(value, (float, np.floating))
     ):
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
+        raise ValueError(f"{name} must be an integer in {rng}, got {show(value)}")
     v = int(value)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
+        raise ValueError(f"{name} must be an integer in {rng}, got {show(value)}")
     return v
 
 
 def check_choice(name: str, value, choices: Sequence):
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+    try:
+        ok = isinstance(value, (str, int, float, type(None))) and value in choices
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be one of {list(choices)}, got {show(value)}")
     return value
 
 
-def _check_color(name: str, value, lo=0.0, hi=None) -> tuple:
+def check_bool(name: str, value) -> bool:
+    """True or False (Python or NumPy bool); anything else (strings, numbers, None) is a ValueError."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {show(value)}")
+    return bool(value)
+
+
+def check_vec(name: str, value, n: int = 3, lo=None, hi=None) -> tuple:
+    """``n`` finite numbers (each in [lo, hi] when bounds are given) as a tuple of floats."""
+    what = f"{n} finite numbers" + ("" if lo is None and hi is None else f" each in {interval(lo, hi)}")
     try:
-        t = tuple(float(c) for c in value)
+        t = None if isinstance(value, (str, bytes)) else tuple(value)
     except TypeError:
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}") from None
-    if len(t) != 3:
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+        t = None
+    if t is None or len(t) != n:
+        raise ValueError(f"{name} must be {what}, got {show(value)}")
+    out = []
     for i, c in enumerate(t):
-        check_range(f"{name}[{i}]", c, lo, hi)
-    return t
+        if lo is None and hi is None:
+            out.append(check_finite(f"{name}[{i}]", c))
+        else:
+            out.append(check_range(f"{name}[{i}]", c, lo, hi))
+    return tuple(out)
+
+
+def check_array(name: str, a, *, lo=None, hi=None, lo_open=False, hi_open=False, allow_posinf=False) -> np.ndarray:
+    """``a`` (NumPy, Warp or nested sequences) as a host NumPy array of real numbers that are all finite and in
+    [lo, hi] (``allow_posinf``: +inf allowed too). The error names the first offending value and its index."""
+    if hasattr(a, "numpy") and not isinstance(a, np.ndarray):
+        a = a.numpy()
+    try:
+        arr = np.asarray(a)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be an array of real numbers, got {show(a)} ({e})") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be an array of real numbers, got dtype {arr.dtype} ({show(a)})")
+    if arr.dtype.kind == "f":
+        finite = np.isfinite(arr)
+        if allow_posinf:
+            finite |= np.isposinf(arr)
+    else:
+        finite = np.ones(arr.shape, dtype=bool)
+    bad = ~finite
+    if lo is not None or hi is not None:
+        with np.errstate(invalid="ignore"):
+            if lo is not None:
+                bad |= (arr < lo) | ((arr == lo) if lo_open else False)
+            if hi is not None:
+                bad |= (arr > hi) | ((arr == hi) if hi_open else False)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        what = "finite real numbers" if lo is None and hi is None else (
+            f"finite numbers in {interval(lo, hi, lo_open=lo_open, hi_open=hi_open)}")
+        if allow_posinf:
+            what += " or +inf"
+        raise ValueError(f"{name} must hold {what}, got {show(arr[idx])} at index {idx}")
+    return arr
+
+
+def _check_color(name: str, value, lo=0.0, hi=None) -> tuple:
+    return check_vec(name, value, 3, lo, hi)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -118,6 +221,7 @@ class FoveationConfig:
         check_range("FoveationConfig.mar_fovea_deg", self.mar_fovea_deg, 0.0, 1.0, lo_open=True)
         check_range("FoveationConfig.min_probability", self.min_probability, 0.0, 1.0)
         check_int_range("FoveationConfig.block", self.block, 1, 64)
+        check_bool("FoveationConfig.enabled", self.enabled)
 
     @property
     def effective_min_probability(self) -> float:
@@ -160,6 +264,8 @@ class SaliencyConfig:
         check_range("SaliencyConfig.sigma1_m", self.sigma1_m, 0.0, None)
         check_range("SaliencyConfig.sigma2_m", self.sigma2_m, 0.0, None, lo_open=True)
         check_range("SaliencyConfig.dof_floor", self.dof_floor, 0.0, 1.0)
+        for n in ("use_albedo", "use_normal", "use_velocity", "use_dof"):
+            check_bool(f"SaliencyConfig.{n}", getattr(self, n))
 
     @property
     def any_enabled(self) -> bool:
@@ -237,6 +343,7 @@ class ShadingConfig:
         check_range("ShadingConfig.exposure", self.exposure, 0.0, None, lo_open=True)
         check_range("ShadingConfig.white_point", self.white_point, 0.0, None, lo_open=True)
         check_int_range("ShadingConfig.seed", self.seed, 0, 2**31 - 1)
+        check_bool("ShadingConfig.shadows", self.shadows)
 
 
 JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")
@@ -263,6 +370,8 @@ class ReconstructionConfig:
         check_choice("ReconstructionConfig.jfa_variant", self.jfa_variant, JFA_VARIANTS)
         if self.sibson_window is not None:
             check_int_range("ReconstructionConfig.sibson_window", self.sibson_window, 1, 256)
+        check_bool("ReconstructionConfig.sibson", self.sibson)
+        check_bool("ReconstructionConfig.bounded_jfa_start", self.bounded_jfa_start)
 
 
 @dataclass(frozen=True)
@@ -300,6 +409,8 @@ class DofConfig:
         check_range("DofConfig.gamma", self.gamma, 0.0, 16.0)
         check_range("DofConfig.eps_px", self.eps_px, 0.0, None, lo_open=True)
         check_range("DofConfig.max_coc_px", self.max_coc_px, 1.0, 128.0)
+        check_bool("DofConfig.foreground_fix", self.foreground_fix)
+        check_bool("DofConfig.background_fix", self.background_fix)
 
     @property
     def enabled(self) -> bool:
@@ -338,7 +449,7 @@ class IndirectConfig:
             raise ValueError(f"IndirectConfig.rsm_size must be a power of two in [8, 2048], got {self.rsm_size!r}")
         check_range("IndirectConfig.depth_threshold", self.depth_threshold, 0.0, 1.0, lo_open=True)
         check_range("IndirectConfig.normal_threshold", self.normal_threshold, -1.0, 1.0)
-        max_level = int(round(math.log2(self.rsm_size)))
+        max_level = int(self.rsm_size).bit_length() - 1
         check_int_range("IndirectConfig.start_level", self.start_level, 0, max_level)
         check_int_range("IndirectConfig.limit_level", self.limit_level, self.start_level, max_level)
         check_range("IndirectConfig.d_min_rel", self.d_min_rel, 0.0, 1.0, lo_open=True)
@@ -370,6 +481,7 @@ class TemporalConfig:
         check_range("TemporalConfig.depth_eps_rel", self.depth_eps_rel, 0.0, 1.0, lo_open=True)
         check_range("TemporalConfig.cut_threshold_deg", self.cut_threshold_deg, 0.0, 180.0, lo_open=True)
         check_range("TemporalConfig.refresh_fraction", self.refresh_fraction, 0.0, 1.0)
+        check_bool("TemporalConfig.enabled", self.enabled)
 
 
 @dataclass(frozen=True)
@@ -399,14 +511,21 @@ class Config:
         for f in fields(self):
             v = getattr(self, f.name)
             if not isinstance(v, expected[f.name]):
-                raise ValueError(f"Config.{f.name} must be a {expected[f.name].__name__}, got {type(v).__name__}")
+                raise ValueError(f"Config.{f.name} must be a {expected[f.name].__name__}, got {show(v)} "
+                                 f"({type(v).__name__})")
 
     def with_(self, **stage_overrides) -> "Config":
         """Copy with some fields of some stages replaced: ``cfg.with_(foveation={"block": 8})``."""
         changes = {}
         for stage, over in stage_overrides.items():
-            if not hasattr(self, stage):
-                raise ValueError(f"Config has no stage {stage!r}; stages: {[f.name for f in fields(self)]}")
+            if stage not in [f.name for f in fields(self)]:
+                raise ValueError(f"Config.with_ stage must be one of {[f.name for f in fields(self)]}, got {stage!r}")
             cur = getattr(self, stage)
-            changes[stage] = over if not isinstance(over, dict) else replace(cur, **over)
+            if isinstance(over, dict):
+                names = [f.name for f in fields(cur)]
+                for k in over:
+                    if k not in names:
+                        raise ValueError(f"Config.with_({stage}=...) key must be one of {names}, got {show(k)}")
+                over = replace(cur, **over)
+            changes[stage] = over
         return replace(self, **changes)

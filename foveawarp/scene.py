@@ -16,23 +16,15 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from .camera import Camera
-from .config import check_choice, check_finite, check_range
+from .config import check_array, check_choice, check_finite, check_int_range, check_range, check_vec, show
 
 __all__ = ["Light", "AreaLight", "SceneObject", "Scene", "DeviceScene", "load_scene", "scene_search_dirs"]
 
 BVH_CONSTRUCTORS = ("sah", "median", "lbvh")
 
 
-def _vec3(name, v):
-    try:
-        t = tuple(float(c) for c in v)
-    except TypeError:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}") from None
-    if len(t) != 3:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
-    for i, c in enumerate(t):
-        check_finite(f"{name}[{i}]", c)
-    return t
+def _vec3(name, v, lo=None):
+    return check_vec(name, v, 3, lo)
 
 
 @dataclass(frozen=True)
@@ -65,10 +57,7 @@ class Light:
             raise ValueError(f"Light.direction must be a non-zero vector, got {self.direction!r}")
         object.__setattr__(self, "direction", tuple(float(c) for c in d / n))
         check_range("Light.cone_deg", self.cone_deg, 0.0, 180.0, lo_open=True)
-        inten = _vec3("Light.intensity", self.intensity)
-        for i, c in enumerate(inten):
-            check_range(f"Light.intensity[{i}]", c, 0.0, None)
-        object.__setattr__(self, "intensity", inten)
+        object.__setattr__(self, "intensity", _vec3("Light.intensity", self.intensity, 0.0))
         check_range("Light.penumbra", self.penumbra, 0.0, 1.0)
 
 
@@ -83,12 +72,13 @@ class AreaLight:
     radiance: tuple = (10.0, 10.0, 10.0)
 
     def __post_init__(self):
-        for n in ("corner", "edge_u", "edge_v", "radiance"):
+        for n in ("corner", "edge_u", "edge_v"):
             object.__setattr__(self, n, _vec3(f"AreaLight.{n}", getattr(self, n)))
-        if not np.linalg.norm(np.cross(self.edge_u, self.edge_v)) > 0:
-            raise ValueError(f"AreaLight.edge_u {self.edge_u!r} and edge_v {self.edge_v!r} must span an area")
-        for i, c in enumerate(self.radiance):
-            check_range(f"AreaLight.radiance[{i}]", c, 0.0, None)
+        object.__setattr__(self, "radiance", _vec3("AreaLight.radiance", self.radiance, 0.0))
+        area = float(np.linalg.norm(np.cross(self.edge_u, self.edge_v)))
+        if not (area > 0 and math.isfinite(area)):
+            raise ValueError(f"AreaLight.edge_u {self.edge_u!r} and edge_v {self.edge_v!r} must span an area in "
+                             f"(0, inf), got {area!r}")
 
 
 @dataclass
@@ -98,6 +88,33 @@ class SceneObject:
     name: str
     vertex_range: tuple
     motion: Optional[Callable[[float], np.ndarray]] = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str):
+            raise ValueError(f"SceneObject.name must be a str, got {show(self.name)}")
+        try:
+            vr = None if isinstance(self.vertex_range, (str, bytes)) else tuple(self.vertex_range)
+        except TypeError:
+            vr = None
+        if vr is None or len(vr) != 2:
+            raise ValueError(f"SceneObject.vertex_range must be (start, end) integers with 0 <= start <= end, "
+                             f"got {show(self.vertex_range)}")
+        a = check_int_range("SceneObject.vertex_range[0]", vr[0], 0, None)
+        b = check_int_range("SceneObject.vertex_range[1]", vr[1], a, None)
+        self.vertex_range = (a, b)
+        if self.motion is not None and not callable(self.motion):
+            raise ValueError(f"SceneObject.motion must be None or a callable t -> 4x4 matrix, got {show(self.motion)}")
+
+    def transform_at(self, t: float) -> np.ndarray:
+        """The object's 4x4 rigid transform at time ``t`` (identity without motion); ValueError unless the motion
+        returns a finite 4x4 matrix."""
+        if self.motion is None:
+            return np.eye(4)
+        m = check_array(f"SceneObject {self.name!r} motion({float(t)!r})", self.motion(float(t))).astype(np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"SceneObject {self.name!r} motion({float(t)!r}) must return a 4x4 matrix, got shape "
+                             f"{m.shape}")
+        return m
 
 
 @dataclass
@@ -135,8 +152,8 @@ class Scene:
     bvh_constructor: str = "sah"
 
     def __post_init__(self):
-        v = np.asarray(self.vertices)
-        f = np.asarray(self.faces)
+        v = check_array("Scene.vertices", self.vertices)
+        f = check_array("Scene.faces", self.faces)
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < 3:
             raise ValueError(f"Scene.vertices must have shape (V >= 3, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 1:
@@ -144,10 +161,8 @@ class Scene:
                 f"Scene.faces must have shape (F >= 1, 3) of triangle vertex indices, got {f.shape}"
                 " (empty or non-triangle mesh)"
             )
-        if not np.all(np.isfinite(v)):
-            raise ValueError("Scene.vertices must be finite; found NaN or Inf")
         if not np.issubdtype(f.dtype, np.integer):
-            raise ValueError(f"Scene.faces must be integers, got dtype {f.dtype}")
+            raise ValueError(f"Scene.faces must be integers in [0, {v.shape[0] - 1}], got dtype {f.dtype}")
         if f.min() < 0 or f.max() >= v.shape[0]:
             raise ValueError(f"Scene.faces indices must be in [0, {v.shape[0] - 1}], got [{f.min()}, {f.max()}]")
         self.vertices = np.ascontiguousarray(v, dtype=np.float32)
@@ -158,36 +173,52 @@ class Scene:
             "face_emission", np.zeros((nf, 3)) if self.face_emission is None else self.face_emission, nf, 0.0, None
         )
         if self.vertex_normals is not None:
-            vn = np.asarray(self.vertex_normals, dtype=np.float32)
+            # non-finite normals (trimesh gives NaN at degenerate faces) become 0: the kernels then use the
+            # face normal; the kernels never see NaN
+            vn = np.asarray(self.vertex_normals)
+            if vn.dtype.kind not in "biuf":
+                raise ValueError(f"Scene.vertex_normals must be an array of real numbers, got dtype {vn.dtype}")
             if vn.shape != self.vertices.shape:
                 raise ValueError(f"Scene.vertex_normals must have shape {self.vertices.shape}, got {vn.shape}")
+            vn = vn.astype(np.float32)
             self.vertex_normals = np.nan_to_num(vn, nan=0.0, posinf=0.0, neginf=0.0)
         if self.face_smooth is None:
             self.face_smooth = np.zeros(nf, dtype=np.uint8)
-        self.face_smooth = np.ascontiguousarray(self.face_smooth, dtype=np.uint8).reshape(nf)
+        fs = check_array("Scene.face_smooth", self.face_smooth, lo=0, hi=1)
+        if fs.shape not in ((nf,), (nf, 1)):
+            raise ValueError(f"Scene.face_smooth must have shape ({nf},), got {fs.shape}")
+        self.face_smooth = np.ascontiguousarray(fs != 0, dtype=np.uint8).reshape(nf)
         if self.vertex_normals is None and self.face_smooth.any():
             raise ValueError("Scene.face_smooth marks smooth faces but Scene.vertex_normals is None")
         check_choice("Scene.bvh_constructor", self.bvh_constructor, BVH_CONSTRUCTORS)
-        for i, l in enumerate(self.lights):
-            if not isinstance(l, Light):
-                raise ValueError(f"Scene.lights[{i}] must be a Light, got {type(l).__name__}")
-        for i, l in enumerate(self.area_lights):
-            if not isinstance(l, AreaLight):
-                raise ValueError(f"Scene.area_lights[{i}] must be an AreaLight, got {type(l).__name__}")
+        for attr, typ in (("lights", Light), ("area_lights", AreaLight), ("objects", SceneObject)):
+            items = getattr(self, attr)
+            if not isinstance(items, (list, tuple)):
+                raise ValueError(f"Scene.{attr} must be a list of {typ.__name__}, got {show(items)}")
+            for i, l in enumerate(items):
+                if not isinstance(l, typ):
+                    raise ValueError(f"Scene.{attr}[{i}] must be a {typ.__name__}, got {show(l)} "
+                                     f"({type(l).__name__})")
+            setattr(self, attr, list(items))
+        for o in self.objects:
+            if o.vertex_range[1] > v.shape[0]:
+                raise ValueError(f"SceneObject {o.name!r} vertex_range must lie in [0, {v.shape[0]}], "
+                                 f"got {o.vertex_range}")
+        if not isinstance(self.camera, Camera):
+            raise ValueError(f"Scene.camera must be a foveawarp.Camera, got {show(self.camera)} "
+                             f"({type(self.camera).__name__})")
+        if self.camera_path is not None and not callable(self.camera_path):
+            raise ValueError(f"Scene.camera_path must be None or a callable t -> Camera, got {show(self.camera_path)}")
+        if not isinstance(self.name, str):
+            raise ValueError(f"Scene.name must be a str, got {show(self.name)}")
 
     @staticmethod
     def _per_face(name, a, nf, lo, hi):
-        a = np.asarray(a, dtype=np.float32)
+        a = check_array(f"Scene.{name}", a, lo=lo, hi=hi).astype(np.float32)
         if a.shape == (3,):
             a = np.broadcast_to(a, (nf, 3))
         if a.shape != (nf, 3):
             raise ValueError(f"Scene.{name} must have shape ({nf}, 3) or (3,), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"Scene.{name} must be finite")
-        if a.min() < lo or (hi is not None and a.max() > hi):
-            raise ValueError(
-                f"Scene.{name} must be in [{lo}, {hi if hi is not None else 'inf'}], got [{a.min()}, {a.max()}]"
-            )
         return np.ascontiguousarray(a)
 
     # -- derived ---------------------------------------------------------------------------------
@@ -215,27 +246,35 @@ class Scene:
         return any(o.motion is not None for o in self.objects)
 
     def camera_at(self, t: float) -> Camera:
-        return self.camera if self.camera_path is None else self.camera_path(float(t))
+        t = check_finite("time", t)
+        if self.camera_path is None:
+            return self.camera
+        cam = self.camera_path(t)
+        if not isinstance(cam, Camera):
+            raise ValueError(f"Scene.camera_path({t!r}) must return a foveawarp.Camera, got {show(cam)}")
+        return cam
 
     def vertices_at(self, t: float) -> np.ndarray:
-        """World positions at time ``t`` (rest positions moved by each object's motion)."""
+        """World positions at time ``t`` (seconds, finite; rest positions moved by each object's motion)."""
+        t = check_finite("time", t)
         out = self.vertices.copy()
         for o in self.objects:
             if o.motion is None:
                 continue
-            m = np.asarray(o.motion(float(t)), dtype=np.float64)
+            m = o.transform_at(t)
             a, b = o.vertex_range
             out[a:b] = (self.vertices[a:b].astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
         return out
 
     def normals_at(self, t: float) -> Optional[np.ndarray]:
+        t = check_finite("time", t)
         if self.vertex_normals is None:
             return None
         out = self.vertex_normals.copy()
         for o in self.objects:
             if o.motion is None:
                 continue
-            m = np.asarray(o.motion(float(t)), dtype=np.float64)[:3, :3]
+            m = o.transform_at(t)[:3, :3]
             a, b = o.vertex_range
             out[a:b] = (self.vertex_normals[a:b].astype(np.float64) @ m.T).astype(np.float32)
         return out
@@ -256,9 +295,11 @@ class DeviceScene:
         from ._util import get_device
         from .kernels.shade import AreaLightParams, LightParams
 
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene must be a foveawarp.Scene, got {show(scene)} ({type(scene).__name__})")
         self.scene = scene
         self.device = get_device(device)
-        ctor = bvh_constructor or scene.bvh_constructor
+        ctor = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
         check_choice("bvh_constructor", ctor, BVH_CONSTRUCTORS)
         dev = self.device
         self.points = wp.array(scene.vertices, dtype=wp.vec3, device=dev)
@@ -304,7 +345,7 @@ class DeviceScene:
         anything moved (the BVH is refit only then)."""
         import warp as wp
 
-        t = float(t)
+        t = check_finite("time", t)
         if not self.scene.is_animated:
             self.moved_last_update = False
             if self.time is None:
@@ -373,6 +414,8 @@ def load_mesh_arrays(path) -> tuple:
     """Read any mesh file trimesh reads -> (vertices, faces, face_albedo or None, vertex_normals)."""
     import trimesh
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"scene path must be a file path (str or os.PathLike), got {show(path)}")
     p = Path(path)
     if not p.exists():
         raise ValueError(f"scene path {str(path)!r} does not exist")
@@ -422,7 +465,13 @@ def load_scene(name_or_path, **kwargs) -> Scene:
         raise ValueError(f"name_or_path must be a scene name or a file path, got {name_or_path!r}")
     key = str(name_or_path)
     if key in scenes.BUILTIN:
-        return scenes.BUILTIN[key](**kwargs)
+        builder = scenes.BUILTIN[key]
+    else:
+        builder = scenes.mesh_on_ground
+    _check_kwargs(builder, kwargs, () if key in scenes.BUILTIN else ("path", "name") if key in NAMED_MESHES
+                  else ("path",))
+    if key in scenes.BUILTIN:
+        return builder(**kwargs)
     if key in NAMED_MESHES:
         p = find_named_mesh(key)
         if p is None:
@@ -437,3 +486,13 @@ def load_scene(name_or_path, **kwargs) -> Scene:
             "nor an existing file"
         )
     return scenes.mesh_on_ground(key, **kwargs)
+
+
+def _check_kwargs(builder, kwargs: dict, exclude: tuple) -> None:
+    """ValueError naming the keyword and the builder's keywords for a keyword the builder does not take."""
+    import inspect
+
+    allowed = [p for p in inspect.signature(builder).parameters if p not in exclude]
+    for k in kwargs:
+        if k not in allowed:
+            raise ValueError(f"load_scene keyword for {builder.__name__} must be one of {allowed}, got {k!r}")

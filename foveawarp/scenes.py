@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera
-from .scene import AreaLight, Light, Scene, SceneObject, find_named_mesh, load_mesh_arrays
+from .config import check_array, check_bool, check_choice, check_finite, check_int_range, check_range, check_vec, show
+from .scene import BVH_CONSTRUCTORS, AreaLight, Light, Scene, SceneObject, find_named_mesh, load_mesh_arrays
 
 __all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "mesh_on_ground", "BUILTIN"]
 
@@ -41,12 +42,36 @@ class SceneBuilder:
 
     def add_mesh(self, vertices, faces, albedo, emission=(0.0, 0.0, 0.0), normals=None, smooth=False,
                  name=None, motion=None):
-        vertices = np.asarray(vertices, dtype=np.float64)
-        faces = np.asarray(faces, dtype=np.int64)
+        """Add triangles: ``vertices`` (V, 3) finite, ``faces`` (F, 3) integers in [0, V - 1], ``albedo`` (3,) or
+        (F, 3) in [0, 1], ``emission`` (3,) >= 0, ``normals`` None or (V, 3), ``smooth`` bool, ``name`` None or
+        str, ``motion`` None or a callable ``t -> 4x4``."""
+        vertices = check_array("vertices", vertices).astype(np.float64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] < 3:
+            raise ValueError(f"vertices must have shape (V >= 3, 3), got {vertices.shape}")
+        faces = check_array("faces", faces, lo=0, hi=vertices.shape[0] - 1)
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] < 1 or faces.dtype.kind not in "iu":
+            raise ValueError(f"faces must be an (F >= 1, 3) integer array of triangle vertex indices, got shape "
+                             f"{faces.shape} of {faces.dtype}")
+        faces = faces.astype(np.int64)
         nf = faces.shape[0]
-        albedo = np.asarray(albedo, dtype=np.float32)
+        albedo = check_array("albedo", albedo, lo=0.0, hi=1.0).astype(np.float32)
         if albedo.shape == (3,):
             albedo = np.broadcast_to(albedo, (nf, 3))
+        if albedo.shape != (nf, 3):
+            raise ValueError(f"albedo must have shape (3,) or ({nf}, 3), got {albedo.shape}")
+        emission = check_vec("emission", emission, 3, 0.0)
+        if normals is not None:  # non-finite normals (degenerate faces of loaded meshes) become 0, as in Scene
+            normals = np.asarray(normals)
+            if normals.dtype.kind not in "biuf":
+                raise ValueError(f"normals must be an array of real numbers, got dtype {normals.dtype}")
+            normals = np.nan_to_num(normals.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+            if normals.shape != vertices.shape:
+                raise ValueError(f"normals must have the shape of vertices {vertices.shape}, got {normals.shape}")
+        smooth = check_bool("smooth", smooth)
+        if name is not None and not isinstance(name, str):
+            raise ValueError(f"name must be None or a str, got {show(name)}")
+        if motion is not None and not callable(motion):
+            raise ValueError(f"motion must be None or a callable t -> 4x4 matrix, got {show(motion)}")
         start = self.nv
         self.v.append(vertices)
         self.f.append(faces + start)
@@ -62,15 +87,17 @@ class SceneBuilder:
         return start, self.nv
 
     def add_quad(self, corner, edge_u, edge_v, albedo, emission=(0.0, 0.0, 0.0), **kw):
-        c, u, w = (np.asarray(a, dtype=np.float64) for a in (corner, edge_u, edge_v))
+        c, u, w = (np.asarray(check_vec(n, a), dtype=np.float64) for n, a in
+                   (("corner", corner), ("edge_u", edge_u), ("edge_v", edge_v)))
         verts = np.stack([c, c + u, c + u + w, c + w])
         return self.add_mesh(verts, [[0, 1, 2], [0, 2, 3]], albedo, emission, **kw)
 
     def add_box(self, center, size, albedo, yaw_rad=0.0, **kw):
-        """Axis box (rotated about y) with outward-facing triangles."""
-        hs = np.asarray(size, dtype=np.float64) * 0.5
+        """Axis box (rotated about y by ``yaw_rad``) with outward-facing triangles; ``size`` (3,) >= 0."""
+        hs = np.asarray(check_vec("size", size, 3, 0.0), dtype=np.float64) * 0.5
+        center = check_vec("center", center)
         corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64) * hs
-        corners = corners @ rot_y(yaw_rad).T + np.asarray(center, dtype=np.float64)
+        corners = corners @ rot_y(check_finite("yaw_rad", yaw_rad)).T + np.asarray(center, dtype=np.float64)
         # indices: bit2 = x, bit1 = y, bit0 = z
         faces = [
             [0, 1, 3], [0, 3, 2],  # -x
@@ -84,7 +111,14 @@ class SceneBuilder:
 
     def add_sphere(self, center, radius, n_lon=24, n_lat=21, albedo=(0.8, 0.8, 0.8), albedo_fn=None, smooth=True,
                    **kw):
-        """UV sphere: ``n_lon * 2 * (n_lat - 2) + 2 * n_lon`` triangles (960 for 24 x 21)."""
+        """UV sphere: ``n_lon * 2 * (n_lat - 2) + 2 * n_lon`` triangles (960 for 24 x 21); ``radius`` > 0,
+        ``n_lon`` in [3, 4096], ``n_lat`` in [2, 4096]."""
+        center = check_vec("center", center)
+        radius = check_range("radius", radius, 0.0, None, lo_open=True)
+        n_lon = check_int_range("n_lon", n_lon, 3, 4096)
+        n_lat = check_int_range("n_lat", n_lat, 2, 4096)
+        if albedo_fn is not None and not callable(albedo_fn):
+            raise ValueError(f"albedo_fn must be None or a callable centroids -> (F, 3) albedo, got {show(albedo_fn)}")
         verts = [[0.0, 1.0, 0.0]]
         for i in range(1, n_lat):
             th = math.pi * i / n_lat
@@ -171,6 +205,9 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
 def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "sah") -> Scene:
     """Cornell box, 2 x 2 x 2 m, open at +z; red left wall, green right wall; a tall and a short block;
     a spot light under the ceiling pointing down. ``motion=True`` slides the short block."""
+    check_bool("area_light", area_light)
+    check_bool("motion", motion)
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     b, lights, areas, cam = _cornell_builder(area_light, motion)
     return b.build(lights=lights, area_lights=areas, camera=cam, camera_path=_orbit_path(cam, 12.0, 6.0),
                    name="cornell" + ("+motion" if motion else ""), bvh_constructor=bvh_constructor)
@@ -178,6 +215,7 @@ def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str
 
 def bunny_in_box(path=None, bvh_constructor: str = "sah") -> Scene:
     """Cornell box with the Stanford bunny (0.9 m tall) replacing the tall block."""
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     p = Path(path) if path is not None else find_named_mesh("bunny")
     if p is None:
         raise ValueError("bunny-in-box needs stanford-bunny.obj in the shared scene folder; set FOVEAWARP_SCENES")
@@ -245,7 +283,14 @@ def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_h
          bvh_constructor: str = "sah") -> Scene:
     """Seeded voxel city (1 voxel = 1 m): city blocks of buildings with window recesses and roof detail.
 
-    The default has about 1.2M triangles. Deterministic for a given ``seed``."""
+    The default has about 1.2M triangles. Deterministic for a given ``seed`` (in [0, 2^32 - 1]). ``size`` in
+    [1, 1024] voxels, ``block`` in [9, 256], ``street`` in [0, 256], ``max_height`` in [5, 128]."""
+    seed = check_int_range("seed", seed, 0, 2**32 - 1)
+    size = check_int_range("size", size, 1, 1024)
+    block = check_int_range("block", block, 9, 256)
+    street = check_int_range("street", street, 0, 256)
+    max_height = check_int_range("max_height", max_height, 5, 128)
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     rng = np.random.default_rng(seed)
     H = max_height + 2
     occ = np.zeros((size, H, size), dtype=bool)
@@ -386,7 +431,10 @@ def _panel(b: SceneBuilder, origin, width: float, height: float, seed: int):
 
 def eyechart(seed: int = 3, bvh_constructor: str = "sah") -> Scene:
     """Three chart panels at 4, 8 and 14 m from the camera, plus a floor: gratings of 4 periods
-    (vertical / horizontal bars) and Snellen-like letter rows shrinking to a few millimetres."""
+    (vertical / horizontal bars) and Snellen-like letter rows shrinking to a few millimetres. ``seed`` in
+    [0, 2^32 - 3]."""
+    seed = check_int_range("seed", seed, 0, 2**32 - 3)
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     b = SceneBuilder()
     b.add_quad((-20, 0, 10), (40, 0, 0), (0, 0, -40), (0.35, 0.33, 0.3), name="floor")
     _panel(b, (-3.2, 0.4, 0.0), 3.0, 2.2, seed)  # 4 m from the eye
@@ -422,6 +470,8 @@ def _earth_albedo(centroids: np.ndarray) -> np.ndarray:
 def earth(spin: bool = True, bvh_constructor: str = "sah") -> Scene:
     """Low-poly Earth: a 24 x 21 UV sphere (960 triangles) of radius 1 m with a procedural albedo, lit by
     a distant sun; ``spin`` rotates it once per 12 s."""
+    check_bool("spin", spin)
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     b = SceneBuilder()
     motion = (lambda t: _rot4(rot_y(2.0 * math.pi * t / 12.0))) if spin else None
     b.add_sphere((0.0, 0.0, 0.0), 1.0, 24, 21, albedo_fn=_earth_albedo, smooth=True, name="earth", motion=motion)
@@ -440,7 +490,11 @@ def _rot4(r3):
 # ---------------------------------------------------------------------------------------------------
 def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "sah") -> Scene:
     """Any mesh file, in its own units and orientation (y up), centred on a ground plane, with a spot light
-    and a camera framing it. Vertex/face colours become the albedo."""
+    and a camera framing it. Vertex/face colours become the albedo (else ``albedo``, 3 numbers in [0, 1])."""
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"name must be None or a str, got {show(name)}")
+    albedo = check_vec("albedo", albedo, 3, 0.0, 1.0)
+    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     v, f, alb, vn = load_mesh_arrays(path)
     lo, hi = v.min(0), v.max(0)
     size = float(np.max(hi - lo))

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from foveawarp.config import DofConfig
-from foveawarp.kernels.dof import FOCUS_FAR_M, dof_normalize_kernel
+from foveawarp.kernels.dof import FOCUS_FAR_M, DofParams, coc_kernel, dof_normalize_kernel
 from foveawarp.ops.dof import circle_of_confusion_px, dof_scatter
 from foveawarp.stages.dof import DofStage
 
@@ -76,6 +76,39 @@ def np_scatter(color, depth, *, focal_length_m, focus_depth_m, aperture_m, px_pe
     return out
 
 
+def coc_unchecked(depth, *, focal_length_m, focus_depth_m, aperture_m, px_per_m, max_coc_px=None, device):
+    """The CoC kernel launched directly, without the ops layer's host checks (which reject NaN / Inf): how
+    per-frame device buffers reach it. 1-D depths."""
+    p = DofParams()
+    p.coc_scale = float(aperture_m * focal_length_m * px_per_m)
+    p.focal_m = float(focal_length_m)
+    p.max_coc_px = 3.0e38 if max_coc_px is None else float(max_coc_px)
+    p.tan_half_fov_y = 0.0
+    p.aspect = 1.0
+    d = wp.array(np.asarray(depth, np.float32).reshape(1, -1), dtype=float, device=device)
+    p.width, p.height = int(d.shape[1]), 1
+    out = wp.zeros(d.shape, dtype=float, device=device)
+    wp.launch(coc_kernel, dim=d.shape, inputs=[p, wp.full(1, value=float(focus_depth_m), dtype=float, device=device),
+              d], outputs=[out], device=device)
+    return out.numpy().reshape(-1)
+
+
+def stage_dof(color, depth, *, focal_length_m, focus_depth_m, aperture_m, px_per_m, gamma=2.0, eps_px=1.0,
+              max_coc_px=16.0, foreground_fix=True, background_fix=True, method="gather", tile_px=8,
+              device="cpu"):
+    """DofStage.run on device arrays (no host scan of their contents, unlike ops.dof_scatter, which rejects
+    NaN / Inf): the path the frame loop takes."""
+    h, w = depth.shape
+    cfg = DofConfig(aperture_m=aperture_m, focal_length_m=focal_length_m, px_per_m=px_per_m, gamma=gamma,
+                    eps_px=eps_px, max_coc_px=max_coc_px, foreground_fix=foreground_fix,
+                    background_fix=background_fix)
+    st_ = DofStage(w, h, cfg, device, method=method, tile_px=tile_px)
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    st_.run(wp.array(np.asarray(color, np.float32), dtype=wp.vec3, device=device),
+            wp.array(np.asarray(depth, np.float32), dtype=float, device=device), None, focus_depth_m, out)
+    return out.numpy().reshape(h, w, 3)
+
+
 def random_scene(rng, h, w, zf=3.0):
     color = rng.random((h, w, 3)).astype(np.float32)
     kind = rng.integers(0, 3, size=(h, w))
@@ -89,7 +122,7 @@ def random_scene(rng, h, w, zf=3.0):
 
 
 def test_coc_matches_numpy_formula(device, rng):
-    depth = np.concatenate([rng.uniform(0.06, 50.0, 500), [0.5, 3.0, 1e3, 1e6, np.inf]]).astype(np.float32)
+    depth = np.concatenate([rng.uniform(0.06, 50.0, 500), [0.5, 3.0, 1e3, 1e6, 1e30]]).astype(np.float32)
     got = circle_of_confusion_px(depth, **LENS, device=device)
     ref = np_coc(depth, **LENS)
     assert got.shape == depth.shape and got.dtype == np.float32
@@ -100,12 +133,17 @@ def test_coc_matches_numpy_formula(device, rng):
 
 
 def test_coc_guards_no_nan_or_inf(device):
+    """The kernel's guards (ops rejects NaN / Inf on the host; device buffers are not scanned)."""
     depth = np.array([0.0, -1.0, -np.inf, np.nan, 1e-38, 1e-30, 1e30, 3e38, np.inf], dtype=np.float32)
-    c = circle_of_confusion_px(depth, **LENS, device=device)
+    c = coc_unchecked(depth, **LENS, device=device)
     assert np.all(np.isfinite(c))
     far = LENS["aperture_m"] * LENS["focal_length_m"] / (LENS["focus_depth_m"] - LENS["focal_length_m"]) * 2e4
     assert c[-1] == pytest.approx(far, rel=1e-5)
-    cc = circle_of_confusion_px(depth, **LENS, max_coc_px=16.0, device=device)
+    assert circle_of_confusion_px(depth[-3:-1], **LENS, device=device)[0] == pytest.approx(far, rel=1e-5)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(ValueError, match="depth_m"):
+            circle_of_confusion_px(np.array([1.0, bad]), **LENS, device=device)
+    cc = coc_unchecked(depth, **LENS, max_coc_px=16.0, device=device)
     np.testing.assert_array_equal(cc[:6], 16.0)  # at or behind the lens, NaN, and near-zero depth: the clamp
     assert cc[-1] == pytest.approx(far, rel=1e-5)
 
@@ -185,8 +223,8 @@ def test_property_gather_scatter_finite_convex(h, w, seed, gamma, eps, max_coc, 
     depth.reshape(-1)[idx] = special
     kw = dict(focal_length_m=0.05, focus_depth_m=3.0, aperture_m=aperture, px_per_m=2e4, gamma=gamma,
               eps_px=eps, max_coc_px=max_coc, foreground_fix=fg, background_fix=bg)
-    a = dof_scatter(color, depth, method="gather", tile_px=tile, device="cpu", **kw)
-    b = dof_scatter(color, depth, method="scatter", device="cpu", **kw)
+    a = stage_dof(color, depth, method="gather", tile_px=tile, device="cpu", **kw)
+    b = stage_dof(color, depth, method="scatter", device="cpu", **kw)
     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
     assert np.abs(a - b).max() < 1e-4
     # a normalized sum of non-negative weights: each channel stays within the input's range
@@ -279,9 +317,13 @@ def test_no_nan_with_degenerate_depths_and_colors(device, rng):
     color[6, 1] = np.inf
     for fg in (False, True):
         for method in ("gather", "scatter"):
-            out = dof_scatter(color, depth, **{**LENS, "aperture_m": 0.05}, gamma=16.0, foreground_fix=fg,
-                              method=method, device=device)
+            out = stage_dof(color, depth, **{**LENS, "aperture_m": 0.05}, gamma=16.0, foreground_fix=fg,
+                            method=method, device=device)
             assert np.all(np.isfinite(out))
+    with pytest.raises(ValueError, match="depth_m"):
+        dof_scatter(np.zeros((h, w, 3)), depth, **LENS, device=device)
+    with pytest.raises(ValueError, match="color"):
+        dof_scatter(color, np.ones((h, w)), **LENS, device=device)
 
 
 def test_zero_weight_keeps_the_source_color(device):

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 import foveawarp as fw
 from foveawarp import ops
+from foveawarp.kernels.reproject import cache_test_kernel
 from foveawarp.stages.sampling import SamplingStage
 
 EPS = fw.TemporalConfig().depth_eps_rel
@@ -45,7 +46,7 @@ def test_cache_test_matches_bruteforce(device, rng):
     uv = np.stack([perm % w + rng.random((h, w)), perm // w + rng.random((h, w))], -1)
     off = rng.random((h, w)) < 0.15
     uv[off] = np.stack([rng.uniform(-6, w + 6, off.sum()), rng.uniform(-6, h + 6, off.sum())], -1)
-    uv[0, :4] = [[np.nan, 3.0], [3.0, np.inf], [w, 2.0], [2.0, -1e-3]]  # NaN / off-screen edges
+    uv[0, :4] = [[-1e30, 3.0], [3.0, 1e30], [w, 2.0], [2.0, -1e-3]]  # far off screen / off-screen edges
     dirs = rng.normal(size=(h, w, 3))
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
     r = rng.uniform(1.0, 5.0, (h, w))
@@ -74,11 +75,26 @@ def test_cache_test_matches_bruteforce(device, rng):
        width=32), d=st.floats(0.0, 1e30).map(np.float32), dp=st.floats(0.0, 1e30).map(np.float32),
        px=st.floats(-1e30, 1e30).map(np.float32), valid=st.booleans())
 def test_cache_test_degenerate_inputs(u, v, d, dp, px, valid):
+    """The kernel's guards, launched directly: ops.cache_test rejects NaN / Inf on the host, device buffers are
+    not scanned."""
     h, w = 3, 4
     uv = np.full((h, w, 2), [u, v], np.float32)
     pos = np.full((h, w, 3), [px, 0.0, 0.0], np.float32)
-    got, idx = ops.cache_test(uv, pos, np.ones((h, w), np.uint8), np.full((h, w), d), np.full((h, w), dp),
-                              np.full((h, w), valid, np.uint8), (0.0, 0.0, 0.0), depth_eps_rel=EPS, device="cpu")
+    if not (np.isfinite(u) and np.isfinite(v)):
+        with pytest.raises(ValueError, match="reproj_uv"):
+            ops.cache_test(uv, pos, np.ones((h, w), np.uint8), np.full((h, w), d), np.full((h, w), dp),
+                           np.full((h, w), valid, np.uint8), (0.0, 0.0, 0.0), depth_eps_rel=EPS, device="cpu")
+    dev = "cpu"
+    out_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
+    out_idx = wp.zeros((h, w), dtype=wp.int32, device=dev)
+    wp.launch(cache_test_kernel, dim=(h, w),
+              inputs=[wp.array(uv, dtype=wp.vec2, device=dev), wp.array(pos, dtype=wp.vec3, device=dev),
+                      wp.array(np.ones((h, w), np.uint8), dtype=wp.uint8, device=dev),
+                      wp.array(np.full((h, w), d, np.float32), dtype=float, device=dev),
+                      wp.array(np.full((h, w), dp, np.float32), dtype=float, device=dev),
+                      wp.array(np.full((h, w), valid, np.uint8), dtype=wp.uint8, device=dev),
+                      wp.vec3(0.0, 0.0, 0.0), EPS], outputs=[out_hit, out_idx], device=dev)
+    got, idx = out_hit.numpy(), out_idx.numpy()
     assert set(np.unique(got)) <= {0, 1}
     assert ((idx >= 0) == (got == 1)).all()
     assert ((idx >= -1) & (idx < h * w)).all()

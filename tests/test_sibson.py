@@ -199,15 +199,23 @@ def test_degenerate_seed_sets(window, device, rng):
 
 
 def test_non_seed_garbage_is_ignored(device, rng):
-    """Only seed pixels are read: NaN / Inf elsewhere must not leak into the output."""
+    """Only seed pixels are read: NaN / Inf elsewhere must not leak into the output (through the stage: ops
+    rejects NaN / Inf anywhere on the host, device buffers are not scanned)."""
     h, w = 30, 41
     m = uniform_mask(h, w, 0.05, rng)
     colors = rng.random((h, w, 3)).astype(np.float32)
     dirty = colors.copy()
     dirty[~m] = np.nan
     dirty[~m & (rng.random((h, w)) < 0.5)] = np.inf
+    with pytest.raises(ValueError, match="colors"):
+        ops.sibson(dirty, m, device=device)
+    mw = wp.array(m.astype(np.uint8), dtype=wp.uint8, device=device)
     for window in (None, 4):
-        a = ops.sibson(dirty, m, window=window, device=device)
+        stage = ReconstructStage(w, h, ReconstructionConfig(bounded_jfa_start=False), 1, device,
+                                 exact_sibson=window is None, window=window)
+        out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+        stage.run(wp.array(dirty, dtype=wp.vec3, device=device), mw, out)
+        a = out.numpy().reshape(h, w, 3)
         assert np.all(np.isfinite(a))
         b = ops.sibson(colors, m, window=window, device=device)
         if window is None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .._util import get_device
-from ..config import DofConfig, check_range
+from .._util import check_image_size, get_device
+from ..config import DofConfig, check_array, check_bool, check_range
 from ..kernels.dof import DofParams, coc_kernel
 from ..stages.dof import DofStage, check_focus
 
@@ -42,8 +42,9 @@ def circle_of_confusion_px(depth_m, *, focal_length_m: float, focus_depth_m: flo
     ``(aperture * focal / (focus - focal)) * |depth - focus| / depth * px_per_m``.
 
     Args:
-        depth_m: view depths in metres. +inf gives the far limit ``aperture * focal / (focus - focal)
-            * px_per_m``; depth <= 0 (at or behind the lens) and NaN give the clamp value.
+        depth_m: view depths in metres, finite (NaN and +-Inf are a ValueError; a large depth such as 1e30
+            gives the far limit ``aperture * focal / (focus - focal) * px_per_m``); depth <= 0 (at or behind
+            the lens) gives the clamp value.
         focal_length_m: F > 0. focus_depth_m: Z_f in (F, inf), else ValueError. aperture_m: E >= 0.
         px_per_m: pixels per metre of CoC on the sensor, > 0.
         max_coc_px: clamp in pixels (> 0), or None for no clamp (values stay below 3e38).
@@ -51,7 +52,7 @@ def circle_of_confusion_px(depth_m, *, focal_length_m: float, focus_depth_m: flo
     f, z, e, k = _check_lens(focal_length_m, focus_depth_m, aperture_m, px_per_m)
     cmax = _UNCLAMPED_PX if max_coc_px is None else check_range("max_coc_px", max_coc_px, 0.0, None, lo_open=True)
     dev = get_device(device)
-    d = depth_m.numpy() if isinstance(depth_m, wp.array) else np.asarray(depth_m)
+    d = check_array("depth_m", depth_m)
     shape = d.shape
     d2 = np.ascontiguousarray(d, dtype=np.float32).reshape(1, -1) if d.ndim != 2 else d
     if d2.size == 0:
@@ -83,30 +84,38 @@ def dof_scatter(color, depth_m, *, focal_length_m: float, focus_depth_m: float, 
     else 1. The output is the weighted mean at each pixel.
 
     Args:
-        color: (H, W, 3) linear or display colors (NumPy or wp.array of vec3 / float (H, W, 3)).
-        depth_m: (H, W) view depth in metres; +inf is far background, <= 0 is at the lens.
+        color: (H, W, 3) linear or display colors, finite (NumPy or wp.array of vec3 / float (H, W, 3)).
+        depth_m: (H, W) view depth in metres, finite; <= 0 is at the lens (use ``hit`` for background at
+            infinite depth).
         focal_length_m, focus_depth_m, aperture_m, px_per_m: the lens (see :func:`circle_of_confusion_px`).
         gamma: foreground exponent in [0, 16]. eps_px: loose in-focus range in pixels, > 0.
         max_coc_px: CoC clamp in pixels, in [1, 128].
         method: "gather" (tiled gather, fast) or "scatter" (atomics; the reference).
-        hit: optional (H, W) uint8 mask; pixels with 0 are background at infinite depth.
+        hit: optional (H, W) mask of finite numbers; pixels with 0 are background at infinite depth.
         tile_px: gather tile edge in pixels, in [1, 64].
     """
     f, z, e, k = _check_lens(focal_length_m, focus_depth_m, aperture_m, px_per_m)
     check_range("gamma", gamma, 0.0, 16.0)
     check_range("eps_px", eps_px, 0.0, None, lo_open=True)
     check_range("max_coc_px", max_coc_px, 1.0, 128.0)
+    check_bool("foreground_fix", foreground_fix)
+    check_bool("background_fix", background_fix)
     cfg = DofConfig(aperture_m=e, focal_length_m=f, focus_depth_m=z, px_per_m=k, gamma=gamma, eps_px=eps_px,
                     max_coc_px=max_coc_px, foreground_fix=bool(foreground_fix),
                     background_fix=bool(background_fix))
     dev = get_device(device)
-    c = color.numpy() if isinstance(color, wp.array) else np.asarray(color)
-    c = np.asarray(c, dtype=np.float32)
+    c = check_array("color", color).astype(np.float32)
     if c.ndim != 3 or c.shape[2] != 3:
         raise ValueError(f"color must have shape (H, W, 3), got {tuple(c.shape)}")
     h, w = c.shape[:2]
-    dw = _to_wp(depth_m, wp.float32, np.float32, dev, name="depth_m", shape=(h, w))
+    check_image_size(w, h)
+    dw = _to_wp(check_array("depth_m", depth_m), wp.float32, np.float32, dev, name="depth_m", shape=(h, w))
     cw = wp.array(np.ascontiguousarray(c), dtype=wp.vec3, device=dev)
+    if hit is not None:
+        hm = check_array("hit", hit)
+        if hm.shape != (h, w):
+            raise ValueError(f"hit must have shape {(h, w)}, got {tuple(hm.shape)}")
+        hit = (hm != 0).astype(np.uint8)
     hw = None if hit is None else _to_wp(hit, wp.uint8, np.uint8, dev, name="hit", shape=(h, w))
     stage = DofStage(w, h, cfg, dev, method=method, tile_px=tile_px)
     out = wp.zeros((h, w), dtype=wp.vec3, device=dev)

@@ -22,7 +22,7 @@ import numpy as np
 import warp as wp
 
 from .._util import as_wp, get_device
-from ..config import IndirectConfig
+from ..config import IndirectConfig, check_array
 from ..stages.indirect import IndirectStage, poisson_disk
 
 __all__ = [
@@ -52,9 +52,9 @@ def _device_scene(scene, device):
 
 
 def _receivers(positions, normals, albedos, device):
-    p = np.asarray(positions.numpy() if isinstance(positions, wp.array) else positions, dtype=np.float32)
-    n = np.asarray(normals.numpy() if isinstance(normals, wp.array) else normals, dtype=np.float32)
-    a = np.asarray(albedos.numpy() if isinstance(albedos, wp.array) else albedos, dtype=np.float32)
+    p = check_array("positions", positions).astype(np.float32)
+    n = check_array("normals", normals).astype(np.float32)
+    a = check_array("albedos", albedos, lo=0.0).astype(np.float32)
     if p.ndim < 1 or p.shape[-1] != 3:
         raise ValueError(f"positions must have shape (..., 3), got {p.shape}")
     if n.shape != p.shape:
@@ -63,9 +63,8 @@ def _receivers(positions, normals, albedos, device):
         a = np.broadcast_to(a, p.shape)
     if a.shape != p.shape:
         raise ValueError(f"albedos must have shape (3,) or the shape of positions {p.shape}, got {a.shape}")
-    for name, arr in (("positions", p), ("normals", n), ("albedos", a)):
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name} must be finite; found NaN or Inf")
+    for name, arr in (("positions", p), ("normals", n), ("albedos", a)):  # float64 values beyond float32
+        check_array(name, arr)
     lead = p.shape[:-1]
     flat = [as_wp(x.reshape(-1, 3), wp.vec3, device, name=nm) for x, nm in
             ((p, "positions"), (n, "normals"), (a, "albedos"))]

@@ -12,7 +12,7 @@ import numpy as np
 import warp as wp
 
 from .._util import check_image_size, get_device
-from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
+from ..config import JFA_VARIANTS, ReconstructionConfig, check_array, check_choice, check_int_range
 from ..stages.reconstruct import (
     ReconstructStage,
     jfa_start_step_for_block,
@@ -37,33 +37,24 @@ def _mask(seed_mask, dev) -> wp.array:
         if seed_mask.ndim != 2:
             raise ValueError(f"seed_mask must be 2-D (H, W), got shape {tuple(seed_mask.shape)}")
         if seed_mask.dtype == wp.uint8 and seed_mask.device == dev:
+            check_image_size(seed_mask.shape[1], seed_mask.shape[0])
             return seed_mask
-        seed_mask = seed_mask.numpy()
-    m = np.asarray(seed_mask)
+    m = check_array("seed_mask", seed_mask)
     if m.ndim != 2:
         raise ValueError(f"seed_mask must be 2-D (H, W), got shape {tuple(m.shape)}")
-    if m.dtype.kind == "f" and not np.all(np.isfinite(m)):
-        raise ValueError("seed_mask must be finite")
     check_image_size(m.shape[1], m.shape[0])
     return wp.array(np.ascontiguousarray(m != 0, dtype=np.uint8), dtype=wp.uint8, device=dev)
 
 
 def _colors(colors, shape, mask_np, dev) -> wp.array:
-    if isinstance(colors, wp.array) and colors.dtype == wp.vec3:
-        c_np = colors.numpy()
-    else:
-        c_np = np.asarray(colors.numpy() if isinstance(colors, wp.array) else colors)
+    c_np = check_array("colors", colors)
     if c_np.shape != (shape[0], shape[1], 3):
         raise ValueError(f"colors must have shape {(shape[0], shape[1], 3)} (H, W, 3), got {tuple(c_np.shape)}")
-    if c_np.dtype.kind not in "fiub":
-        raise ValueError(f"colors must be real numbers, got dtype {c_np.dtype}")
-    if not np.all(np.isfinite(c_np[mask_np])):
-        raise ValueError("colors must be finite at the seed pixels")
     return wp.array(np.ascontiguousarray(c_np, dtype=np.float32), dtype=wp.vec3, device=dev)
 
 
 def _nearest(nearest, mask_np, dev) -> wp.array:
-    n = nearest.numpy() if isinstance(nearest, wp.array) else np.asarray(nearest)
+    n = check_array("nearest", nearest)
     h, w = mask_np.shape
     if n.shape != (h, w, 2):
         raise ValueError(f"nearest must have shape {(h, w, 2)} (H, W, 2) of (x, y), got {tuple(n.shape)}")
@@ -74,7 +65,9 @@ def _nearest(nearest, mask_np, dev) -> wp.array:
     none = (nx == -1) & (ny == -1)
     inside = (nx >= 0) & (nx < w) & (ny >= 0) & (ny < h)
     if not np.all(none | inside):
-        raise ValueError(f"nearest must hold (x, y) with 0 <= x < {w}, 0 <= y < {h}, or (-1, -1)")
+        iy, ix = (int(i) for i in np.argwhere(~(none | inside))[0])
+        raise ValueError(f"nearest must hold (x, y) with 0 <= x < {w}, 0 <= y < {h}, or (-1, -1), got "
+                         f"{tuple(int(c) for c in n[iy, ix])} at pixel (y, x) = ({iy}, {ix})")
     if not np.all(none | mask_np[np.clip(ny, 0, h - 1), np.clip(nx, 0, w - 1)]):
         raise ValueError("nearest must point at seed pixels (nonzero seed_mask) or be (-1, -1)")
     yy, xx = np.mgrid[0:h, 0:w]
@@ -139,7 +132,8 @@ def sibson(colors, seed_mask, *, window: Optional[int] = None, nearest=None, var
     """Discrete natural-neighbour (Sibson) interpolation of the seed colors.
 
     Args:
-        colors: (H, W, 3) float array (linear RGB, any finite values), read at the seed pixels only.
+        colors: (H, W, 3) float array (linear RGB, any finite values; finite everywhere, also where unread),
+            read at the seed pixels only.
         seed_mask: (H, W) array; nonzero pixels are seeds.
         window: None for the exact discrete Sibson (Park et al. 2006 scatter, atomics); an int J in [1, 256]
             for the bounded gather over [p - J, p + J]^2 (thesis Code 4), exact when J >= the largest

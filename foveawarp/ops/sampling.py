@@ -10,7 +10,7 @@ import warp as wp
 
 from .._util import as_wp, check_image_size, get_device
 from ..camera import _check_gaze
-from ..config import Config, FoveationConfig, check_finite, check_int_range, check_range
+from ..config import Config, FoveationConfig, check_array, check_int_range, check_range, check_vec
 from ..kernels.camera import CameraParams
 from ..kernels.reproject import cache_test_kernel
 from ..kernels.sampling import (
@@ -101,12 +101,10 @@ def sample_map(probability, *, block, frame_index=0, seed=0, device=None) -> np.
     fi = check_int_range("frame_index", frame_index, 0, None)
     sd = check_int_range("seed", seed, 0, 2**31 - 1)
     dev = get_device(device)
-    p = _np(probability)
+    p = check_array("probability", probability)
     if p.ndim != 2 or p.size == 0:
         raise ValueError(f"probability must be a non-empty (H, W) array, got shape {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError("probability must be finite everywhere, got NaN or Inf")
-    h, w = p.shape
+    h, w = check_image_size(p.shape[1], p.shape[0])[::-1]
     cfg = Config(foveation=FoveationConfig(block=k))
     sp = sampling_params(cfg, w, h, sd)
     frame, _, _ = _frame(w, h, (0.0, 0.0), 60.0, dev, frame_index=fi, block=k)
@@ -121,19 +119,29 @@ def sample_map(probability, *, block, frame_index=0, seed=0, device=None) -> np.
     return out.numpy()
 
 
-def _np(a) -> np.ndarray:
-    return a.numpy() if isinstance(a, wp.array) else np.asarray(a)
-
-
 def _image3(a, name, dev):
-    arr = _np(a)
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ValueError(f"{name} must be an (H, W, 3) array, got shape {arr.shape}")
+    arr = check_array(name, a)
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{name} must be a non-empty (H, W, 3) array, got shape {arr.shape}")
+    check_image_size(arr.shape[1], arr.shape[0])
     return as_wp(arr, wp.vec3, dev, name=name), arr.shape[:2]
 
 
+def _image2(a, name, dev, shape=None, *, mask=False, **bounds):
+    """A checked (H, W) array as a Warp array (float32, or uint8 0/1 with ``mask``: nonzero = set)."""
+    arr = check_array(name, a, **bounds)
+    if shape is not None and tuple(arr.shape) != tuple(shape):
+        raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(arr.shape)}")
+    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{name} must be a non-empty (H, W) array, got shape {arr.shape}")
+    check_image_size(arr.shape[1], arr.shape[0])
+    if mask:
+        return as_wp((arr != 0).astype(np.uint8), wp.uint8, dev, name=name)
+    return as_wp(arr, wp.float32, dev, name=name)
+
+
 def albedo_to_lab(albedo, device=None) -> np.ndarray:
-    """(H, W, 3) float32 CIE-Lab (D65, 2 deg) of *linear* RGB ``albedo`` (H, W, 3); equals
+    """(H, W, 3) float32 CIE-Lab (D65, 2 deg) of *linear* RGB ``albedo`` (H, W, 3), finite; equals
     ``skimage.color.rgb2lab`` of the sRGB-encoded albedo."""
     dev = get_device(device)
     a, (h, w) = _image3(albedo, "albedo", dev)
@@ -166,17 +174,14 @@ def normal_gradient(normal, device=None) -> np.ndarray:
 def dof_sampling_factor(depth_m, *, focus_depth_m, sigma1_m, sigma2_m, dof_floor, device=None) -> np.ndarray:
     """(H, W) float32 F_DoF of the sampling map: 1 within ``sigma1_m`` of ``focus_depth_m``, falling linearly
     to ``dof_floor`` (in [0, 1]) over a further ``sigma2_m`` (> 0), ``dof_floor`` beyond. Metres."""
-    f = check_finite("focus_depth_m", focus_depth_m)
+    f = check_range("focus_depth_m", focus_depth_m, 0.0, None, lo_open=True)
     s1 = check_range("sigma1_m", sigma1_m, 0.0, None)
     s2 = check_range("sigma2_m", sigma2_m, 0.0, None, lo_open=True)
     fl = check_range("dof_floor", dof_floor, 0.0, 1.0)
     dev = get_device(device)
-    d = _np(depth_m)
-    if d.ndim != 2:
-        raise ValueError(f"depth_m must be an (H, W) array, got shape {d.shape}")
-    dw = as_wp(d, wp.float32, dev, name="depth_m")
-    out = wp.zeros(d.shape, dtype=float, device=dev)
-    wp.launch(dof_factor_kernel, dim=d.shape, inputs=[dw, f, s1, s2, fl], outputs=[out], device=dev)
+    dw = _image2(depth_m, "depth_m", dev)
+    out = wp.zeros(dw.shape, dtype=float, device=dev)
+    wp.launch(dof_factor_kernel, dim=dw.shape, inputs=[dw, f, s1, s2, fl], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -192,19 +197,14 @@ def cache_test(reproj_uv, position, hit, depth, depth_prev, valid_prev, eye_prev
     """
     eps = check_range("depth_eps_rel", depth_eps_rel, 0.0, 1.0, lo_open=True)
     dev = get_device(device)
-    d = _np(depth)
-    if d.ndim != 2:
-        raise ValueError(f"depth must be an (H, W) array, got shape {d.shape}")
-    h, w = d.shape
-    uv = as_wp(_np(reproj_uv), wp.vec2, dev, name="reproj_uv", shape=(h, w, 2))
-    pos = as_wp(_np(position), wp.vec3, dev, name="position", shape=(h, w, 3))
-    ht = as_wp(hit, wp.uint8, dev, name="hit", shape=(h, w))
-    dp = as_wp(depth_prev, wp.float32, dev, name="depth_prev", shape=(h, w))
-    vp = as_wp(valid_prev, wp.uint8, dev, name="valid_prev", shape=(h, w))
-    dc = as_wp(d, wp.float32, dev, name="depth")
-    e = [check_finite(f"eye_prev[{i}]", c) for i, c in enumerate(np.asarray(eye_prev, dtype=np.float64).reshape(-1))]
-    if len(e) != 3:
-        raise ValueError(f"eye_prev must be 3 finite numbers, got {eye_prev!r}")
+    dc = _image2(depth, "depth", dev, lo=0.0)
+    h, w = dc.shape
+    uv = as_wp(check_array("reproj_uv", reproj_uv), wp.vec2, dev, name="reproj_uv", shape=(h, w, 2))
+    pos = as_wp(check_array("position", position), wp.vec3, dev, name="position", shape=(h, w, 3))
+    ht = _image2(hit, "hit", dev, (h, w), mask=True)
+    dp = _image2(depth_prev, "depth_prev", dev, (h, w), lo=0.0)
+    vp = _image2(valid_prev, "valid_prev", dev, (h, w), mask=True)
+    e = check_vec("eye_prev", eye_prev, 3)
     out_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
     out_idx = wp.zeros((h, w), dtype=wp.int32, device=dev)
     wp.launch(cache_test_kernel, dim=(h, w), inputs=[uv, pos, ht, dc, dp, vp, wp.vec3(*e), eps],

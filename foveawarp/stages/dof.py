@@ -126,7 +126,8 @@ class DofStage:
 
     def _check(self, name, a, dtype):
         if not isinstance(a, wp.array):
-            raise ValueError(f"{name} must be a wp.array, got {type(a).__name__}")
+            raise ValueError(f"{name} must be a ({self.height}, {self.width}) wp.array of "
+                             f"{getattr(dtype, '__name__', dtype)}, got {type(a).__name__}")
         if tuple(a.shape) != (self.height, self.width) or a.dtype != dtype:
             raise ValueError(f"{name} must be a ({self.height}, {self.width}) wp.array of "
                              f"{getattr(dtype, '__name__', dtype)}, got shape {tuple(a.shape)} of {a.dtype}")

@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 from .._util import get_device
-from ..config import IndirectConfig, check_choice, check_int_range
+from ..config import IndirectConfig, check_array, check_choice, check_int_range, show
 from ..kernels.lighttree import (
     IndirectParams,
     cut_flags_kernel,
@@ -150,7 +150,11 @@ class IndirectStage:
         if config is None:
             config = IndirectConfig()
         if not isinstance(config, IndirectConfig):
-            raise ValueError(f"config must be an IndirectConfig, got {type(config).__name__}")
+            raise ValueError(f"config must be an IndirectConfig, got {show(config)} ({type(config).__name__})")
+        from ..scene import DeviceScene
+
+        if not isinstance(dscene, DeviceScene):
+            raise ValueError(f"dscene must be a foveawarp.DeviceScene, got {show(dscene)} ({type(dscene).__name__})")
         self.config = config
         self.dscene = dscene
         self.device = get_device(device if device is not None else dscene.device)
@@ -175,8 +179,8 @@ class IndirectStage:
         if method == "sampled":
             self.samples = check_int_range("samples", samples, 1, n * n)
         else:
-            self.samples = int(samples)
-        self.seed = int(seed)
+            self.samples = check_int_range("samples", samples, 1, None)
+        self.seed = check_int_range("seed", seed, 0, 2**63 - 1)
 
         dev = self.device
         total = level_offset(self.leaf_level + 1)
@@ -330,14 +334,11 @@ class IndirectStage:
         leaf = self._levels[self.leaf_level]
         for name, arr, dst, ch in (("flux", flux, leaf[0], 3), ("position", position, leaf[1], 3),
                                    ("normal", normal, leaf[2], 3), ("depth", depth, leaf[3], 1)):
-            a = np.asarray(arr, dtype=np.float32)
+            a = check_array(name, arr, lo=0.0 if name == "flux" else None)
             want = (n, n, 3) if ch == 3 else (n, n)
             if a.shape != want:
                 raise ValueError(f"{name} must have shape {want}, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"{name} must be finite; found NaN or Inf")
-            if name == "flux" and a.min() < 0:
-                raise ValueError(f"flux must be >= 0, got min {a.min()!r}")
+            a = a.astype(np.float32)
             dst.assign(np.ascontiguousarray(a.reshape(n * n, -1)[order].reshape((n * n, 3) if ch == 3 else -1)))
         leaf[4].fill_(1)
         self._built_light = _light_key(self.light) if self.enabled else ("loaded",)
@@ -367,12 +368,33 @@ class IndirectStage:
         self.builds += 1
 
     # -- gather -------------------------------------------------------------------------------------------
+    def _check(self, name, arr, dtype, shape=None, ndim=None):
+        """Host-side attribute checks only (no sync): a wp.array of ``dtype`` on the stage's device."""
+        ok = (isinstance(arr, wp.array) and arr.dtype == dtype and arr.device == self.device
+              and (shape is None or tuple(arr.shape) == tuple(shape)) and (ndim is None or arr.ndim == ndim))
+        if not ok:
+            want = f"{shape if shape is not None else f'{ndim}-D'} {getattr(dtype, '__name__', dtype)} wp.array"
+            raise ValueError(f"{name} must be a {want} on {self.device}, got {type(arr).__name__} "
+                             f"{getattr(arr, 'dtype', None)} {tuple(getattr(arr, 'shape', ()))} on "
+                             f"{getattr(arr, 'device', None)}")
+        return arr
+
+    def _check_gbuffer(self, gbuffer):
+        from ..buffers import GBuffer
+
+        if not isinstance(gbuffer, GBuffer):
+            raise ValueError(f"gbuffer must be a foveawarp.GBuffer, got {show(gbuffer)} ({type(gbuffer).__name__})")
+        if gbuffer.position.device != self.device:
+            raise ValueError(f"gbuffer must be on {self.device}, got {gbuffer.position.device}")
+        return gbuffer
+
     def run_full(self, gbuffer, radiance) -> None:
         """``radiance[y, x] += indirect`` at every hit pixel of ``gbuffer`` (reads position, normal, albedo,
         hit)."""
+        g = self._check_gbuffer(gbuffer)
+        self._check("radiance", radiance, wp.vec3, shape=tuple(g.position.shape))
         if not self.enabled:
             return
-        g = gbuffer
         wp.launch(indirect_full_kernel, dim=(g.position.shape[0], g.position.shape[1]),
                   inputs=[self.params, g.position, g.normal, g.albedo, g.hit], outputs=[radiance],
                   device=self.device)
@@ -380,9 +402,15 @@ class IndirectStage:
     def run_list(self, gbuffer, work, count, radiance, width: int) -> None:
         """``radiance += indirect`` at the flat pixel indices ``work[0:count[0]]`` (y * width + x; count stays
         on the device), like ``kernels.shade.shade_list_kernel``."""
+        g = self._check_gbuffer(gbuffer)
+        self._check("work", work, wp.int32, ndim=1)
+        self._check("count", count, wp.int32, shape=(1,))
+        self._check("radiance", radiance, wp.vec3, shape=tuple(g.position.shape))
+        width = check_int_range("width", width, 1, 16384)
+        if width != g.position.shape[1]:
+            raise ValueError(f"width must be the G-buffer width {g.position.shape[1]}, got {width}")
         if not self.enabled:
             return
-        g = gbuffer
         wp.launch(indirect_list_kernel, dim=work.shape[0],
                   inputs=[self.params, work, count, int(width), g.position, g.normal, g.albedo, g.hit],
                   outputs=[radiance], device=self.device)
@@ -395,6 +423,11 @@ class IndirectStage:
                 raise ValueError("run_points without arrays needs the stage built with max_receivers")
             pos, normal, albedo, out = (self.receiver_pos, self.receiver_normal, self.receiver_albedo,
                                         self.receiver_out)
+        self._check("pos", pos, wp.vec3, ndim=1)
+        n = (pos.shape[0],)
+        self._check("normal", normal, wp.vec3, shape=n)
+        self._check("albedo", albedo, wp.vec3, shape=n)
+        self._check("out", out, wp.vec3, shape=n)
         if not self.enabled:
             out.zero_()
             return

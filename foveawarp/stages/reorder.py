@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..config import ReorderConfig
+from .._util import check_image_size, get_device
+from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, show
 from ..kernels.reorder import (
     flags_kernel,
     rows_balance_kernel,
@@ -45,6 +46,10 @@ class ReorderStage:
     """
 
     def __init__(self, width: int, height: int, config: ReorderConfig, device):
+        width, height = check_image_size(width, height)
+        if not isinstance(config, ReorderConfig):
+            raise ValueError(f"config must be a ReorderConfig, got {show(config)} ({type(config).__name__})")
+        device = get_device(device)
         self.width, self.height, self.config, self.device = width, height, config, device
         n = width * height
         self.count = wp.zeros(1, dtype=wp.int32, device=device)
@@ -66,7 +71,14 @@ class ReorderStage:
         return self.config.strategy
 
     def run(self, mask, strategy: str | None = None) -> None:
-        s = strategy or self.config.strategy
+        """Compact ``mask`` ((H, W) uint8 wp.array on the stage's device, nonzero = sampled) with ``strategy``
+        (default: the config's). Launches only (no host reads of the mask)."""
+        s = self.config.strategy if strategy is None else check_choice("strategy", strategy, REORDER_STRATEGIES)
+        if (not isinstance(mask, wp.array) or mask.dtype != wp.uint8
+                or tuple(mask.shape) != (self.height, self.width) or mask.device != self.device):
+            raise ValueError(f"mask must be a ({self.height}, {self.width}) uint8 wp.array on {self.device}, got "
+                             f"{type(mask).__name__} {getattr(mask, 'dtype', None)} "
+                             f"{tuple(getattr(mask, 'shape', ()))} on {getattr(mask, 'device', None)}")
         dev = self.device
         if s == "none":
             return
@@ -96,4 +108,3 @@ class ReorderStage:
             wp.launch(total_kernel, dim=1, inputs=[self.tile_counts, self.tile_offsets], outputs=[self.count],
                       device=dev)
             return
-        raise ValueError(f"strategy must be one of none, rows, rows+balance, scan, tile; got {s!r}")
