@@ -208,6 +208,11 @@ class FoveationConfig:
         block: jitter block size ``k`` in pixels, in [1, 64]: every k x k tile holds at least one sample,
             which bounds the distance from any pixel to its nearest sample by ``k * sqrt(2)``.
         enabled: False traces every pixel (sampling rate 1).
+        falloff_deg: None (default) normalizes eq. 2 by ``w_far`` = MAR at the largest eccentricity on screen,
+            as the thesis does; a number in (0, 180] normalizes by the MAR at this eccentricity instead (the
+            smaller of the two), so the probability falls to about ``xi`` there. A foveawarp extension:
+            with the thesis normalizer the mean probability is about 1/2 whatever the MAR slope; a falloff
+            near 10-20 degrees gives sampling rates near 20-30%.
     """
 
     mar_slope: float = 0.028
@@ -215,6 +220,7 @@ class FoveationConfig:
     min_probability: float = 0.05
     block: int = 4
     enabled: bool = True
+    falloff_deg: Optional[float] = None
 
     def __post_init__(self):
         check_range("FoveationConfig.mar_slope", self.mar_slope, 0.0, 1.0, lo_open=True)
@@ -222,6 +228,8 @@ class FoveationConfig:
         check_range("FoveationConfig.min_probability", self.min_probability, 0.0, 1.0)
         check_int_range("FoveationConfig.block", self.block, 1, 64)
         check_bool("FoveationConfig.enabled", self.enabled)
+        if self.falloff_deg is not None:
+            check_range("FoveationConfig.falloff_deg", self.falloff_deg, 0.0, 180.0, lo_open=True)
 
     @property
     def effective_min_probability(self) -> float:

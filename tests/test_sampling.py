@@ -44,12 +44,15 @@ def ref_emax(w, h, gaze, fov, n=20001):
     return float(ref_angle_deg(ref_dirs(xs, ys, w, h, fov), g[None, :]).max())
 
 
-def ref_probability(w, h, gaze, fov, m, b, xi):
+def ref_probability(w, h, gaze, fov, m, b, xi, falloff=None):
     e = ref_eccentricity(w, h, gaze, fov)
     g = ref_dirs(gaze[0], gaze[1], w, h, fov)
     g1 = ref_dirs(gaze[0] + 1.0, gaze[1], w, h, fov)
     w_min = float(ref_angle_deg(g, g1))
-    w_far = m * ref_emax(w, h, gaze, fov) + b
+    e_norm = ref_emax(w, h, gaze, fov)
+    if falloff is not None:
+        e_norm = min(e_norm, falloff)
+    w_far = m * e_norm + b
     return np.clip(1.0 - (m * e + b - w_min) / w_far, xi, 1.0)
 
 
@@ -100,6 +103,34 @@ def test_foveation_probability_matches_reference(device, m, b, xi):
             ref = ref_probability(W, H, gaze, fov, m, b, xi)
             assert np.abs(got - ref).max() < 2e-5, (gaze, fov)
             assert got.min() >= xi - 1e-7 and got.max() <= 1.0
+
+
+@pytest.mark.parametrize("falloff", [0.5, 5.0, 12.0, 179.0])
+def test_foveation_probability_with_falloff_matches_reference(device, falloff):
+    m, b, xi = 0.028, 1.0 / 48.0, 0.05
+    for gaze in GAZES[:5]:
+        got = ops.foveation_probability(W, H, gaze, 60.0, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                        falloff_deg=falloff, device=device)
+        ref = ref_probability(W, H, gaze, 60.0, m, b, xi, falloff)
+        assert np.abs(got - ref).max() < 2e-5, (gaze, falloff)
+        base = ops.foveation_probability(W, H, gaze, 60.0, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                         device=device)
+        assert np.all(got <= base + 1e-6)  # a nearer falloff never raises the probability
+    with pytest.raises(ValueError, match="falloff_deg"):
+        ops.foveation_probability(W, H, (1, 1), 60.0, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                  falloff_deg=0.0, device=device)
+    with pytest.raises(ValueError, match="falloff_deg"):
+        fw.FoveationConfig(falloff_deg=float("nan"))
+
+
+def test_falloff_lowers_the_frame_loop_sampling_rate(device):
+    scene = fw.load_scene("eyechart")
+    rates = {}
+    for fo in (None, 10.0):
+        cfg = fw.Config().with_(foveation={"falloff_deg": fo})
+        loop = fw.FrameLoop(scene, 160, 90, config=cfg, device=device)
+        rates[fo] = loop.render(scene.camera, gaze_px=(80.0, 45.0)).stats["sampling_rate"]
+    assert rates[10.0] < 0.8 * rates[None], rates
 
 
 def test_probability_is_one_at_the_gaze_and_falls_off(device):

@@ -21,7 +21,14 @@ from ..kernels.sampling import (
     threshold_kernel,
 )
 from ..kernels.saliency import dof_factor_kernel, gradient_kernel, lab_kernel
-from ..stages.sampling import clamp_gaze, dither_ranks, frame_rotation, launch_tile_pass, sampling_params
+from ..stages.sampling import (
+    NO_FALLOFF,
+    clamp_gaze,
+    dither_ranks,
+    frame_rotation,
+    launch_tile_pass,
+    sampling_params,
+)
 
 __all__ = [
     "eccentricity_deg",
@@ -36,7 +43,8 @@ __all__ = [
 ]
 
 
-def _frame(width, height, gaze_px, fov_y_deg, dev, *, mar_slope=1.0, mar_fovea_deg=1.0, frame_index=0, block=1):
+def _frame(width, height, gaze_px, fov_y_deg, dev, *, mar_slope=1.0, mar_fovea_deg=1.0, frame_index=0, block=1,
+           falloff_deg=NO_FALLOFF):
     w, h = check_image_size(width, height)
     gaze = _check_gaze(gaze_px)
     fov = check_range("fov_y_deg", fov_y_deg, 0.0, 180.0, lo_open=True, hi_open=True)
@@ -46,8 +54,9 @@ def _frame(width, height, gaze_px, fov_y_deg, dev, *, mar_slope=1.0, mar_fovea_d
     dummy_d = wp.zeros((1, 1), dtype=float, device=dev)
     dummy_h = wp.zeros((1, 1), dtype=wp.uint8, device=dev)
     wp.launch(frame_setup_kernel, dim=1,
-              inputs=[gx, gy, w, h, math.tan(math.radians(fov) * 0.5), float(mar_slope), float(mar_fovea_deg), 0, 0.0,
-                      dummy_d, dummy_h, 0, 0, CameraParams(), wp.vec3(0.0, 0.0, 0.0), 0, rot, phase],
+              inputs=[gx, gy, w, h, math.tan(math.radians(fov) * 0.5), float(mar_slope), float(mar_fovea_deg),
+                      float(falloff_deg), 0, 0.0, dummy_d, dummy_h, 0, 0, CameraParams(), wp.vec3(0.0, 0.0, 0.0), 0,
+                      rot, phase],
               outputs=[out], device=dev)
     return out, w, h
 
@@ -64,7 +73,7 @@ def eccentricity_deg(width, height, gaze_px, fov_y_deg, device=None) -> np.ndarr
 
 
 def foveation_probability(width, height, gaze_px, fov_y_deg, *, mar_slope, mar_fovea_deg, min_probability,
-                          device=None) -> np.ndarray:
+                          falloff_deg=None, device=None) -> np.ndarray:
     """(H, W) float32 thesis eq. 2: ``clip(1 - (w - w_min) / w_far, min_probability, 1)``.
 
     ``w = mar_slope * e + mar_fovea_deg`` (degrees; e = ``eccentricity_deg``); ``w_min`` = angle between the
@@ -72,13 +81,15 @@ def foveation_probability(width, height, gaze_px, fov_y_deg, *, mar_slope, mar_f
     ``mar_slope * e_max + mar_fovea_deg`` with ``e_max`` the largest eccentricity over the screen rectangle
     [0, W] x [0, H] (its corners, or an edge point for gazes far off screen).
     ``mar_slope`` in (0, 1] deg/deg, ``mar_fovea_deg`` in (0, 1], ``min_probability`` in [0, 1] (used as is;
-    the SamplingStage raises it to 1 / block^2).
+    the SamplingStage raises it to 1 / block^2). ``falloff_deg`` (None or in (0, 180]): when given, ``w_far``
+    uses ``min(e_max, falloff_deg)`` instead of ``e_max`` (``FoveationConfig.falloff_deg``).
     """
     m = check_range("mar_slope", mar_slope, 0.0, 1.0, lo_open=True)
     b = check_range("mar_fovea_deg", mar_fovea_deg, 0.0, 1.0, lo_open=True)
     xi = check_range("min_probability", min_probability, 0.0, 1.0)
     dev = get_device(device)
-    frame, w, h = _frame(width, height, gaze_px, fov_y_deg, dev, mar_slope=m, mar_fovea_deg=b)
+    fo = NO_FALLOFF if falloff_deg is None else check_range("falloff_deg", falloff_deg, 0.0, 180.0, lo_open=True)
+    frame, w, h = _frame(width, height, gaze_px, fov_y_deg, dev, mar_slope=m, mar_fovea_deg=b, falloff_deg=fo)
     cfg = Config(foveation=FoveationConfig(mar_slope=m, mar_fovea_deg=b, min_probability=xi, block=1))
     sp = sampling_params(cfg, w, h)
     sp.xi = xi  # exactly as given (block 1 would raise it to 1)
