@@ -14,7 +14,7 @@ import warp as wp
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
-from .config import Config
+from .config import Config, check_bool, check_int_range, show
 from .kernels.gbuffer import gbuffer_kernel
 from .kernels.shade import (
     ShadeParams,
@@ -56,7 +56,7 @@ class FrameLoop:
         self.config = config
         self.device = get_device(device)
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
-        self.timing = bool(timing)
+        self.timing = check_bool("timing", timing)
         self.dscene = DeviceScene(self.scene, self.device)
         w, h, dev = self.width, self.height, self.device
         self.gbuffer = GBuffer(w, h, dev)
@@ -120,6 +120,11 @@ class FrameLoop:
         return float(min(max(2.0 * far, 1.0), 1.0e30))
 
     def shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> ShadeParams:
+        """The shading kernels' parameters for ``camera`` (required) and this frame; ``ao_samples`` in [0, 256]
+        overrides ``ShadingConfig.ao_samples``."""
+        camera = self._require_camera(camera)
+        if ao_samples is not None:
+            ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
         sc = self.config.shading
         ds = self.dscene
         sp = ShadeParams()
@@ -140,6 +145,20 @@ class FrameLoop:
         sp.width = self.width
         sp.eye = wp.vec3(*camera.eye)
         return sp
+
+    @staticmethod
+    def _require_camera(camera) -> Camera:
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a foveawarp.Camera, got {show(camera)} ({type(camera).__name__})")
+        return camera
+
+    def _check_image_array(self, name: str, a, dtype) -> None:
+        """``a`` must be an (H, W) wp.array of ``dtype`` on this loop's device (kernels index it per pixel)."""
+        ok = (isinstance(a, wp.array) and a.dtype == dtype and tuple(a.shape) == (self.height, self.width)
+              and a.device == self.device)
+        if not ok:
+            raise ValueError(f"{name} must be a ({self.height}, {self.width}) wp.array of {dtype.__name__} on "
+                             f"{self.device}, got {_describe(a)}")
 
     def _check_camera(self, camera) -> Camera:
         if camera is None:
@@ -177,18 +196,36 @@ class FrameLoop:
         return self._sp_dev
 
     def shade_full(self, camera: Camera, out=None, *, ao_samples: Optional[int] = None) -> None:
+        """Shade every pixel of the current G-buffer into ``out`` ((H, W) vec3 wp.array; default
+        ``self.radiance``)."""
+        if out is not None:
+            self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_full_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
 
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
-        """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device)."""
+        """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device): ``work`` a 1-D int32
+        wp.array of at most H * W indices in [0, H * W), ``count`` a (1,) int32 wp.array, both on this device."""
+        if out is not None:
+            self._check_image_array("out", out, wp.vec3)
+        if not (isinstance(work, wp.array) and work.dtype == wp.int32 and work.ndim == 1
+                and work.shape[0] <= self.width * self.height and work.device == self.device):
+            raise ValueError(f"work must be a 1-D int32 wp.array of at most {self.width * self.height} pixel indices "
+                             f"on {self.device}, got {_describe(work)}")
+        if not (isinstance(count, wp.array) and count.dtype == wp.int32 and tuple(count.shape) == (1,)
+                and count.device == self.device):
+            raise ValueError(f"count must be a (1,) int32 wp.array on {self.device}, got {_describe(count)}")
         wp.launch(shade_list_kernel, dim=work.shape[0],
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), work, count,
                           *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
 
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
+        """Shade the pixels where ``mask`` ((H, W) uint8 wp.array) is nonzero, launching every pixel."""
+        self._check_image_array("mask", mask, wp.uint8)
+        if out is not None:
+            self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_masked_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
                   outputs=[out if out is not None else self.radiance], device=self.device)
@@ -204,6 +241,8 @@ class FrameLoop:
         """G-buffer + shading (+ indirect, + depth of field when configured, focused at ``gaze_px``) at every
         pixel, full resolution, no reuse: the error reference. It does not disturb the foveated history."""
         camera = self._check_camera(camera)
+        gaze = None if gaze_px is None else _check_gaze(gaze_px)
+        dof = check_bool("dof", dof)
         self._stats = {}
         t0 = _now()
         with self._stage("scene"):
@@ -222,8 +261,8 @@ class FrameLoop:
                 cfgd = self.config.dof
                 focus = (cfgd.focus_depth_m if cfgd.focus_depth_m is not None else
                          self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit,
-                                                 (self.width * 0.5, self.height * 0.5) if gaze_px is None else
-                                                 _check_gaze(gaze_px), fov_y_deg=camera.fov_y_deg))
+                                                 (self.width * 0.5, self.height * 0.5) if gaze is None else gaze,
+                                                 fov_y_deg=camera.fov_y_deg))
                 self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, focus, self.dof_out,
                              fov_y_deg=camera.fov_y_deg)
                 hdr = self.dof_out
@@ -251,6 +290,7 @@ class FrameLoop:
         (``stats['graph']`` says which; a failed capture falls back to eager launches and says why)."""
         camera = self._check_camera(camera)
         gaze = (self.width * 0.5, self.height * 0.5) if gaze_px is None else _check_gaze(gaze_px)
+        cut = check_bool("cut", cut)
         self._ensure_foveated_stages()
         cfg = self.config
         self._stats = {}
@@ -505,6 +545,15 @@ class _LazyStats(dict):
     def copy(self):
         self._resolve()
         return dict(self)
+
+
+def _describe(a) -> str:
+    """What an array argument is, for error messages: type, dtype, shape and device."""
+    if isinstance(a, wp.array):
+        return f"wp.array of {getattr(a.dtype, '__name__', a.dtype)} with shape {tuple(a.shape)} on {a.device}"
+    if isinstance(a, np.ndarray):
+        return f"ndarray of {a.dtype} with shape {a.shape}"
+    return f"{show(a)} ({type(a).__name__})"
 
 
 def _now() -> float:

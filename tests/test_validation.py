@@ -5,8 +5,8 @@ wrong shape or dtype, an array holding NaN / Inf, a size <= 0, a value outside i
 non-triangle mesh, an unreadable file) and expects a ``ValueError`` whose message names the parameter, the
 offending value and the allowed range: all three substrings of the case must appear in the message.
 
-Cases marked ``xfail(strict=True, reason="pending: ...")`` are known gaps in files owned by another change
-(frame_loop.py, stages/sampling.py); they XPASS (and fail this file) once fixed: then drop the mark.
+Cases marked ``xfail(strict=True, reason="pending: ...")`` are known gaps (none today: the 46 first left pending
+in frame_loop.py and stages/sampling.py are fixed); they XPASS (and fail this file) once fixed: then drop the mark.
 
 The table is built at import time from small generators (one per kind of parameter); ``case_families()``
 counts the cases per entry point family (docs/robustness.md quotes these counts).
@@ -517,8 +517,7 @@ arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "device", "or None for the defa
                                                                                         (5, "5")])
 arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "scene", "a scene name or a file path", [(5, "5")],
     param="name_or_path")
-arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "timing", "True or False", [("no", "'no'")],
-    pending="FrameLoop(timing=...) is bool()-coerced: 'no' silently means True")
+arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "timing", "True or False", [("no", "'no'")])
 
 
 def _render(**kw):
@@ -537,18 +536,15 @@ for fname, f in (("render", _render), ("render_reference", _render_ref)):
     arg("FrameLoop", fname, f, {}, "camera", "foveawarp.Camera", [("cam", "str"), (5, "int")])
     real_arg("FrameLoop", fname, f, {}, "time", "finite real number", none_ok=True)
 vec_arg("FrameLoop", "render", _render, {}, "gaze_px", 2, "finite real number", none_ok=True)
-arg("FrameLoop", "render", _render, {}, "cut", "True or False", [("no", "'no'"), (None, "None")],
-    pending="render(cut=...) is truth-tested: 'no' silently forces a cut, None silently means False")
+arg("FrameLoop", "render", _render, {}, "cut", "True or False", [("no", "'no'"), (None, "None")])
 vec_arg("FrameLoop", "render_reference(dof on)", _render_ref_dof, {}, "gaze_px", 2, "finite real number",
         none_ok=True)
 for v, vs in ((NAN, "nan"), (INF, "inf")):
     case("FrameLoop", f"render_reference(dof off):gaze_px[0]={vs}", _render_ref, {"gaze_px": (v, 1.0)},
-         "gaze_px[0]", vs, "finite real number",
-         pending="render_reference validates gaze_px only when DoF is on: NaN / Inf gaze is silently ignored")
+         "gaze_px[0]", vs, "finite real number")
 case("FrameLoop", "render_reference(dof off):gaze_px='ab'", _render_ref, {"gaze_px": "ab"}, "gaze_px", "'ab'",
-     "2 finite numbers", pending="render_reference validates gaze_px only when DoF is on: 'ab' is silently ignored")
-arg("FrameLoop", "render_reference", _render_ref, {}, "dof", "True or False", [("no", "'no'")],
-    pending="render_reference(dof=...) is truth-tested: 'no' silently means True")
+     "2 finite numbers")
+arg("FrameLoop", "render_reference", _render_ref, {}, "dof", "True or False", [("no", "'no'")])
 def _shade(name, **kw):
     loop = _loop()
     kw.setdefault("camera", loop.scene.camera)
@@ -562,26 +558,17 @@ def _shade(name, **kw):
 
 for fname in ("shade_full", "shade_masked", "shade_list", "shade_params"):
     f = functools.partial(_shade, fname)
-    arg("FrameLoop", fname, f, {}, "camera", "foveawarp.Camera", [("cam", "str"), (None, "None")],
-        pending=f"FrameLoop.{fname}(camera=...) is not validated (AttributeError / silent default)")
-    arg("FrameLoop", fname, f, {}, "ao_samples", "[0, 256]", [(-1, "-1"), (NAN, "nan"), (257, "257")],
-        pending=f"FrameLoop.{fname}(ao_samples=...) is not validated (passed to the kernel as is)")
+    arg("FrameLoop", fname, f, {}, "camera", "foveawarp.Camera", [("cam", "str"), (None, "None")])
+    arg("FrameLoop", fname, f, {}, "ao_samples", "[0, 256]", [(-1, "-1"), (NAN, "nan"), (257, "257")])
     if fname != "shade_params":
-        arg("FrameLoop", fname, f, {}, "out", f"({H}, {W})", [(np.zeros((H, W, 3)), "ndarray")],
-            pending=f"FrameLoop.{fname}(out=...) is not validated (Warp launch error, not ValueError)")
-        arg("FrameLoop", fname, f, {}, "out", f"({H}, {W})", [(_warr((2, 2), wp.vec3), "(2, 2)")],
-            pending=f"unsafe: FrameLoop.{fname}(out=<(2, 2) vec3 wp.array>) is not validated: the kernel writes "
-                    "out of bounds")
+        arg("FrameLoop", fname, f, {}, "out", f"({H}, {W})", [(np.zeros((H, W, 3)), "ndarray")])
+        arg("FrameLoop", fname, f, {}, "out", f"({H}, {W})", [(_warr((2, 2), wp.vec3), "(2, 2)")])
 arg("FrameLoop", "shade_masked", functools.partial(_shade, "shade_masked"), {}, "mask", f"({H}, {W})",
-    [(_warr((2, 2), wp.uint8), "(2, 2)")],
-    pending="unsafe: FrameLoop.shade_masked(mask=<(2, 2) uint8 wp.array>) is not validated: the kernel reads out "
-            "of bounds")
+    [(_warr((2, 2), wp.uint8), "(2, 2)")])
 arg("FrameLoop", "shade_list", functools.partial(_shade, "shade_list"), {}, "work", "int32",
-    [(_warr(4, wp.float32), "float32")],
-    pending="FrameLoop.shade_list(work=<float32 wp.array>) is not validated (Warp launch RuntimeError)")
+    [(_warr(4, wp.float32), "float32")])
 arg("FrameLoop", "shade_list", functools.partial(_shade, "shade_list"), {}, "count", "(1,) int32",
-    [(_warr(1, wp.float32), "float32")],
-    pending="FrameLoop.shade_list(count=<float32 wp.array>) is not validated (Warp launch RuntimeError)")
+    [(_warr(1, wp.float32), "float32")])
 
 # ================================================================================================================
 # Stages: SamplingStage, DofStage, ReconstructStage, IndirectStage, ReorderStage, GBuffer
@@ -624,38 +611,29 @@ for v, vs, p, a in ((NAN, "nan", "eye_prev[0]", "finite real number"), (INF, "in
     case("stages", f"SamplingStage.set_frame:eye_prev={vs}", _set_frame,
          {"first_frame": False, "eye_prev": v if isinstance(v, tuple) else (v, 0.0, 0.0)}, p, vs, a)
 case("stages", "SamplingStage.set_frame:eye_prev='abc'", _set_frame, {"first_frame": False, "eye_prev": "abc"},
-     "eye_prev", "'abc'", "3 finite numbers",
-     pending="SamplingStage.set_frame(eye_prev='abc') raises float()'s ValueError \"could not convert string to float"
-             ": 'a'\", which names neither the parameter nor the range")
+     "eye_prev", "'abc'", "3 finite numbers")
 case("stages", "SamplingStage.set_frame:eye_prev=None", _set_frame, {"first_frame": False, "eye_prev": None},
-     "eye_prev", "None", "3 finite numbers",
-     pending="SamplingStage.set_frame(eye_prev=None) says 'eye_prev must be given' without the value or the range")
+     "eye_prev", "None", "3 finite numbers")
 arg("stages", "SamplingStage.set_frame", _set_frame, {"moving": True}, "camera_prev", "foveawarp.Camera or None",
     [("cam", "str")])
 arg("stages", "SamplingStage.set_frame", _set_frame, {}, "gbuffer", f"{W} x {H}",
     [(GBuffer(4, 4, DEV), "4 x 4")])
-arg("stages", "SamplingStage.set_frame", _set_frame, {}, "gbuffer", "GBuffer", [("gb", "'gb'"), (None, "None")],
-    pending="SamplingStage.set_frame(gbuffer=...) of the wrong type raises AttributeError")
-arg("stages", "SamplingStage.set_frame", _set_frame, {}, "moving", "True or False", [("no", "'no'")],
-    pending="SamplingStage.set_frame(moving=...) is truth-tested: 'no' silently means True")
-arg("stages", "SamplingStage.set_frame", _set_frame, {}, "first_frame", "True or False", [("no", "'no'")],
-    pending="SamplingStage.set_frame(first_frame=...) is truth-tested: 'no' silently means True")
+arg("stages", "SamplingStage.set_frame", _set_frame, {}, "gbuffer", "GBuffer", [("gb", "'gb'"), (None, "None")])
+arg("stages", "SamplingStage.set_frame", _set_frame, {}, "moving", "True or False", [("no", "'no'")])
+arg("stages", "SamplingStage.set_frame", _set_frame, {}, "first_frame", "True or False", [("no", "'no'")])
 arg("stages", "SamplingStage.run", lambda **kw: _sampling().run(**{**dict(gbuffer=_loop().gbuffer,
     camera=_loop().scene.camera, gaze_px=(1.0, 1.0), frame_index=0, moving=False, first_frame=True), **kw}), {},
     "gaze_px", "2 finite numbers", [("ab", "'ab'")])
 arg("stages", "SamplingStage.end_frame", lambda **kw: _sampling().end_frame(**{"gbuffer": _loop().gbuffer, **kw}), {},
     "valid_mask", f"({H}, {W}) uint8", [(_warr((H, W), wp.float32), "float32"), (_warr((2, 2), wp.uint8), "(2, 2)")])
 arg("stages", "SamplingStage.end_frame", lambda **kw: _sampling().end_frame(**{"gbuffer": _loop().gbuffer, **kw}), {},
-    "valid_mask", f"({H}, {W}) uint8", [(np.ones((H, W), np.uint8), "ndarray")],
-    pending="SamplingStage.end_frame(valid_mask=<NumPy array>) says 'got (6, 8) uint8' without naming the type")
+    "valid_mask", f"({H}, {W}) uint8", [(np.ones((H, W), np.uint8), "ndarray")])
 arg("stages", "SamplingStage.end_frame", lambda **kw: _sampling().end_frame(**kw), {}, "gbuffer", "GBuffer",
-    [("gb", "'gb'")], pending="SamplingStage.end_frame(gbuffer=...) of the wrong type raises AttributeError")
+    [("gb", "'gb'")])
 arg("stages", "SamplingStage.launch", lambda **kw: _sampling().launch(**kw), {}, "gbuffer", "GBuffer",
-    [("gb", "'gb'")], pending="SamplingStage.launch(gbuffer=...) of the wrong type raises AttributeError")
+    [("gb", "'gb'")])
 arg("stages", "SamplingStage.launch", lambda **kw: _sampling().launch(**kw), {}, "gbuffer", f"{W} x {H}",
-    [(GBuffer(4, 4, DEV), "4 x 4")],
-    pending="unsafe: SamplingStage.launch(gbuffer=<4 x 4 GBuffer>) on an 8 x 6 stage is not validated: the kernels "
-            "read out of bounds")
+    [(GBuffer(4, 4, DEV), "4 x 4")])
 
 
 def _dof_run(**kw):

@@ -12,7 +12,7 @@ import warp as wp
 
 from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
-from ..config import Config, check_finite, check_int_range
+from ..config import Config, check_bool, check_int_range, check_vec, show
 from ..kernels.camera import CameraParams
 from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
 from ..kernels.sampling import (
@@ -133,15 +133,7 @@ def clamp_gaze(gaze, width: int, height: int) -> tuple:
 
 
 def _eye(name: str, v) -> wp.vec3:
-    try:
-        t = [float(c) for c in v]
-    except TypeError:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}") from None
-    if len(t) != 3:
-        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
-    for i, c in enumerate(t):
-        check_finite(f"{name}[{i}]", c)
-    return wp.vec3(*t)
+    return wp.vec3(*check_vec(name, v, 3))
 
 
 # -- stage -----------------------------------------------------------------------------------------------------
@@ -239,8 +231,9 @@ class SamplingStage:
         fi = check_int_range("frame_index", frame_index, 0, None)
         if not isinstance(camera, Camera):
             raise ValueError(f"camera must be a foveawarp.Camera, got {type(camera).__name__}")
-        if gbuffer.width != w or gbuffer.height != h:
-            raise ValueError(f"gbuffer must be {w} x {h}, got {gbuffer.width} x {gbuffer.height}")
+        self._check_gbuffer(gbuffer)
+        moving = check_bool("moving", moving)
+        first_frame = check_bool("first_frame", first_frame)
         cfg = self.config
         fc, sc = cfg.foveation, cfg.saliency
         skipped = {}
@@ -253,7 +246,8 @@ class SamplingStage:
             skipped["cache_test"] = "first frame or camera cut: no history"
         if do_cache:
             if eye_prev is None:
-                raise ValueError("eye_prev must be given (the previous eye position) unless first_frame is True")
+                raise ValueError("eye_prev must be 3 finite numbers (the previous eye position) unless first_frame "
+                                 "is True, got None")
             eye_p = _eye("eye_prev", eye_prev)
         else:
             eye_p = self._zero
@@ -306,7 +300,7 @@ class SamplingStage:
         ``set_frame`` as long as the G-buffer arrays stay the same objects.
         """
         w, h = self.width, self.height
-        g, dev = gbuffer, self.device
+        g, dev = self._check_gbuffer(gbuffer), self.device
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
         if self._lab_on:
@@ -322,12 +316,24 @@ class SamplingStage:
     def end_frame(self, gbuffer, valid_mask=None) -> None:
         """Keep this frame's depth and valid-color mask (uint8 (H, W) wp.array; None: the G-buffer hit mask)
         for the next frame's cache test."""
+        self._check_gbuffer(gbuffer)
         src = gbuffer.hit if valid_mask is None else valid_mask
         if not isinstance(src, wp.array) or tuple(src.shape) != (self.height, self.width) or src.dtype != wp.uint8:
-            raise ValueError(f"valid_mask must be a ({self.height}, {self.width}) uint8 wp.array, got "
-                             f"{getattr(src, 'shape', None)} {getattr(src, 'dtype', type(src).__name__)}")
+            kind = "wp.array" if isinstance(src, wp.array) else type(src).__name__
+            raise ValueError(f"valid_mask must be a ({self.height}, {self.width}) uint8 wp.array, got {kind} "
+                             f"{getattr(src, 'shape', None)} {getattr(src, 'dtype', '')}")
         wp.copy(self.depth_prev, gbuffer.depth)
         wp.copy(self.valid_prev, src)
+
+    def _check_gbuffer(self, gbuffer):
+        from ..buffers import GBuffer
+
+        if not isinstance(gbuffer, GBuffer):
+            raise ValueError(f"gbuffer must be a foveawarp GBuffer of {self.width} x {self.height}, got "
+                             f"{show(gbuffer)} ({type(gbuffer).__name__})")
+        if gbuffer.width != self.width or gbuffer.height != self.height:
+            raise ValueError(f"gbuffer must be {self.width} x {self.height}, got {gbuffer.width} x {gbuffer.height}")
+        return gbuffer
 
     # -- stats (host reads: call only when wanted) ---------------------------------------------------------------
     def stats(self) -> dict:
