@@ -8,7 +8,8 @@ covers it (``|p - q|^2 <= R_p^2`` with integer pixel offsets) and outputs their 
 Buffers written by :func:`dof_prepare_kernel`, read by the scatter and the gather:
   coc  (H, W) float : C_p, the clamped circle-of-confusion diameter in pixels.
   pm   (H, W) vec4  : (A_p I_p, A_p), the premultiplied source with the receiver-independent weight
-                      ``A_p = K_p / (pi R_p^2)`` (K_p = (Z_f / Z_p)^gamma or 1).
+                      ``A_p = K_p / (pi R_p^2)`` (K_p = (Z_f / Z_p)^gamma or 1), stored times 2^-27
+                      (``WEIGHT_SCALE``) so that it never overflows.
   geo  (H, W) vec2  : (R_p^2, c_bg): c_bg = C_p >= 0 marks a background source (Z_p >= Z_f) whose weight is
                       multiplied by the background-leak factor W(C_p, C_q) at each receiver; c_bg = -1 marks a
                       source with a fixed weight.
@@ -25,6 +26,13 @@ from .tonemap import tonemap_value
 
 # largest foreground amplification K = (Z_f / Z_p)^gamma; keeps float sums finite when Z_p -> 0
 K_MAX = wp.constant(1.0e8)
+# every weight A = K / (pi R^2) <= K_MAX / (pi / 4) < 2^27 is stored times 2^-27 (exact: a power of two), so that
+# A I stays finite for any finite color and the sums overflow only for colors near float max; the ratio
+# sum(A I) / sum(A) does not change
+WEIGHT_SCALE = wp.constant(7.450580596923828e-09)
+# the gather's second pass when a sum still overflowed: every term times 2^-16 (a receiver sums at most
+# (2 * 64 + 1)^2 < 2^16 sources), so the sums of finite terms stay finite
+OVERFLOW_SCALE = wp.constant(1.52587890625e-05)
 # focus depths are clamped to [F (1 + FOCUS_MIN_REL), FOCUS_FAR_M] on the device (NaN -> FOCUS_FAR_M)
 FOCUS_FAR_M = wp.constant(1.0e30)
 FOCUS_MIN_REL = wp.constant(1.0e-4)
@@ -62,17 +70,16 @@ def coc_px(z: float, zf: float, coc_scale: float, focal: float, max_coc: float) 
     """Circle-of-confusion diameter in pixels of a point at view depth ``z`` metres, clamped to ``max_coc``.
 
     ``C = E F / (Z_f - F) * |Z - Z_f| / Z * px_per_m`` (ALGORITHMS B), evaluated as
-    ``coc_scale * Z_f / (Z_f - F) * |1 / Z_f - 1 / Z|`` so that Z = +inf gives the finite far limit.
+    ``|a / Z_f - a / Z|`` with ``a = coc_scale * Z_f / (Z_f - F)``, so that Z = +inf gives the finite far
+    limit and a tiny Z (denormal: 1 / Z overflows) still gives the formula's value when that is finite.
     ``z <= 0`` (at or behind the lens) and NaN give ``max_coc``.
     """
     if not (coc_scale > 0.0):
         return 0.0
     if not (z > 0.0):
         return max_coc
-    inv_z = float(0.0)
-    if wp.isfinite(z):
-        inv_z = 1.0 / z
-    c = coc_scale * (zf / (zf - focal)) * wp.abs(1.0 / zf - inv_z)
+    a = coc_scale * (zf / (zf - focal))
+    c = wp.abs(a / zf - a / z)
     if not (c < max_coc):
         c = max_coc
     return c
@@ -162,7 +169,7 @@ def dof_prepare_kernel(
     else:
         if p.bg_fix != 0:
             c_bg = c
-    a = k / (wp.pi * r * r)
+    a = k / (wp.pi * r * r) * WEIGHT_SCALE
     col = color[y, x]
     if not wp.isfinite(col):
         col = wp.vec3(0.0, 0.0, 0.0)
@@ -214,6 +221,28 @@ def dof_tile_dilate_kernel(r2: wp.array2d(dtype=wp.int32), k: int, out_window: w
     out_window[ty, tx] = m
 
 
+@wp.func
+def gather_disc(p: DofParams, coc: wp.array2d(dtype=float), pm: wp.array2d(dtype=wp.vec4),
+                geo: wp.array2d(dtype=wp.vec2), x: int, y: int, m: int, scale: float) -> wp.vec4:
+    """Sum of ``scale`` times the weighted sources whose disc covers receiver (x, y), over the offsets with
+    ``dx^2 + dy^2 <= m`` (pixels^2)."""
+    c_q = coc[y, x]
+    wn = isqrt(m)
+    acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    for sy in range(wp.max(y - wn, 0), wp.min(y + wn, p.height - 1) + 1):
+        dy = sy - y
+        xr = isqrt(m - dy * dy)
+        for sx in range(wp.max(x - xr, 0), wp.min(x + xr, p.width - 1) + 1):
+            dx = sx - x
+            g = geo[sy, sx]
+            if float(dx * dx + dy * dy) <= g[0]:
+                s = pm[sy, sx] * scale
+                if g[1] >= 0.0:
+                    s = s * background_weight(g[1], c_q, p.eps_px)
+                acc += s
+    return acc
+
+
 @wp.kernel(enable_backward=False)
 def dof_gather_kernel(
     p: DofParams,
@@ -231,20 +260,9 @@ def dof_gather_kernel(
     ``out`` may be ``color``: a thread reads ``color`` only at its own pixel."""
     y, x = wp.tid()
     m = window[y // tile, x // tile]
-    c_q = coc[y, x]
-    wn = isqrt(m)
-    acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    for sy in range(wp.max(y - wn, 0), wp.min(y + wn, p.height - 1) + 1):
-        dy = sy - y
-        xr = isqrt(m - dy * dy)
-        for sx in range(wp.max(x - xr, 0), wp.min(x + xr, p.width - 1) + 1):
-            dx = sx - x
-            g = geo[sy, sx]
-            if float(dx * dx + dy * dy) <= g[0]:
-                s = pm[sy, sx]
-                if g[1] >= 0.0:
-                    s = s * background_weight(g[1], c_q, p.eps_px)
-                acc += s
+    acc = gather_disc(p, coc, pm, geo, x, y, m, 1.0)
+    if not wp.isfinite(acc):  # a sum overflowed (colors near float max): again with scaled terms
+        acc = gather_disc(p, coc, pm, geo, x, y, m, OVERFLOW_SCALE)
     out[y, x] = resolve(acc, color[y, x])
 
 

@@ -13,7 +13,8 @@ Both read the Voronoi buffers written by ``voronoi_finalize_kernel``: per pixel 
 color of q's nearest seed; 0 where q has none) and ``vor_r2`` = ``r_q^2`` in pixels^2 (exact int32; 0 exactly
 at seeds; -1 where q has no seed). The gather reads the 4-byte r2 at every tap and the color only at the taps
 that cover p. Seeds always output their own color; pixels that received nothing output their Voronoi color
-(0 without a seed), so no output is NaN/Inf.
+(0 without a seed); a sum that overflows float32 (colors near float max) is redone with scaled terms, so no
+output is NaN/Inf.
 """
 
 import warp as wp
@@ -94,25 +95,17 @@ def voronoi_finalize_kernel(
             wp.atomic_add(unreached, 0, tmiss[0])
 
 
-@wp.kernel(enable_backward=False)
-def sibson_gather_kernel(
-    vor_color: wp.array2d(dtype=wp.vec3),
-    vor_r2: wp.array2d(dtype=wp.int32),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-):
-    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
-    y, x = wp.tid()
+# largest finite float32: the overflow-safe mean clamps to it (a mean of finite values is finite)
+F32_MAX = wp.constant(3.4028234663852886e38)
+
+
+@wp.func
+def disc_sum(vor_color: wp.array2d(dtype=wp.vec3), vor_r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
+             rmax2: int, scale: float) -> wp.vec4:
+    """(sum of ``scale * vor_color[q]``, count) over the q within the half window ``rw`` whose disc covers
+    p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every r_q^2)."""
     h = vor_r2.shape[0]
     w = vor_r2.shape[1]
-    own = vor_color[y, x]
-    if vor_r2[y, x] == 0:  # a seed keeps its color
-        color_out[y, x] = own
-        return
-    # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc
-    rmax2 = max_r2[0]
-    rw = wp.min(window, isqrt(rmax2))
     y0 = wp.max(-rw, -y)
     y1 = wp.min(rw, h - 1 - y)
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -123,12 +116,47 @@ def sibson_gather_kernel(
         x1 = wp.min(dxm, w - 1 - x)
         for dx in range(x0, x1 + 1):
             if dx * dx + dy * dy <= vor_r2[y + dy, x + dx]:
-                acc = acc + vor_color[y + dy, x + dx]
+                acc = acc + vor_color[y + dy, x + dx] * scale
                 n = n + 1
-    if n > 0:
-        color_out[y, x] = acc / float(n)
-    else:
-        color_out[y, x] = own
+    return wp.vec4(acc[0], acc[1], acc[2], float(n))
+
+
+@wp.func
+def disc_mean(vor_color: wp.array2d(dtype=wp.vec3), vor_r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
+              rmax2: int) -> wp.vec3:
+    """Mean of the colors q scatters onto p (see :func:`disc_sum`); the Voronoi color when none does.
+
+    Finite for any finite colors: when the plain float32 sum overflows (colors near float max), the sum is
+    taken again with every term scaled by 0.5 / n, then doubled and clamped to +-float max."""
+    s = disc_sum(vor_color, vor_r2, x, y, rw, rmax2, 1.0)
+    n = s[3]
+    if n <= 0.0:
+        return vor_color[y, x]
+    out = wp.vec3(s[0], s[1], s[2]) / n
+    if wp.isfinite(out):
+        return out
+    t = disc_sum(vor_color, vor_r2, x, y, rw, rmax2, 0.5 / n)
+    return wp.vec3(wp.clamp(2.0 * t[0], -F32_MAX, F32_MAX), wp.clamp(2.0 * t[1], -F32_MAX, F32_MAX),
+                   wp.clamp(2.0 * t[2], -F32_MAX, F32_MAX))
+
+
+@wp.kernel(enable_backward=False)
+def sibson_gather_kernel(
+    vor_color: wp.array2d(dtype=wp.vec3),
+    vor_r2: wp.array2d(dtype=wp.int32),
+    window: int,
+    max_r2: wp.array(dtype=wp.int32),
+    color_out: wp.array2d(dtype=wp.vec3),
+):
+    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
+    y, x = wp.tid()
+    if vor_r2[y, x] == 0:  # a seed keeps its color
+        color_out[y, x] = vor_color[y, x]
+        return
+    # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc
+    rmax2 = max_r2[0]
+    rw = wp.min(window, isqrt(rmax2))
+    color_out[y, x] = disc_mean(vor_color, vor_r2, x, y, rw, rmax2)
 
 
 @wp.kernel(enable_backward=False)
@@ -165,13 +193,20 @@ def sibson_resolve_kernel(
     vor_color: wp.array2d(dtype=wp.vec3),
     vor_r2: wp.array2d(dtype=wp.int32),
     accum: wp.array2d(dtype=wp.vec4),
+    max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
 ):
-    """Average of the scattered colors; seeds keep their color; nothing received -> Voronoi color."""
+    """Average of the scattered colors; seeds keep their color; nothing received -> Voronoi color. Where the
+    scattered float32 sum overflowed (colors near float max), the pixel gathers the same terms itself with
+    the overflow-safe :func:`disc_mean` (window = the largest radius, so the same set of senders)."""
     y, x = wp.tid()
     own = vor_color[y, x]
     a = accum[y, x]
     if vor_r2[y, x] == 0 or a[3] <= 0.0:
         color_out[y, x] = own
     else:
-        color_out[y, x] = wp.vec3(a[0], a[1], a[2]) / a[3]
+        c = wp.vec3(a[0], a[1], a[2]) / a[3]
+        if not wp.isfinite(c):
+            rmax2 = max_r2[0]
+            c = disc_mean(vor_color, vor_r2, x, y, isqrt(rmax2), rmax2)
+        color_out[y, x] = c

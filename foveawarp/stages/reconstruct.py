@@ -205,7 +205,8 @@ class ReconstructStage:
         if self.exact_sibson:
             self._accum.zero_()
             wp.launch(sibson_scatter_kernel, dim=dim, inputs=vor, outputs=[self._accum], device=dev)
-            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*vor, self._accum], outputs=[color_out], device=dev)
+            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*vor, self._accum, self.max_radius_sq],
+                      outputs=[color_out], device=dev)
         else:
             wp.launch(sibson_gather_kernel, dim=dim, inputs=[*vor, int(self.window), self.max_radius_sq],
                       outputs=[color_out], device=dev)
