@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import subprocess
@@ -28,6 +29,11 @@ def base_parser(description: str) -> argparse.ArgumentParser:
 
 
 def git_commit() -> str:
+    """The commit the results come from: $FOVEAWARP_COMMIT when set (a copied working tree, e.g. on a remote GPU
+    machine, may carry a stale .git), else ``git rev-parse --short HEAD``."""
+    env = os.environ.get("FOVEAWARP_COMMIT")
+    if env:
+        return env
     try:
         return subprocess.check_output(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
                                        stderr=subprocess.DEVNULL).strip()

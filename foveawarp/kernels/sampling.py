@@ -90,13 +90,23 @@ def eccentricity_at(px: float, py: float, gaze: wp.vec2, width: float, height: f
     """Angle in degrees at the eye between the rays through the gaze point and through (px, py).
 
     angle = atan2(|g x p|, g.p) with g x p = g x d, d = p - g formed from pixel differences: full relative
-    accuracy near the gaze (small cross product) and, with g.p taken directly, for gazes far off screen too.
+    accuracy near the gaze (small cross product) and, with g.p taken directly and the cross product's z from
+    whichever form cancels less, for gazes far off screen too.
     """
     g = plane_dir(gaze[0], gaze[1], width, height, tan_half)
     p = plane_dir(px, py, width, height, tan_half)
-    d = wp.vec3(2.0 * (px - gaze[0]) / width * tan_half * (width / height), -2.0 * (py - gaze[1]) / height * tan_half,
-                0.0)
-    return wp.degrees(wp.atan2(wp.length(wp.cross(g, d)), wp.dot(g, p)))
+    dx = 2.0 * (px - gaze[0]) / width * tan_half * (width / height)
+    dy = -2.0 * (py - gaze[1]) / height * tan_half
+    # g x d = (-dy, dx, gx dy - gy dx); its z also equals gx py - gy px (g x d = g x p). Take the form whose
+    # products are smaller: near the gaze the first (d small), far off screen the second (p small, while
+    # gx dy and gy dx are huge and cancel).
+    z1 = g[0] * dy - g[1] * dx
+    z2 = g[0] * p[1] - g[1] * p[0]
+    z = z1
+    if wp.abs(g[0] * p[1]) + wp.abs(g[1] * p[0]) < wp.abs(g[0] * dy) + wp.abs(g[1] * dx):
+        z = z2
+    c = wp.vec3(-dy, dx, z)
+    return wp.degrees(wp.atan2(wp.length(c), wp.dot(g, p)))
 
 
 @wp.func
