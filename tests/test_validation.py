@@ -5,8 +5,8 @@ wrong shape or dtype, an array holding NaN / Inf, a size <= 0, a value outside i
 non-triangle mesh, an unreadable file) and expects a ``ValueError`` whose message names the parameter, the
 offending value and the allowed range: all three substrings of the case must appear in the message.
 
-Cases marked ``xfail(strict=True, reason="pending: ...")`` are known gaps (none today: the 46 first left pending
-in frame_loop.py and stages/sampling.py are fixed); they XPASS (and fail this file) once fixed: then drop the mark.
+Every case must pass: there are no expected failures (the 46 gaps first found in frame_loop.py and
+stages/sampling.py are fixed).
 
 The table is built at import time from small generators (one per kind of parameter); ``case_families()``
 counts the cases per entry point family (docs/robustness.md quotes these counts).
@@ -41,19 +41,12 @@ CASES: list = []
 _IDS: Counter = Counter()
 
 
-def case(family, cid, fn, kwargs, param, value, allowed, pending=None):
-    """One table row: ``fn(**kwargs)`` must raise ValueError naming ``param``, ``value`` and ``allowed``.
-
-    ``pending``: the reason of a known gap (strict xfail). A reason starting with "unsafe:" is not run at all:
-    today the call reaches a kernel with a too-small array, an out-of-bounds access on the CPU."""
+def case(family, cid, fn, kwargs, param, value, allowed):
+    """One table row: ``fn(**kwargs)`` must raise ValueError naming ``param``, ``value`` and ``allowed``."""
     _IDS[cid] += 1
     if _IDS[cid] > 1:
         cid = f"{cid}#{_IDS[cid]}"
-    marks = []
-    if pending:
-        unsafe = pending.startswith("unsafe:")
-        marks = [pytest.mark.xfail(strict=True, run=not unsafe, reason=f"pending: {pending}")]
-    CASES.append(pytest.param(family, fn, kwargs, param, value, allowed, id=cid, marks=marks))
+    CASES.append(pytest.param(family, fn, kwargs, param, value, allowed, id=cid))
 
 
 # -- lazily built shared objects (tiny, CPU) ---------------------------------------------------------------------
@@ -135,10 +128,10 @@ def field(cls, name, allowed, out_of_range=(), *, kind="real", none_ok=False, ba
         case(fam, f"{label}={vs}", cls, {**base, name: v}, label, vs, allowed)
 
 
-def arg(family, fname, fn, base, name, allowed, bad, *, pending=None, param=None):
+def arg(family, fname, fn, base, name, allowed, bad, *, param=None):
     """Explicit bad values of one argument: ``bad`` = [(value, value substring), ...]."""
     for v, vs in bad:
-        case(family, f"{fname}:{name}={vs}", fn, {**base, name: v}, param or name, vs, allowed, pending)
+        case(family, f"{fname}:{name}={vs}", fn, {**base, name: v}, param or name, vs, allowed)
 
 
 REAL_BAD = [(NAN, "nan"), (INF, "inf"), (-INF, "-inf"), ("0.5", "'0.5'"), (None, "None"), (True, "True")]
@@ -146,19 +139,19 @@ INT_BAD = [(NAN, "nan"), (2.5, "2.5"), ("4", "'4'"), (None, "None"), (True, "Tru
 BOOL_BAD = [("yes", "'yes'"), (1, "1"), (None, "None")]
 
 
-def real_arg(family, fname, fn, base, name, allowed, out_of_range=(), *, none_ok=False, pending=None, param=None):
+def real_arg(family, fname, fn, base, name, allowed, out_of_range=(), *, none_ok=False, param=None):
     bad = [b for b in REAL_BAD if not (none_ok and b[0] is None)] + [(v, repr(v)) for v in out_of_range]
-    arg(family, fname, fn, base, name, allowed, bad, pending=pending, param=param)
+    arg(family, fname, fn, base, name, allowed, bad, param=param)
 
 
-def int_arg(family, fname, fn, base, name, allowed, out_of_range=(), *, none_ok=False, pending=None, param=None):
+def int_arg(family, fname, fn, base, name, allowed, out_of_range=(), *, none_ok=False, param=None):
     bad = [b for b in INT_BAD if not (none_ok and b[0] is None)] + [(v, repr(v)) for v in out_of_range]
-    arg(family, fname, fn, base, name, allowed, bad, pending=pending, param=param)
+    arg(family, fname, fn, base, name, allowed, bad, param=param)
 
 
-def choice_arg(family, fname, fn, base, name, allowed, *, none_ok=False, pending=None, param=None):
+def choice_arg(family, fname, fn, base, name, allowed, *, none_ok=False, param=None):
     bad = [("bogus", "'bogus'"), (3, "3")] + ([] if none_ok else [(None, "None")])
-    arg(family, fname, fn, base, name, allowed, bad, pending=pending, param=param)
+    arg(family, fname, fn, base, name, allowed, bad, param=param)
 
 
 def vec_arg(family, fname, fn, base, name, n=3, allowed_each="finite real number", lo_bad=None, *, param=None,
@@ -181,7 +174,7 @@ def vec_arg(family, fname, fn, base, name, n=3, allowed_each="finite real number
 
 
 def array_arg(family, fname, fn, base, name, good, allowed="finite real numbers", *, extra=(), shape_bad=None,
-              shape_allowed=None, param=None, pending=None):
+              shape_allowed=None, param=None):
     """An array: NaN, +Inf, -Inf at one element (the message names the value and its index), a string array,
     and (``shape_bad``) a wrong shape."""
     p = param or name
@@ -189,13 +182,12 @@ def array_arg(family, fname, fn, base, name, good, allowed="finite real numbers"
     idx = tuple(s - 1 for s in g.shape)
     for v, vs in [(NAN, "nan"), (INF, "inf"), (-INF, "-inf")] + list(extra):
         a = _with(g, idx, v)
-        case(family, f"{fname}:{name}[{idx}]={vs}", fn, {**base, name: a}, p, f"got {vs} at index {idx}", allowed,
-             pending)
+        case(family, f"{fname}:{name}[{idx}]={vs}", fn, {**base, name: a}, p, f"got {vs} at index {idx}", allowed)
     case(family, f"{fname}:{name}=strings", fn, {**base, name: np.full(g.shape, "a")}, p, "<U1",
-         "array of real numbers", pending)
+         "array of real numbers")
     if shape_bad is not None:
         case(family, f"{fname}:{name}=shape{shape_bad}", fn, {**base, name: np.zeros(shape_bad)}, p,
-             repr(tuple(shape_bad)), shape_allowed, pending)
+             repr(tuple(shape_bad)), shape_allowed)
 
 
 # ================================================================================================================
@@ -910,14 +902,8 @@ arg("metrics", "region_masks", metrics.region_masks, _EC, "regions", "[0.0, inf]
 
 
 def case_families() -> Counter:
-    """Number of cases per entry point family, and of pending (xfail) ones."""
-    c: Counter = Counter()
-    for p in CASES:
-        fam = p.values[0]
-        c[fam] += 1
-        if p.marks:
-            c[f"{fam} (pending)"] += 1
-    return c
+    """Number of cases per entry point family."""
+    return Counter(p.values[0] for p in CASES)
 
 
 @pytest.mark.parametrize("family, fn, kwargs, param, value, allowed", CASES)
