@@ -472,10 +472,18 @@ class TemporalConfig:
         enabled: reuse reprojected history in unsampled pixels.
         max_history_frames: history values older than this many frames are dropped, in [1, 1024].
         depth_eps_rel: cache-test tolerance as a fraction of the current depth, in (0, 1]: a hit needs
-            ``|depth_prev(uv_prev) - |pos - eye_prev|| < depth_eps_rel * depth``.
+            ``|depth_prev(uv_prev) - |pos_prev - eye_prev|| < depth_eps_rel * depth`` with ``pos_prev`` the
+            surface point at the previous frame's object transforms (thesis eq. 4, extended to moving objects);
+            the temporal resolve checks each bilinear history tap the same way.
         cut_threshold_deg: a camera rotation above this many degrees between frames is a cut, in (0, 180].
         refresh_fraction: fraction of the normal samples still traced when the view and scene are static and
             history has converged, in [0, 1].
+        normal_cos_min: a history tap is reused only when its normal and the current one have at least this
+            cosine, in [-1, 1]; default 0.9 (about 26 degrees).
+        clamp_gamma: half-width, in standard deviations, of the variance-clipping box that bounds the
+            accumulated stochastic history of a traced pixel (5 x 5 neighbourhood of fresh values), in [0, 100].
+        motion_alpha_per_px: weight of a traced pixel's fresh stochastic value per pixel of screen motion
+            (the history weight falls with motion), per pixel, in [0, 1]; 0.05 gives fresh-only at 20 px/frame.
     """
 
     enabled: bool = True
@@ -483,12 +491,18 @@ class TemporalConfig:
     depth_eps_rel: float = 0.01
     cut_threshold_deg: float = 30.0
     refresh_fraction: float = 0.25
+    normal_cos_min: float = 0.9
+    clamp_gamma: float = 1.25
+    motion_alpha_per_px: float = 0.05
 
     def __post_init__(self):
         check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)
         check_range("TemporalConfig.depth_eps_rel", self.depth_eps_rel, 0.0, 1.0, lo_open=True)
         check_range("TemporalConfig.cut_threshold_deg", self.cut_threshold_deg, 0.0, 180.0, lo_open=True)
         check_range("TemporalConfig.refresh_fraction", self.refresh_fraction, 0.0, 1.0)
+        check_range("TemporalConfig.normal_cos_min", self.normal_cos_min, -1.0, 1.0)
+        check_range("TemporalConfig.clamp_gamma", self.clamp_gamma, 0.0, 100.0)
+        check_range("TemporalConfig.motion_alpha_per_px", self.motion_alpha_per_px, 0.0, 1.0)
         check_bool("TemporalConfig.enabled", self.enabled)
 
 

@@ -61,6 +61,8 @@ class FrameLoop:
         w, h, dev = self.width, self.height, self.device
         self.gbuffer = GBuffer(w, h, dev)
         self.radiance = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        # the stochastic part of ``radiance`` (AO, area-light samples), written when the shading has one
+        self.radiance_stoch = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.image = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.full_map = wp.ones((h, w), dtype=wp.uint8, device=dev)
         from .stages.dof import DofStage
@@ -144,7 +146,15 @@ class FrameLoop:
         sp.frame = int(self.frame_index)
         sp.width = self.width
         sp.eye = wp.vec3(*camera.eye)
+        sp.split_stochastic = 1 if self._stochastic_shading(sp.ao_samples) else 0
         return sp
+
+    def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:
+        """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
+        samples): the temporal resolve then accumulates them (``TemporalStage``)."""
+        sc = self.config.shading
+        ao = sc.ao_samples if ao_samples is None else ao_samples
+        return bool(ao > 0 or (self.dscene.num_area_lights > 0 and sc.area_light_samples > 0))
 
     @staticmethod
     def _require_camera(camera) -> Camera:
@@ -181,7 +191,7 @@ class FrameLoop:
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                     camera.params(self.width, self.height), prev_camera.params(self.width, self.height),
                     self._max_t(camera)],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist],
             device=self.device,
         )
 
@@ -202,7 +212,7 @@ class FrameLoop:
             self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_full_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device): ``work`` a 1-D int32
@@ -219,7 +229,7 @@ class FrameLoop:
         wp.launch(shade_list_kernel, dim=work.shape[0],
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), work, count,
                           *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the pixels where ``mask`` ((H, W) uint8 wp.array) is nonzero, launching every pixel."""
@@ -228,7 +238,7 @@ class FrameLoop:
             self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_masked_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def _tonemap(self, hdr, out) -> None:
         sc = self.config.shading
@@ -408,8 +418,9 @@ class FrameLoop:
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
-                self.temporal.run(smap, self.sampling.cache_hit, self.sampling.prev_index, self.radiance,
-                                  use_history=history)
+                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, self.sampling.depth_prev,
+                                  self.sampling.valid_prev, use_history=history,
+                                  stochastic=self._stochastic_shading(), background=cfg.shading.background)
         with self._stage("reconstruct"):
             if foveated:
                 self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
@@ -465,18 +476,18 @@ class FrameLoop:
         sp, dev = self._sp_dev, self.device
         if strategy == "full":
             wp.launch(shade_full_kernel, dim=(self.height, self.width), inputs=[sp, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         elif strategy == "none":
             wp.launch(shade_masked_kernel, dim=(self.height, self.width), inputs=[sp, smap, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         elif strategy in ("rows", "rows+balance"):
             wp.launch(shade_rows_kernel, dim=(self.height, self.width),
                       inputs=[sp, self.reorder.coords, self.reorder.counts, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         else:
             wp.launch(shade_list_kernel, dim=self.reorder.work.shape[0],
                       inputs=[sp, self.reorder.work, self.reorder.count, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

@@ -344,6 +344,7 @@ def sampling_map_kernel(
     velocity: wp.array2d(dtype=wp.vec2),
     position: wp.array2d(dtype=wp.vec3),
     reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
     depth_prev: wp.array2d(dtype=float),
     valid_prev: wp.array2d(dtype=wp.uint8),
     out_probability: wp.array2d(dtype=float),
@@ -397,8 +398,8 @@ def sampling_map_kernel(
     out_sample[y, x] = dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase)
     idx = int(-1)
     if fp.do_cache != 0:
-        idx = cache_lookup(reproj_uv[y, x], position[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev,
-                           fp.eye_prev, sp.depth_eps_rel)
+        idx = cache_lookup(reproj_uv[y, x], prev_dist[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev,
+                           sp.depth_eps_rel)
     out_prev_index[y, x] = wp.int32(idx)
     if idx >= 0:
         out_cache_hit[y, x] = wp.uint8(1)
