@@ -208,6 +208,8 @@ class FoveationConfig:
         block: jitter block size ``k`` in pixels, in [1, 64]: every k x k tile holds at least one sample,
             which bounds the distance from any pixel to its nearest sample by ``k * sqrt(2)``.
         enabled: False traces every pixel (sampling rate 1).
+        fovea_deg: the probability is 1 within this eccentricity in degrees, in [0, 180]: the fovea is traced at
+            full rate (ALGORITHMS.md A: "the fovea is ray traced at full rate"); 0 leaves eq. 2 alone.
         falloff_deg: None (default) normalizes eq. 2 by ``w_far`` = MAR at the largest eccentricity on screen,
             as the thesis does; a number in (0, 180] normalizes by the MAR at this eccentricity instead (the
             smaller of the two), so the probability falls to about ``xi`` there. A foveawarp extension:
@@ -221,6 +223,7 @@ class FoveationConfig:
     block: int = 4
     enabled: bool = True
     falloff_deg: Optional[float] = None
+    fovea_deg: float = 0.0
 
     def __post_init__(self):
         check_range("FoveationConfig.mar_slope", self.mar_slope, 0.0, 1.0, lo_open=True)
@@ -228,6 +231,7 @@ class FoveationConfig:
         check_range("FoveationConfig.min_probability", self.min_probability, 0.0, 1.0)
         check_int_range("FoveationConfig.block", self.block, 1, 64)
         check_bool("FoveationConfig.enabled", self.enabled)
+        check_range("FoveationConfig.fovea_deg", self.fovea_deg, 0.0, 180.0)
         if self.falloff_deg is not None:
             check_range("FoveationConfig.falloff_deg", self.falloff_deg, 0.0, 180.0, lo_open=True)
 

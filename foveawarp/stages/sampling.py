@@ -97,6 +97,7 @@ def sampling_params(config: Config, width: int, height: int, seed: int = 0) -> S
     sp = SamplingParams()
     sp.mar_slope = float(fc.mar_slope)
     sp.mar_fovea_deg = float(fc.mar_fovea_deg)
+    sp.fovea_deg = float(fc.fovea_deg)
     sp.xi = float(fc.effective_min_probability)
     sp.foveation = 1 if fc.enabled else 0
     sp.use_albedo = 1 if sc.use_albedo else 0
