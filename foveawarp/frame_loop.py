@@ -14,7 +14,7 @@ import warp as wp
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
-from .config import Config, check_bool, check_int_range, show
+from .config import Config, check_bool, check_choice, check_int_range, show
 from .kernels.gbuffer import gbuffer_kernel
 from .kernels.shade import (
     ShadeParams,
@@ -44,10 +44,21 @@ class FrameLoop:
             benchmarks of whole frames, which use CUDA graphs on CUDA).
         graph: capture the steady-state frame body as a CUDA graph and replay it. None (default): on CUDA
             when ``timing`` is False. Ignored (eager launches) on the CPU and when ``timing`` is True.
+        policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
+            "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
+            every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
+            both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
+            on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison, and on the
+            CPU device the choice is left to the user until the CPU frame path is multi-threaded).
     """
 
+    POLICY_PERIOD = 600  # frames between two measurements of the policy
+    POLICY_WARM = 3  # untimed frames before each timed run of a path (compile, graph capture)
+    POLICY_TIMED = 4  # timed frames per path; the median counts
+    POLICY_MARGIN = 0.05  # full resolution is chosen when at least this fraction cheaper
+
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
-                 timing: bool = True, graph: Optional[bool] = None):
+                 timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None):
         self.width, self.height = check_image_size(width, height)
         if config is None:
             config = Config()
@@ -86,6 +97,14 @@ class FrameLoop:
         self._warm_keys: set = set()
         self._graph_error: Optional[str] = None
         self._static_frames = 0
+        if policy is None:
+            policy = "auto" if (dev.is_cuda and not self.timing) else "foveated"
+        self.policy = check_choice("policy", policy, ("auto", "foveated", "full"))
+        self._pol_frame = 0  # frames since the last policy measurement began
+        self._pol_ms = {"foveated": [], "full": []}
+        self._pol_choice = "foveated"
+        self._pol_est: dict = {}
+        self._last_full = False
 
     def _ensure_foveated_stages(self) -> None:
         """Allocate the foveated stages' buffers (once, on the first ``render``)."""
@@ -312,8 +331,24 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
+        mode, pol_timed = self._policy_mode()
+        if mode == "full" and cfg.foveation.enabled:
+            est = self._pol_est
+            if self.policy == "full":
+                skipped["foveation"] = "policy 'full': every pixel traced"
+            elif est and self._pol_choice == "full":
+                skipped["foveation"] = (f"policy 'auto': full resolution is cheaper here (measured "
+                                        f"{est['full_ms']:.3f} ms full vs {est['foveated_ms']:.3f} ms foveated)")
+            else:
+                skipped["foveation"] = "policy 'auto': timing the full-resolution path"
+        elif self._last_full and not (first or cut):
+            cut = True
+            skipped["reprojection"] = "previous frame rendered at full resolution"
+        if pol_timed:
+            wp.synchronize_device(self.device)
+            t_pol = _now()
         if first or cut:
-            skipped["reprojection"] = "first frame" if first else "camera cut"
+            skipped.setdefault("reprojection", "first frame" if first else "camera cut")
             self.temporal.reset()
             self.dscene.reset_history()
         history = not (first or cut)
@@ -324,7 +359,7 @@ class FrameLoop:
             skipped["bvh_refit"] = "static scene"
         with self._stage("gbuffer"):
             self._gbuffer(camera, prev_cam)
-        foveated = cfg.foveation.enabled
+        foveated = cfg.foveation.enabled and mode == "foveated"
         strategy = cfg.reorder.strategy if foveated else "full"
         with self._stage("sampling"):
             if foveated:
@@ -369,6 +404,7 @@ class FrameLoop:
         stats["strategy"] = strategy
         stats["graph"] = graph_state
         stats["static_frames"] = self._static_frames
+        stats["policy"] = {"policy": self.policy, "path": mode, **self._pol_est}
         if foveated:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
@@ -379,11 +415,38 @@ class FrameLoop:
         if self.timing:
             wp.synchronize_device(self.device)
             stats["ms_frame"] = (_now() - t0) * 1e3
+        if pol_timed:
+            wp.synchronize_device(self.device)
+            self._pol_ms[mode].append((_now() - t_pol) * 1e3)
+        self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
         extras = {"sparse": self.temporal.color, "filled": self.temporal.filled} if foveated else {}
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
                      extras)
+
+    def _policy_mode(self) -> tuple:
+        """(path of this frame, whether to time it) under ``self.policy``. "auto" runs a measurement every
+        ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of each path, the timed ones
+        synchronized; then renders the path with the smaller median (full resolution only when it is at least
+        ``POLICY_MARGIN`` cheaper) until the next measurement."""
+        if self.policy != "auto" or not self.config.foveation.enabled:
+            return ("full" if self.policy == "full" else "foveated"), False
+        n = self.POLICY_WARM + self.POLICY_TIMED
+        f = self._pol_frame
+        self._pol_frame = (f + 1) % self.POLICY_PERIOD
+        if f == 0:
+            self._pol_ms = {"foveated": [], "full": []}
+        if f < n:
+            return "foveated", f >= self.POLICY_WARM
+        if f < 2 * n:
+            return "full", f - n >= self.POLICY_WARM
+        if f == 2 * n:
+            fov_ms = float(np.median(self._pol_ms["foveated"]))
+            full_ms = float(np.median(self._pol_ms["full"]))
+            self._pol_choice = "full" if full_ms < (1.0 - self.POLICY_MARGIN) * fov_ms else "foveated"
+            self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index}
+        return self._pol_choice, False
 
     def _refresh_due(self, foveated: bool) -> bool:
         """Whether this frame traces only the refresh budget: foveation and history on, a refresh fraction
