@@ -17,10 +17,11 @@ class GBuffer:
     reproj_uv (vec2, this point's pixel position in the previous frame; -1e4 when it has none),
     prev_dist (float, the same surface point's distance from the previous eye at the previous frame's object
     transforms, metres: what the previous frame's depth at ``reproj_uv`` must be when the point was visible
-    there; 0 on misses).
+    there; 0 on misses), moved (uint8, 1 where the surface point moved in world space since the previous
+    frame: object motion).
     """
 
-    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist")
+    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist", "moved")
 
     def __init__(self, width: int, height: int, device):
         from ._util import check_image_size, get_device
@@ -38,6 +39,7 @@ class GBuffer:
         self.velocity = wp.zeros(shape, dtype=wp.vec2, device=device)
         self.reproj_uv = wp.zeros(shape, dtype=wp.vec2, device=device)
         self.prev_dist = wp.zeros(shape, dtype=float, device=device)
+        self.moved = wp.zeros(shape, dtype=wp.uint8, device=device)
 
     def numpy(self) -> dict:
         return {k: getattr(self, k).numpy() for k in self.FIELDS}

@@ -210,7 +210,8 @@ class FrameLoop:
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                     camera.params(self.width, self.height), prev_camera.params(self.width, self.height),
                     self._max_t(camera)],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                     g.moved],
             device=self.device,
         )
 

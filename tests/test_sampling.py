@@ -319,10 +319,14 @@ def test_stage_probability_matches_op_and_counters(device):
     stage = SamplingStage(W, H, cfg, device=device)
     for f, gaze in enumerate([(10.0, 20.0), (-40.0, 90.0)]):
         stage.run(g, cam, gaze, f, moving=False, first_frame=True)
-        ref = ref_probability(W, H, gaze, 50.0, cfg.foveation.mar_slope, cfg.foveation.mar_fovea_deg,
-                              cfg.foveation.effective_min_probability)
+        fc = cfg.foveation  # the defaults: falloff_deg 12, full-rate fovea of 5 deg
+        ref = ref_probability(W, H, gaze, 50.0, fc.mar_slope, fc.mar_fovea_deg, fc.effective_min_probability,
+                              fc.falloff_deg)
+        e = ref_eccentricity(W, H, gaze, 50.0)
+        ref = np.where(e <= fc.fovea_deg, 1.0, ref)
+        clear = np.abs(e - fc.fovea_deg) > 1e-3
         prob = stage.probability.numpy()
-        assert np.abs(prob - ref).max() < 2e-5
+        assert np.abs(prob - ref)[clear].max() < 2e-5
         # uniform albedo and normals, no motion, pinhole: saliency is the foveation probability
         assert np.abs(stage.saliency.numpy() - prob).max() == 0.0
         s = stage.sample_map.numpy()

@@ -120,6 +120,7 @@ def resolve_kernel(
     reproj_uv: wp.array2d(dtype=wp.vec2),
     prev_dist: wp.array2d(dtype=float),
     velocity: wp.array2d(dtype=wp.vec2),
+    moved: wp.array2d(dtype=wp.uint8),
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
@@ -223,7 +224,7 @@ def resolve_kernel(
         hist_age[i] = age
         hist_stale[i] = 0
         return
-    if have and stale_h + 1 < tp.max_frames:
+    if have and stale_h + 1 < tp.max_frames and moved[y, x] == wp.uint8(0):
         out_color[y, x] = hc
         out_filled[y, x] = wp.uint8(1)
         hist_color[i] = hc

@@ -32,7 +32,10 @@ class TemporalStage:
       ``reproj_uv``; each of the 4 taps counts only when it was filled last frame, its depth matches the depth
       this surface point had in the previous frame (G-buffer ``prev_dist``; moving objects included) within
       ``depth_eps_rel * depth``, and its normal is within ``normal_cos_min``; the weights are renormalised over
-      the valid taps. A value reprojected ``max_history_frames - 1`` times without being traced is dropped.
+      the valid taps. A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
+      so is the history of a surface point that moved since the last frame (object motion, G-buffer ``moved``):
+      its lighting changed with it (a spinning globe turns its day side), so the reconstruction from this
+      frame's samples is closer than any reprojected colour.
     * **Otherwise**: empty (not a seed); the reconstruction fills it.
 
     ``color`` (H, W) vec3 (linear radiance) and ``filled`` (H, W) uint8 (the reconstruction's seeds) are the
@@ -94,7 +97,7 @@ class TemporalStage:
             resolve_kernel,
             dim=(self.height, self.width),
             inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
-                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, fresh, fresh_stoch, depth_prev,
+                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch, depth_prev,
                     valid_prev, self._hc[prev], self._hst[prev], self._hn[prev], self._ha[prev], self._hs[prev]],
             outputs=[self.color, self.filled, self._hc[cur], self._hst[cur], self._hn[cur], self._ha[cur],
                      self._hs[cur]],
