@@ -16,7 +16,8 @@ import warp as wp
 # slots of one row of sums (float64); region k in [0, MAX_REGIONS) has REGION0 + 3k (pixel count),
 # REGION0 + 3k + 1 (squared error summed over the channels) and REGION0 + 3k + 2 (SSIM map)
 SUM_D2 = wp.constant(0)  # squared error, all pixels and channels
-SUM_SSIM_CROP = wp.constant(1)  # SSIM map over the interior (the window radius cropped off every side), as scikit-image's mean
+# SSIM map over the interior (the window radius cropped off every side), as scikit-image's mean
+SUM_SSIM_CROP = wp.constant(1)
 N_CROP = wp.constant(2)  # pixels of that interior
 NONFINITE_A = wp.constant(3)  # non-finite input values of a (replaced by 0 in every pass)
 NONFINITE_B = wp.constant(4)
