@@ -901,6 +901,59 @@ arg("metrics", "region_masks", metrics.region_masks, _EC, "regions", "(5.0, inf]
 arg("metrics", "region_masks", metrics.region_masks, _EC, "regions", "[0.0, inf]", [({"a": (NAN, 1)}, "nan")],
     param="regions['a'][0]")
 
+# device metrics: NumPy inputs are checked on the host like psnr's; Warp vec3 inputs on the device (count of
+# non-finite values, reported after the one read)
+class _AsWarp:
+    """A NumPy image that ``_warp_call`` uploads as a (H, W) vec3 Warp array (or (N,) for a (N, 3) one)."""
+
+    def __init__(self, v):
+        self.v = np.asarray(v, dtype=np.float32)
+
+
+def _warp_call(f):
+    def call(**kw):
+        return f(**{k: (wp.array(v.v, dtype=wp.vec3, device=DEV) if isinstance(v, _AsWarp) else v)
+                    for k, v in kw.items()})
+    return call
+
+
+for fname, f in (("psnr_device", metrics.psnr_device), ("ssim_device", metrics.ssim_device)):
+    base = {"a": _IMG, "b": _IMG, "device": DEV}
+    for n in ("a", "b"):
+        array_arg("metrics", fname, f, base, n, _IMG)
+        case("metrics", f"{fname}:{n}=1-D", f, {**base, n: np.zeros(12)}, n, "(12,)", "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=4 channels", f, {**base, n: np.zeros((12, 12, 4))}, n, "(12, 12, 4)",
+             "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=empty", f, {**base, n: np.zeros((0, 0))}, n, "(0, 0)", "non-empty")
+        case("metrics", f"{fname}:{n}=1-D warp", _warp_call(f), {**base, n: _AsWarp(np.zeros((12, 3)))}, n,
+             "(12, 3)", "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=warp nan", _warp_call(f), {**base, n: _AsWarp(_with(_IMG, (2, 3, 1), NAN))},
+             n, "got 1 non-finite", "finite real numbers")
+    case("metrics", f"{fname}:shape mismatch", f, {**base, "b": _IMG[:, :4]}, "a and b", "(12, 4, 3)", "same shape")
+    array_arg("metrics", fname, f, base, "mask", np.ones((12, 12)), shape_bad=(4, 4), shape_allowed="(12, 12)")
+    case("metrics", f"{fname}:mask=warp shape", f, {**base, "mask": wp.zeros((4, 4), dtype=wp.uint8, device=DEV)},
+         "mask", "(4, 4)", "(12, 12)")
+    arg("metrics", fname, f, base, "device", "or None for the default", [("tpu:9", "'tpu:9'")])
+real_arg("metrics", "psnr_device", metrics.psnr_device, {"a": _IMG, "b": _IMG, "device": DEV}, "data_range",
+         "(0.0, inf]", [0.0, -1.0])
+for shp in ((4, 4), (10, 30), (1, 40), (40, 1)):
+    case("metrics", f"ssim_device:too small {shp}", metrics.ssim_device,
+         {"a": np.zeros(shp), "b": np.zeros(shp), "device": DEV}, "a and b", repr(shp), "at least 11 x 11")
+_RMD = {**_RM, "device": DEV}
+case("metrics", "region_metrics_device:too small", metrics.region_metrics_device,
+     {**_RMD, "img": _IMG[:8, :8], "ref": _IMG[:8, :8]}, "img and ref", "(8, 8)", "at least 11 x 11")
+for n in ("img", "ref"):
+    array_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, n, _IMG)
+    case("metrics", f"region_metrics_device:{n}=warp inf", _warp_call(metrics.region_metrics_device),
+         {**_RMD, n: _AsWarp(_with(_IMG, (0, 0, 0), INF))}, n, "got 1 non-finite", "finite real numbers")
+case("metrics", "region_metrics_device:shape mismatch", metrics.region_metrics_device, {**_RMD, "ref": _IMG[:11]},
+     "img and ref", "(11, 12, 3)", "same shape")
+vec_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "gaze_px", 2, "finite real number")
+real_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "fov_y_deg", "(0.0, 180.0)",
+         [0.0, 180.0])
+arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "device", "or None for the default",
+    [("tpu:9", "'tpu:9'")])
+
 
 # ================================================================================================================
 
