@@ -32,6 +32,7 @@ __all__ = [
     "scene_search_dirs",
     "find_named_mesh",
     "named_mesh_help",
+    "ply_has_tristrips",
     "read_ply",
     "strips_to_triangles",
     "load_mesh_parts",
@@ -254,7 +255,10 @@ def _read_ascii(text: str, elements, where: str) -> dict:
 
 
 def ply_has_tristrips(path) -> bool:
-    """Whether the PLY header of ``path`` declares an ``element tristrips`` (False for other files)."""
+    """Whether the PLY header of ``path`` declares an ``element tristrips`` (False for other or unreadable
+    files)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"scene path must be a file path (str or os.PathLike), got {show(path)}")
     try:
         with open(path, "rb") as fh:
             head = fh.read(65536)
