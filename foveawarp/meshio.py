@@ -191,6 +191,18 @@ def _read_binary(buf: memoryview, off: int, elements, order: str, where: str) ->
             out[name] = {p[0]: arr[p[0]] for p in props}
             off += need
             continue
+        if len(props) == 1 and count > 0:  # one list property (faces, strips): try one count for all items
+            pname, typ, ctyp = props[0]
+            cdt = np.dtype(order + ctyp)
+            if off + cdt.itemsize <= len(buf):
+                n0 = int(np.frombuffer(buf, dtype=cdt, count=1, offset=off)[0])
+                rec = np.dtype([("n", order + ctyp), ("v", order + typ, (max(n0, 0),))])
+                if n0 >= 0 and off + rec.itemsize * count <= len(buf):
+                    arr = np.frombuffer(buf, dtype=rec, count=count, offset=off)
+                    if np.all(arr["n"] == n0):
+                        out[name] = {pname: arr["v"].astype(np.int64)}
+                        off += rec.itemsize * count
+                        continue
         cols = {p[0]: [] for p in props}
         for _ in range(count):
             for pname, typ, ctyp in props:
@@ -313,8 +325,19 @@ def read_ply(path) -> dict:
     faces = data.get("face")
     if faces is not None:
         key = "vertex_indices" if "vertex_indices" in faces else "vertex_index" if "vertex_index" in faces else None
-        if key is not None:
-            for j, poly in enumerate(faces[key]):
+        polys = faces.get(key) if key is not None else None
+        if isinstance(polys, np.ndarray) and polys.ndim == 2:  # all polygons of one size (binary fast path)
+            bad = (polys < 0) | (polys >= nv)
+            if bad.any():
+                j, i = (int(x) for x in np.argwhere(bad)[0])
+                raise ValueError(f"scene file {where!r} face[{j}].{key} must be in [0, {nv - 1}], got "
+                                 f"{int(polys[j, i])} at index ({i},)")
+            if polys.shape[1] >= 3:  # fan per polygon, in polygon order
+                m = polys.shape[1] - 2
+                fan = np.stack([np.repeat(polys[:, :1], m, axis=1), polys[:, 1:-1], polys[:, 2:]], axis=2)
+                tris.append(fan.reshape(-1, 3))
+        elif polys is not None:
+            for j, poly in enumerate(polys):
                 poly = np.asarray(poly, dtype=np.int64)
                 if poly.size and (poly.min() < 0 or poly.max() >= nv):
                     i = int(np.argmax((poly < 0) | (poly >= nv)))

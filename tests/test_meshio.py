@@ -152,6 +152,38 @@ def test_tristrip_ply_errors(tmp_path):
         fw.load_scene(str(q))
 
 
+def _canonical_tris(f):
+    """Triangles as a sorted set, each rotated to start at its smallest index (winding kept)."""
+    f = np.asarray(f)
+    r = np.argmin(f, axis=1)
+    rot = np.stack([f[np.arange(len(f)), (r + k) % 3] for k in range(3)], axis=1)
+    return rot[np.lexsort(rot.T[::-1])]
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_polygon_faces_match_trimesh(tmp_path, fmt):
+    """read_ply's face path (quads and a pentagon, fan-triangulated) against trimesh reading the same file."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0], [3, 0.5, 0]], dtype=np.float64)
+    polys = [[0, 1, 2, 3], [1, 4, 5, 2], [4, 6, 5, 2, 1]] if fmt == "ascii" else [[0, 1, 2, 3], [1, 4, 5, 2]]
+    head = ["ply", f"format {fmt} 1.0", f"element vertex {len(v)}", "property float x", "property float y",
+            "property float z", f"element face {len(polys)}", "property list uchar int vertex_indices", "end_header"]
+    if fmt == "ascii":
+        body = "".join(f"{a:g} {b:g} {c:g}\n" for a, b, c in v) + "".join(
+            f"{len(q)} {' '.join(map(str, q))}\n" for q in polys)
+        data = ("\n".join(head) + "\n" + body).encode()
+    else:
+        o = "<" if fmt == "binary_little_endian" else ">"
+        data = ("\n".join(head) + "\n").encode() + b"".join(struct.pack(o + "fff", *p) for p in v) + b"".join(
+            struct.pack(o + "B" + "i" * len(q), len(q), *q) for q in polys)
+    p = tmp_path / f"poly-{fmt}.ply"
+    p.write_bytes(data)
+    ours = meshio.read_ply(p)
+    ref = trimesh.load(str(p), force="mesh", process=False)
+    assert ours["faces"].shape == (sum(len(q) - 2 for q in polys), 3)
+    np.testing.assert_array_equal(_canonical_tris(ours["faces"]), _canonical_tris(ref.faces))
+    np.testing.assert_allclose(ours["vertices"], ref.vertices)
+
+
 # --------------------------------------------------------------------------------------------------------------
 # multi-mesh glTF and OBJ
 
