@@ -17,7 +17,7 @@ import numpy as np
 
 from .camera import Camera
 from .config import check_array, check_choice, check_finite, check_int_range, check_range, check_vec, show
-from .meshio import NAMED_MESHES, find_named_mesh, load_mesh_arrays, named_mesh_help, scene_search_dirs
+from .meshio import NAMED_MESHES, find_named_mesh, load_mesh_arrays, named_mesh_help, scene_search_dirs  # noqa: F401
 
 __all__ = ["Light", "AreaLight", "SceneObject", "Scene", "DeviceScene", "load_scene", "scene_search_dirs"]
 
