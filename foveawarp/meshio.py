@@ -116,7 +116,7 @@ def strips_to_triangles(strips) -> np.ndarray:
     if isinstance(strips, (list, tuple)) and strips and all(np.ndim(s) == 1 for s in strips):
         parts = [check_array("strips", s) for s in strips]
         for s in parts:
-            if s.dtype.kind not in "iu":
+            if s.size and s.dtype.kind not in "iu":
                 raise ValueError(f"strips must be integer vertex indices (-1 = restart), got dtype {s.dtype}")
         s = np.concatenate([np.concatenate([p.astype(np.int64), [-1]]) for p in parts]) if parts else np.zeros(0)
     else:

@@ -127,6 +127,26 @@ def test_tristrip_ply_reads_known_triangles(tmp_path, fmt):
     np.testing.assert_allclose(s.face_albedo[2:], expect_alb, atol=1e-6)
 
 
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.sampled_from(["ascii", "binary_little_endian", "binary_big_endian"]),
+       st.lists(st.integers(min_value=-1, max_value=7), min_size=3, max_size=30))
+def test_tristrip_ply_random_strips_match_loop(tmp_path_factory, fmt, strip):
+    """Random strips (restarts and repeated indices included) written to a file read back as the loop's
+    triangles; a strip with no proper triangle is refused."""
+    rng = np.random.default_rng(len(strip))
+    verts = rng.uniform(-1, 1, (8, 3)).astype(np.float32).astype(np.float64)
+    p = tmp_path_factory.mktemp("strips") / "s.ply"
+    p.write_bytes(_ply_bytes(fmt, verts, np.zeros((8, 3), dtype=np.uint8), strip))
+    expect = _strip_reference(strip)
+    if len(expect) == 0:
+        with pytest.raises(ValueError, match="holds no triangle mesh"):
+            meshio.read_ply(p)
+        return
+    d = meshio.read_ply(p)
+    np.testing.assert_array_equal(d["faces"], expect)
+    np.testing.assert_allclose(d["vertices"], verts, rtol=0, atol=1e-5 if fmt == "ascii" else 0)  # ascii: %g
+
+
 def test_tristrip_ply_renders(tmp_path):
     """A strip-only PLY (which trimesh alone reads as a point cloud) renders: primary rays hit it."""
     p = tmp_path / "strip.ply"
