@@ -360,6 +360,20 @@ def test_assets_are_small_and_documented():
         assert word in readme
 
 
+@pytest.mark.parametrize("name", sorted(meshio.ASSET_MESHES))
+def test_shipped_assets_equal_the_original_objs(name):
+    """Where the original OBJ files are in reach (a shared/scenes folder), the shipped PLY holds the same faces
+    and the OBJ's vertices rounded to float32 (what tools/make_assets.py promises)."""
+    src = next((d / meshio.NAMED_MESHES[name] for d in meshio.scene_search_dirs()[1:]
+                if (d / meshio.NAMED_MESHES[name]).is_file()), None)
+    if src is None:
+        pytest.skip(f"{meshio.NAMED_MESHES[name]} not in reach (no shared/scenes folder)")
+    obj = trimesh.load(str(src), force="mesh", process=False)
+    ply = meshio.read_ply(meshio.assets_dir() / meshio.ASSET_MESHES[name])
+    np.testing.assert_array_equal(ply["faces"], np.asarray(obj.faces))
+    np.testing.assert_array_equal(ply["vertices"], np.asarray(obj.vertices).astype(np.float32))
+
+
 def test_named_mesh_from_env_folder_and_clear_error_when_absent(monkeypatch, tmp_path):
     d = tmp_path / "scenes"
     d.mkdir()
