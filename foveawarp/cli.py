@@ -241,7 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser("render", help="render frames of a scene (built-in name or mesh file)")
-    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny | PATH")
+    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny-in-box | bunny | "
+                   "spot | teapot | nefertiti | ogre | PATH (a mesh file)")
     r.add_argument("--width", type=_positive_int, default=640)
     r.add_argument("--height", type=_positive_int, default=360)
     r.add_argument("--frames", type=_positive_int, default=1)

@@ -24,9 +24,9 @@ import pytest
 import warp as wp
 
 import foveawarp as fw
-from foveawarp import metrics, ops, scenes
+from foveawarp import meshio, metrics, ops, scenes
 from foveawarp.buffers import GBuffer
-from foveawarp.scene import DeviceScene, SceneObject
+from foveawarp.scene import DeviceScene, SceneObject, register_builtin_scenes
 from foveawarp.stages.dof import DofStage
 from foveawarp.stages.indirect import IndirectStage
 from foveawarp.stages.reconstruct import ReconstructStage
@@ -500,6 +500,86 @@ int_arg("scene builders", "SceneBuilder.add_sphere", lambda **kw: _b().add_spher
         [1])
 arg("scene builders", "SceneBuilder.add_sphere", lambda **kw: _b().add_sphere(**kw), _as, "albedo_fn", "callable",
     [(5, "5")])
+
+# ================================================================================================================
+# mesh files (foveawarp/meshio.py) and the scene registry
+
+
+@functools.lru_cache(maxsize=None)
+def _ply_files():
+    import tempfile
+    from pathlib import Path
+
+    d = Path(tempfile.mkdtemp(prefix="fw-validation-ply-"))
+    head = "ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n" \
+           "element tristrips 1\nproperty list int int vertex_indices\nend_header\n"
+    asc = head.format(fmt="ascii")
+    (d / "range.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n4 0 1 2 7\n")
+    (d / "low.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n4 0 1 -2 2\n")
+    (d / "nanv.ply").write_text(asc + "0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n")
+    (d / "words.ply").write_text(asc + "0 0 zero\n1 0 0\n0 1 0\n3 0 1 2\n")
+    (d / "short.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n5 0 1 2\n")
+    (d / "degen.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n")
+    (d / "fmt.ply").write_text(head.format(fmt="binary_middle_endian") + "")
+    (d / "type.ply").write_text(asc.replace("property float z", "property float128 z"))
+    (d / "novert.ply").write_text("ply\nformat ascii 1.0\nelement tristrips 1\n"
+                                  "property list int int vertex_indices\nend_header\n3 0 1 2\n")
+    (d / "notply.ply").write_text("solid nothing\nendsolid\n")
+    (d / "trunc.ply").write_bytes(head.format(fmt="binary_little_endian").encode() + b"\x00" * 20)
+    return d
+
+
+def _ply(name):
+    return str(_ply_files() / name)
+
+
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "1-D index list",
+    [(np.zeros((2, 3), dtype=int), "(2, 3)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "integer vertex indices",
+    [(np.array([0.0, 1.0, 2.0]), "float64")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", ">= 0 or -1",
+    [(np.array([0, -2, 1]), "got -2 at index (1,)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "finite real numbers",
+    [(np.array([0.0, NAN, 1.0]), "got nan at index (1,)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "array of real numbers",
+    [(np.array(["a", "b", "c"]), "<U1"), (None, "object")])
+for fname, f in (("read_ply", meshio.read_ply), ("load_mesh_parts", meshio.load_mesh_parts),
+                 ("load_mesh_arrays", meshio.load_mesh_arrays), ("ply_has_tristrips", meshio.ply_has_tristrips)):
+    arg("mesh files", fname, f, {}, "path", "a file path", [(None, "None"), (5, "5")], param="scene path")
+for fname, f in (("read_ply", meshio.read_ply), ("load_mesh_parts", meshio.load_mesh_parts)):
+    arg("mesh files", fname, f, {}, "path", "does not exist", [("/nonexistent/m.ply", "'/nonexistent/m.ply'")],
+        param="scene path")
+for fname, f in (("read_ply", meshio.read_ply), ("load_scene", fw.load_scene)):
+    case("mesh files", f"{fname}:tristrip index too high", lambda _f=f, _n="range.ply": _f(_ply(_n)), {},
+         "tristrips[0].vertex_indices", "got 7 at index (3,)", "[-1, 2]")
+    case("mesh files", f"{fname}:tristrip index below -1", lambda _f=f, _n="low.ply": _f(_ply(_n)), {},
+         "tristrips[0].vertex_indices", "got -2 at index (2,)", "[-1, 2]")
+    case("mesh files", f"{fname}:nan vertex", lambda _f=f, _n="nanv.ply": _f(_ply(_n)), {}, "scene file", "nanv.ply",
+         "non-finite vertex coordinates")
+    case("mesh files", f"{fname}:word in body", lambda _f=f, _n="words.ply": _f(_ply(_n)), {}, "scene file", "words.ply",
+         "non-numeric value in PLY element 'vertex'")
+    case("mesh files", f"{fname}:list past the end", lambda _f=f, _n="short.ply": _f(_ply(_n)), {}, "scene file",
+         "short.ply", "truncated in PLY element 'tristrips'")
+    case("mesh files", f"{fname}:binary truncated", lambda _f=f, _n="trunc.ply": _f(_ply(_n)), {}, "scene file",
+         "trunc.ply", "truncated in PLY element 'vertex'")
+    case("mesh files", f"{fname}:only degenerate triangles", lambda _f=f, _n="degen.ply": _f(_ply(_n)), {}, "scene file",
+         "degen.ply", "holds no triangle mesh")
+    case("mesh files", f"{fname}:unknown format", lambda _f=f, _n="fmt.ply": _f(_ply(_n)), {}, "PLY format",
+         "'binary_middle_endian'", "['ascii', 'binary_little_endian', 'binary_big_endian']")
+    case("mesh files", f"{fname}:unknown property type", lambda _f=f, _n="type.ply": _f(_ply(_n)), {}, "scene file",
+         "float128", "unreadable PLY header line")
+    case("mesh files", f"{fname}:no vertex element", lambda _f=f, _n="novert.ply": _f(_ply(_n)), {}, "scene file",
+         "novert.ply", "no 'vertex' element with x, y, z")
+case("mesh files", "read_ply:not a PLY file", lambda: meshio.read_ply(_ply("notply.ply")), {}, "scene file",
+     "notply.ply", "not a PLY file")
+vec_arg("mesh files", "load_mesh_arrays", lambda **kw: meshio.load_mesh_arrays(_ply("degen.ply"), **kw), {},
+        "default_albedo", 3, "[0.0, 1.0]", 1.5)
+arg("mesh files", "find_named_mesh", meshio.find_named_mesh, {}, "name", "a named mesh ['bunny'",
+    [(5, "5"), (None, "None")])
+arg("mesh files", "register_builtin_scenes", register_builtin_scenes, {"file_builder": scenes.mesh_on_ground},
+    "builtin", "dict of scene name -> builder", [(None, "None"), ({"x": 5}, "{'x': 5}"), ({3: print}, "{3: ")])
+arg("mesh files", "register_builtin_scenes", register_builtin_scenes, {"builtin": scenes.BUILTIN}, "file_builder",
+    "callable (path, name=None, **kw) -> Scene", [(None, "None"), ("mesh", "'mesh'")])
 
 # ================================================================================================================
 # FrameLoop
