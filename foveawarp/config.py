@@ -253,7 +253,8 @@ class SaliencyConfig:
         use_dof: multiply by the depth-of-field factor (skipped for a pinhole camera).
         albedo_scale: gain applied to the normalized Lab gradient before clipping, >= 0.
         normal_scale: gain applied to the normalized normal gradient, >= 0.
-        velocity_scale_px: velocity in pixels per frame that maps to V = 1, > 0.
+        velocity_scale_px: velocity in pixels per frame that maps to V = 1, > 0; default 32 (8 sampled a spinning
+            globe at 30-33% at 1080p and 4K, 32 at about 16% at 1080p, with its PSNR still above 68 dB).
         sigma1_m: half width of the in-focus depth range around the focus depth, metres, >= 0.
         sigma2_m: depth range over which F_DoF falls linearly from 1 to 0 beyond sigma1, metres, > 0.
         dof_floor: the smallest value F_DoF takes (so defocused regions keep some rays), in [0, 1].
@@ -265,7 +266,7 @@ class SaliencyConfig:
     use_dof: bool = True
     albedo_scale: float = 1.0
     normal_scale: float = 1.0
-    velocity_scale_px: float = 8.0
+    velocity_scale_px: float = 32.0
     sigma1_m: float = 0.5
     sigma2_m: float = 2.0
     dof_floor: float = 0.0

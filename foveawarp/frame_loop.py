@@ -472,7 +472,7 @@ class FrameLoop:
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
-                                          cfg.temporal.refresh_fraction)
+                                          cfg.temporal.refresh_fraction, stochastic=self._stochastic_shading())
         with self._stage("reorder"):
             if strategy in ("scan", "tile", "rows", "rows+balance"):
                 self.reorder.run(smap)

@@ -75,7 +75,7 @@ def ref_resolve(inp, prev, cfg, use_history, stochastic):
                     c = c - s + sacc
                 out[y, x] = c
                 filled[y, x] = 1
-            elif have and stale + 1 < cfg.max_history_frames and not inp["moved"][y, x]:
+            elif have and stale + 1 < cfg.max_history_frames and not inp["moved"][y, x] and (age >= (4 if stochastic else 1) or np.linalg.norm(inp["vel"][y, x]) <= 0.5):
                 out[y, x] = hc
                 filled[y, x] = 1
     return out, filled

@@ -22,6 +22,7 @@ class TemporalParams:
     normal_cos_min: float  # ... and its normal within this cosine
     clamp_gamma: float  # variance clipping box half-width, in standard deviations
     motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
+    min_age_reuse: int  # a moving unsampled pixel reuses history of at least this many accumulated frames
     background: wp.vec3  # radiance of rays that miss
 
 
@@ -192,7 +193,8 @@ def resolve_kernel(
                     j = ty * w + tx
                     wsum += wt
                     hc += hist_color_prev[j] * wt
-                    hs += hist_stoch_prev[j] * wt
+                    if tp.stochastic != 0:
+                        hs += hist_stoch_prev[j] * wt
                     age_h = wp.min(age_h, hist_age_prev[j])
                     stale_h = wp.max(stale_h, hist_stale_prev[j])
     have = wsum > 1.0e-3
@@ -224,7 +226,8 @@ def resolve_kernel(
         hist_age[i] = age
         hist_stale[i] = 0
         return
-    if have and stale_h + 1 < tp.max_frames and moved[y, x] == wp.uint8(0):
+    young_ok = age_h >= tp.min_age_reuse or wp.length(velocity[y, x]) <= 0.5
+    if have and stale_h + 1 < tp.max_frames and moved[y, x] == wp.uint8(0) and young_ok:
         out_color[y, x] = hc
         out_filled[y, x] = wp.uint8(1)
         hist_color[i] = hc
@@ -256,6 +259,7 @@ def refresh_thin_kernel(
     frame_params: wp.array(dtype=FrameParams),
     fraction: float,
     keep_stale: int,
+    keep_young: int,
     sample_map: wp.array2d(dtype=wp.uint8),
     num_samples: wp.array(dtype=wp.int32),
 ):
@@ -274,6 +278,8 @@ def refresh_thin_kernel(
     if hist_age_prev[pi] <= 0:
         return
     if hist_stale_prev[pi] >= keep_stale:
+        return
+    if hist_age_prev[pi] < keep_young:  # stochastic shading: still converging
         return
     fp = frame_params[0]
     shift = _frac(float(fp.rot) * 0.6180339887 + fp.phase)

@@ -8,7 +8,14 @@ import warp as wp
 from ..config import TemporalConfig
 from ..kernels.temporal import TemporalParams, refresh_thin_kernel, resolve_kernel
 
-__all__ = ["TemporalStage"]
+__all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
+
+# with stochastic shading an unsampled pixel that moved on screen (more than half a pixel) reuses history only
+# once it has accumulated this many frames: a younger history is a noisy sample or two, blurred by resampling,
+# and the reconstruction from this frame's neighbouring samples (a spatial average) is closer (H100, cornell
+# with 4 AO rays in motion: history of 1-3 frames lost up to 1.5 dB). On a still view any age is kept: there
+# each pixel's own past samples beat an interpolation of this frame's sparse ones.
+STOCHASTIC_MIN_AGE = 4
 
 
 class TemporalStage:
@@ -32,7 +39,8 @@ class TemporalStage:
       ``reproj_uv``; each of the 4 taps counts only when it was filled last frame, its depth matches the depth
       this surface point had in the previous frame (G-buffer ``prev_dist``; moving objects included) within
       ``depth_eps_rel * depth``, and its normal is within ``normal_cos_min``; the weights are renormalised over
-      the valid taps. A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
+      the valid taps (with stochastic shading and more than half a pixel of screen motion, only history of at
+      least ``STOCHASTIC_MIN_AGE`` accumulated frames). A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
       so is the history of a surface point that moved since the last frame (object motion, G-buffer ``moved``):
       its lighting changed with it (a spinning globe turns its day side), so the reconstruction from this
       frame's samples is closer than any reprojected colour.
@@ -74,6 +82,7 @@ class TemporalStage:
         tp.normal_cos_min = float(c.normal_cos_min)
         tp.clamp_gamma = float(c.clamp_gamma)
         tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
+        tp.min_age_reuse = STOCHASTIC_MIN_AGE if stochastic else 1
         tp.background = wp.vec3(*(float(v) for v in background))
         return tp
 
@@ -110,14 +119,16 @@ class TemporalStage:
         does not run Python, so its caller swaps)."""
         self._cur = 1 - self._cur
 
-    def refresh(self, sample_map, cache_hit, prev_index, frame_params, num_samples, fraction: float) -> None:
+    def refresh(self, sample_map, cache_hit, prev_index, frame_params, num_samples, fraction: float, *,
+                stochastic: bool = False) -> None:
         """Thin ``sample_map`` (in place; ``num_samples`` decremented on the device) to the refresh budget of a
         static, converged view: samples with usable history are kept with probability ``fraction``; those
-        without history, or unrefreshed for half of ``max_history_frames`` or more, are always kept. Call
-        before ``run`` of the same frame."""
+        without history, or unrefreshed for half of ``max_history_frames`` or more, and (``stochastic``) those
+        whose accumulation is not yet full, are always kept. Call before ``run`` of the same frame."""
         prev = self._cur
         keep_stale = max(1, int(self.config.max_history_frames) // 2)
+        keep_young = int(self.config.max_history_frames) if stochastic else 0
         wp.launch(refresh_thin_kernel, dim=(self.height, self.width),
                   inputs=[cache_hit, prev_index, self._ha[prev], self._hs[prev], frame_params, float(fraction),
-                          keep_stale],
+                          keep_stale, keep_young],
                   outputs=[sample_map, num_samples], device=self.device)
