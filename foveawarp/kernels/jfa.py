@@ -13,7 +13,8 @@ Cost is paid at the non-seed pixels only. A seed is its own nearest seed in ever
   the other buffer's seed entries are never written nor read;
 * the first pass takes its candidates from the mask alone (it is the old "init" pass fused with step 1 of
   the schedule: a non-seed candidate has no seed yet);
-* the last pass also writes the squared nearest-seed radius of every non-seed pixel and reduces, per
+* the last pass also writes the squared nearest-seed radius and the Voronoi color (the finite color of the
+  nearest seed) of every non-seed pixel, and reduces, per
   ``RTILE`` x ``RTILE`` screen tile, the largest radius (``tile_r2``, no atomics) and the count of pixels
   without a seed; one atomic per tile folds them into the image maxima / count.
 
@@ -73,11 +74,12 @@ def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i),
                 for i in range(3):
                     xx = x + (i - 1) * step
                     if xx >= 0 and xx < w and (i != 1 or j != 1):
+                        # both loads are independent (no load waits on the mask); a seed's src entry may be
+                        # stale and is discarded by the select
                         s = wp.vec2i(NO_SEED, NO_SEED)
-                        if mask[yy, xx] != wp.uint8(0):
-                            s = wp.vec2i(xx, yy)
-                        elif from_mask == 0:
+                        if from_mask == 0:
                             s = src[yy, xx]
+                        s = wp.where(mask[yy, xx] != wp.uint8(0), wp.vec2i(xx, yy), s)
                         if s[0] >= 0:
                             d = seed_dist2(x, y, s)
                             if d < best_d:
@@ -120,7 +122,7 @@ def jfa_last_pass_kernel(
     step: int,
     from_mask: int,
     color_in: wp.array2d(dtype=wp.vec3),
-    write_out: int,
+    color_mode: int,
     nearest: wp.array2d(dtype=wp.vec2i),
     r2_out: wp.array2d(dtype=wp.int32),
     tile_r2: wp.array2d(dtype=wp.int32),
@@ -135,8 +137,10 @@ def jfa_last_pass_kernel(
 
     Writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels (seed entries of
     ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass), ``tile_r2`` (the tile's
-    largest r2, 0 when none), and, when ``write_out`` != 0, the Voronoi color of every pixel to
-    ``color_out``. ``max_r2`` / ``max_radius`` / ``unreached`` must be zero before the launch."""
+    largest r2, 0 when none) and, by ``color_mode``: 1: the Voronoi color (finite color of the nearest seed,
+    0 without one) of the non-seed pixels to ``color_out`` (the gather's ``vor`` buffer); 2: the Voronoi
+    color of every pixel (seeds: their own) to ``color_out`` (the Voronoi fill); 0: no color.
+    ``max_r2`` / ``max_radius`` / ``unreached`` must be zero before the launch."""
     blk, lane = wp.tid()
     h = mask.shape[0]
     w = mask.shape[1]
@@ -154,7 +158,7 @@ def jfa_last_pass_kernel(
             if mask[y, x] != wp.uint8(0):
                 if from_mask != 0:
                     nearest[y, x] = wp.vec2i(x, y)
-                if write_out != 0:
+                if color_mode == 2:
                     color_out[y, x] = finite_or_zero(color_in[y, x])
             else:
                 s = jfa_visit(mask, src, x, y, step, from_mask)
@@ -166,7 +170,7 @@ def jfa_last_pass_kernel(
                 else:
                     missing += 1
                 r2_out[y, x] = r2
-                if write_out != 0:
+                if color_mode != 0:
                     color_out[y, x] = voronoi_color(color_in, s)
     # cooperative block reductions: every thread of the block reaches them
     tmax = wp.tile_max(wp.tile(r2max))
@@ -184,9 +188,11 @@ def jfa_last_pass_kernel(
 @wp.kernel(enable_backward=False)
 def voronoi_from_nearest_kernel(
     given: wp.array2d(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
     seeds: wp.array2d(dtype=wp.uint8),
     nearest: wp.array2d(dtype=wp.vec2i),
     r2_out: wp.array2d(dtype=wp.int32),
+    vor: wp.array2d(dtype=wp.vec3),
     tile_r2: wp.array2d(dtype=wp.int32),
     max_r2: wp.array(dtype=wp.int32),
     max_radius: wp.array(dtype=wp.float32),
@@ -194,7 +200,8 @@ def voronoi_from_nearest_kernel(
 ):
     """What :func:`jfa_last_pass_kernel` leaves behind, from a given nearest map instead of JFA (the ops'
     ``nearest=`` argument): ``nearest`` = ``given``, ``seeds`` = the pixels that are their own nearest seed,
-    ``r2_out`` at the other pixels, ``tile_r2`` and the statistics (zeroed before the launch). Same tiling."""
+    ``r2_out`` and ``vor`` (color mode 1) at the other pixels, ``tile_r2`` and the statistics (zeroed before
+    the launch). Same tiling."""
     blk, lane = wp.tid()
     h = given.shape[0]
     w = given.shape[1]
@@ -222,6 +229,7 @@ def voronoi_from_nearest_kernel(
                 else:
                     missing += 1
                 r2_out[y, x] = r2
+                vor[y, x] = voronoi_color(color_in, s)
     tmax = wp.tile_max(wp.tile(r2max))
     tmiss = wp.tile_sum(wp.tile(missing))
     if lane == 0:
@@ -247,3 +255,17 @@ def voronoi_fill_kernel(
         color_out[y, x] = finite_or_zero(color_in[y, x])
     else:
         color_out[y, x] = voronoi_color(color_in, nearest[y, x])
+
+
+@wp.kernel(enable_backward=False)
+def voronoi_color_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
+    vor: wp.array2d(dtype=wp.vec3),
+):
+    """Voronoi color (color mode 1 of :func:`jfa_last_pass_kernel`) of the non-seed pixels, for a
+    ``run_interpolate`` whose colors the last pass did not see."""
+    y, x = wp.tid()
+    if mask[y, x] == wp.uint8(0):
+        vor[y, x] = voronoi_color(color_in, nearest[y, x])

@@ -11,19 +11,18 @@ Two forms of the same sum:
   of radius R. Every q that reaches p is still visited, in the same raster order, so the sum is the same.
 * ``sibson_scatter_kernel`` + ``sibson_resolve_kernel``: Park's scatter with atomics (the exact reference).
 
-Both read what the last JFA pass (``kernels/jfa.py``) leaves: the seed mask (nonzero = seed), ``nearest``
-((x, y) of each non-seed pixel's nearest seed, (-1, -1) for none), ``r2`` = ``r_q^2`` in pixels^2 at the
-non-seed pixels (exact int32; -1 where q has no seed; seed entries are not read: a seed's r_q is 0) and
-``tile_r2``. A tap of the gather reads the 1-byte mask, then the 4-byte r2 only at a non-seed q (a seed q
-reaches no pixel but itself), and the seed's color (through ``nearest``) only at the taps that cover p.
-Colors are taken finite (non-finite seed colors count as 0). Seeds output their own color after one mask
-read; pixels that received nothing output their Voronoi color (0 without a seed); a sum that overflows
-float32 (colors near float max) is redone with scaled terms, so no output is NaN/Inf.
+Both read what the last JFA pass (``kernels/jfa.py``) leaves: the seed mask (nonzero = seed) and, at the
+non-seed pixels only (seed entries are never read: a seed's r_q is 0, so it reaches no pixel but itself),
+``vor`` (the finite color of q's nearest seed; 0 where q has none) and ``r2`` = ``r_q^2`` in pixels^2 (exact
+int32; -1 where q has no seed), plus ``tile_r2``. A tap of the gather reads the 1-byte mask, the 4-byte r2
+only at a non-seed q, and the 12-byte color only at the taps that cover p. Seeds output their own (finite)
+color after one mask read; pixels that received nothing output their Voronoi color (0 without a seed); a
+sum that overflows float32 (colors near float max) is redone with scaled terms, so no output is NaN/Inf.
 """
 
 import warp as wp
 
-from .jfa import RTILE, finite_or_zero, voronoi_color
+from .jfa import RTILE, finite_or_zero
 
 
 @wp.func
@@ -45,9 +44,8 @@ F32_MAX = wp.constant(3.4028234663852886e38)
 
 
 @wp.func
-def disc_sum(mask: wp.array2d(dtype=wp.uint8), nearest: wp.array2d(dtype=wp.vec2i), r2: wp.array2d(dtype=wp.int32),
-             color_in: wp.array2d(dtype=wp.vec3), x: int, y: int, rw: int, rmax2: int, scale: float) -> wp.vec4:
-    """(sum of ``scale * color(seed(q))``, count) over the non-seed q within the half window ``rw`` whose disc
+def disc_sum(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int, scale: float) -> wp.vec4:
+    """(sum of ``scale * vor[q]``, count) over the non-seed q within the half window ``rw`` whose disc
     covers the non-seed p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every such
     r_q^2). Raster order over (dy, dx)."""
     h = mask.shape[0]
@@ -63,29 +61,28 @@ def disc_sum(mask: wp.array2d(dtype=wp.uint8), nearest: wp.array2d(dtype=wp.vec2
         qy = y + dy
         for dx in range(x0, x1 + 1):
             qx = x + dx
-            if mask[qy, qx] == wp.uint8(0):
-                if dx * dx + dy * dy <= r2[qy, qx]:
-                    acc = acc + voronoi_color(color_in, nearest[qy, qx]) * scale
-                    n = n + 1
+            # both loads are independent; a seed's r2 entry may be stale and is discarded
+            if (dx * dx + dy * dy <= r2[qy, qx]) and (mask[qy, qx] == wp.uint8(0)):
+                acc = acc + vor[qy, qx] * scale
+                n = n + 1
     return wp.vec4(acc[0], acc[1], acc[2], float(n))
 
 
 @wp.func
-def disc_mean(mask: wp.array2d(dtype=wp.uint8), nearest: wp.array2d(dtype=wp.vec2i), r2: wp.array2d(dtype=wp.int32),
-              color_in: wp.array2d(dtype=wp.vec3), x: int, y: int, rw: int, rmax2: int) -> wp.vec3:
+def disc_mean(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int) -> wp.vec3:
     """Mean of the colors q scatters onto the non-seed p (see :func:`disc_sum`); p's Voronoi color when
     none does (0 without a seed).
 
     Finite for any finite colors: when the plain float32 sum overflows (colors near float max), the sum is
     taken again with every term scaled by 0.5 / n, then doubled and clamped to +-float max."""
-    s = disc_sum(mask, nearest, r2, color_in, x, y, rw, rmax2, 1.0)
+    s = disc_sum(mask, vor, r2, x, y, rw, rmax2, 1.0)
     n = s[3]
     if n <= 0.0:
-        return voronoi_color(color_in, nearest[y, x])
+        return vor[y, x]
     out = wp.vec3(s[0], s[1], s[2]) / n
     if wp.isfinite(out):
         return out
-    t = disc_sum(mask, nearest, r2, color_in, x, y, rw, rmax2, 0.5 / n)
+    t = disc_sum(mask, vor, r2, x, y, rw, rmax2, 0.5 / n)
     return wp.vec3(wp.clamp(2.0 * t[0], -F32_MAX, F32_MAX), wp.clamp(2.0 * t[1], -F32_MAX, F32_MAX),
                    wp.clamp(2.0 * t[2], -F32_MAX, F32_MAX))
 
@@ -93,7 +90,7 @@ def disc_mean(mask: wp.array2d(dtype=wp.uint8), nearest: wp.array2d(dtype=wp.vec
 @wp.kernel(enable_backward=False)
 def sibson_gather_kernel(
     mask: wp.array2d(dtype=wp.uint8),
-    nearest: wp.array2d(dtype=wp.vec2i),
+    vor: wp.array2d(dtype=wp.vec3),
     r2: wp.array2d(dtype=wp.int32),
     tile_r2: wp.array2d(dtype=wp.int32),
     color_in: wp.array2d(dtype=wp.vec3),
@@ -116,15 +113,14 @@ def sibson_gather_kernel(
         for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + rw, w - 1) // RTILE + 1):
             loc = wp.max(loc, tile_r2[ty, tx])
     rw = wp.min(rw, isqrt(loc))
-    color_out[y, x] = disc_mean(mask, nearest, r2, color_in, x, y, rw, loc)
+    color_out[y, x] = disc_mean(mask, vor, r2, x, y, rw, loc)
 
 
 @wp.kernel(enable_backward=False)
 def sibson_scatter_kernel(
     mask: wp.array2d(dtype=wp.uint8),
-    nearest: wp.array2d(dtype=wp.vec2i),
+    vor: wp.array2d(dtype=wp.vec3),
     r2: wp.array2d(dtype=wp.int32),
-    color_in: wp.array2d(dtype=wp.vec3),
     accum: wp.array2d(dtype=wp.vec4),
 ):
     """Park et al.'s scatter: each non-seed q adds ``vec4(color(seed(q)), 1)`` to every p with
@@ -140,7 +136,7 @@ def sibson_scatter_kernel(
     rq2 = r2[y, x]
     if rq2 < 0:
         return
-    c = voronoi_color(color_in, nearest[y, x])
+    c = vor[y, x]
     add = wp.vec4(c[0], c[1], c[2], 1.0)
     r = isqrt(rq2)
     y0 = wp.max(-r, -y)
@@ -156,7 +152,7 @@ def sibson_scatter_kernel(
 @wp.kernel(enable_backward=False)
 def sibson_resolve_kernel(
     mask: wp.array2d(dtype=wp.uint8),
-    nearest: wp.array2d(dtype=wp.vec2i),
+    vor: wp.array2d(dtype=wp.vec3),
     r2: wp.array2d(dtype=wp.int32),
     color_in: wp.array2d(dtype=wp.vec3),
     accum: wp.array2d(dtype=wp.vec4),
@@ -172,10 +168,10 @@ def sibson_resolve_kernel(
         return
     a = accum[y, x]
     if a[3] <= 0.0:
-        color_out[y, x] = voronoi_color(color_in, nearest[y, x])
+        color_out[y, x] = vor[y, x]
     else:
         c = wp.vec3(a[0], a[1], a[2]) / a[3]
         if not wp.isfinite(c):
             rmax2 = max_r2[0]
-            c = disc_mean(mask, nearest, r2, color_in, x, y, isqrt(rmax2), rmax2)
+            c = disc_mean(mask, vor, r2, x, y, isqrt(rmax2), rmax2)
         color_out[y, x] = c

@@ -21,6 +21,7 @@ from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_kernel,
     jfa_pass_kernel,
+    voronoi_color_kernel,
     voronoi_fill_kernel,
     voronoi_from_nearest_kernel,
 )
@@ -117,6 +118,8 @@ class ReconstructStage:
     Buffers (all on ``device``, overwritten by each ``run``):
         nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found (a seed
             pixel holds itself).
+        voronoi_color: (H, W) ``wp.vec3``, finite color of the nearest seed at the NON-seed pixels (0 where
+            none was found), written when Sibson is on. Seed entries are not written (a seed's color is its own).
         radius_sq: (H, W) int32, squared distance r_q^2 to the nearest seed in pixels^2 at the NON-seed pixels
             (-1 where none was found). Seed entries are not written (a seed's radius is 0; the mask says
             which pixels are seeds).
@@ -156,6 +159,7 @@ class ReconstructStage:
         dev = self.device
         self.nearest = wp.empty(shape, dtype=wp.vec2i, device=dev)
         self._pong = wp.empty(shape, dtype=wp.vec2i, device=dev) if len(self.steps) > 1 else None
+        self.voronoi_color = wp.zeros(shape, dtype=wp.vec3, device=dev)
         self.radius_sq = wp.full(shape, -1, dtype=wp.int32, device=dev)
         tiles = ((self.height + _RTILE - 1) // _RTILE, (self.width + _RTILE - 1) // _RTILE)
         self.tile_radius_sq = wp.zeros(tiles, dtype=wp.int32, device=dev)
@@ -184,22 +188,25 @@ class ReconstructStage:
 
     def run_jfa(self, seed_mask, *, color_in=None, color_out=None) -> None:
         """Jump flooding: ``nearest`` <- nearest seed of every pixel, plus ``radius_sq``, ``tile_radius_sq`` and
-        the statistics. ``seed_mask``: (H, W) uint8, nonzero = seed. With ``color_in`` and ``color_out``
-        ((H, W) vec3) the last pass also writes the Voronoi color of every pixel to ``color_out``."""
+        the statistics. ``seed_mask``: (H, W) uint8, nonzero = seed. With ``color_in`` ((H, W) vec3, read at
+        seeds) the last pass also writes ``voronoi_color`` (for the Sibson gather), or, when ``color_out`` is
+        given too, the Voronoi fill of every pixel to ``color_out``."""
         self._check("seed_mask", seed_mask, wp.uint8)
-        write_out = color_out is not None
-        if write_out:
+        mode = 0
+        cin, cout = self._dummy3, self._dummy3  # placeholders, never touched in mode 0
+        if color_in is not None:
             self._check("color_in", color_in, wp.vec3)
-            self._check("color_out", color_out, wp.vec3)
-        else:  # placeholders, never touched (write_out = 0)
-            color_in = color_out = self._dummy3
+            cin, cout, mode = color_in, self.voronoi_color, 1
+            if color_out is not None:
+                self._check("color_out", color_out, wp.vec3)
+                cout, mode = color_out, 2
         dev = self.device
         dim = (self.height, self.width)
         steps = self.steps
         n = len(steps)
         # ping-pong so that the last pass writes self.nearest: pass i writes nearest when n - 1 - i is even
         bufs = [self.nearest, self._pong]
-        if n <= 1:
+        if n <= 1:  # no pass before the last one to zero the statistics
             self.max_radius_sq.zero_()
             self.max_radius.zero_()
             self.unreached.zero_()
@@ -211,9 +218,8 @@ class ReconstructStage:
             src = dst
         wp.launch_tiled(
             jfa_last_pass_kernel, dim=[self._num_tiles],
-            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0,
-                    color_in, 1 if write_out else 0],
-            outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, color_out, *self._stats_args()],
+            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, cin, mode],
+            outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
             block_dim=self._block_dim, device=dev,
         )
         self._mask = seed_mask
@@ -224,6 +230,10 @@ class ReconstructStage:
         vec2i; its seeds are the pixels that map to themselves). ``color_in`` is read at seeds only."""
         self._check("color_in", color_in, wp.vec3)
         self._check("color_out", color_out, wp.vec3)
+        self._interpolate(color_in, color_out, nearest, vor_ready=False)
+
+    def _interpolate(self, color_in, color_out, nearest, vor_ready: bool) -> None:
+        """``vor_ready``: the last pass of the JFA just run wrote ``voronoi_color`` for ``color_in``."""
         dev = self.device
         dim = (self.height, self.width)
         if nearest is not None:
@@ -233,22 +243,28 @@ class ReconstructStage:
             self.max_radius_sq.zero_()
             self.max_radius.zero_()
             self.unreached.zero_()
-            wp.launch_tiled(voronoi_from_nearest_kernel, dim=[self._num_tiles], inputs=[nearest],
-                            outputs=[self._seeds, self.nearest, self.radius_sq, self.tile_radius_sq,
-                                     *self._stats_args()],
+            wp.launch_tiled(voronoi_from_nearest_kernel, dim=[self._num_tiles], inputs=[nearest, color_in],
+                            outputs=[self._seeds, self.nearest, self.radius_sq, self.voronoi_color,
+                                     self.tile_radius_sq, *self._stats_args()],
                             block_dim=self._block_dim, device=dev)
             mask = self._seeds
+            vor_ready = True
         else:
             if self._mask is None:
                 raise ValueError("nearest must be given (a (H, W) wp.array of vec2i) before run_jfa has run")
             mask = self._mask
-        near = [mask, self.nearest, self.radius_sq]
-        if not (self.config.sibson or self.exact_sibson):
+        sibson = self.config.sibson or self.exact_sibson
+        if not sibson:
             wp.launch(voronoi_fill_kernel, dim=dim, inputs=[mask, self.nearest, color_in], outputs=[color_out],
                       device=dev)
-        elif self.exact_sibson:
+            return
+        if not vor_ready:
+            wp.launch(voronoi_color_kernel, dim=dim, inputs=[mask, self.nearest, color_in],
+                      outputs=[self.voronoi_color], device=dev)
+        near = [mask, self.voronoi_color, self.radius_sq]
+        if self.exact_sibson:
             self._accum.zero_()
-            wp.launch(sibson_scatter_kernel, dim=dim, inputs=[*near, color_in], outputs=[self._accum], device=dev)
+            wp.launch(sibson_scatter_kernel, dim=dim, inputs=near, outputs=[self._accum], device=dev)
             wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                       outputs=[color_out], device=dev)
         else:
@@ -265,7 +281,7 @@ class ReconstructStage:
         self._check("color_in", color_in, wp.vec3)
         self._check("color_out", color_out, wp.vec3)
         if self.config.sibson or self.exact_sibson:
-            self.run_jfa(seed_mask)
-            self.run_interpolate(color_in, color_out)
+            self.run_jfa(seed_mask, color_in=color_in)
+            self._interpolate(color_in, color_out, None, vor_ready=True)
         else:  # the last JFA pass writes the Voronoi colors
             self.run_jfa(seed_mask, color_in=color_in, color_out=color_out)
