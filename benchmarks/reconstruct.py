@@ -31,10 +31,13 @@ import numpy as np
 import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-if "--package-root" in sys.argv:  # benchmark another checkout's foveawarp (e.g. the one before a change)
-    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 
 from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
+from benchmarks._masks import bench_masks  # noqa: E402
+
+if "--package-root" in sys.argv:  # time another checkout's foveawarp (e.g. the one before a change)
+    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 from foveawarp._util import get_device  # noqa: E402
 from foveawarp.config import JFA_VARIANTS, ReconstructionConfig  # noqa: E402
 from foveawarp.stages.reconstruct import (  # noqa: E402
@@ -79,8 +82,6 @@ def nearest_d2(nearest):
 
 def overhead(args, dev):
     """Issue 14: the stage's per-frame cost on sparse and mostly-filled masks, per kernel."""
-    from benchmarks._kernel_timing import graph_time, kernel_times
-    from benchmarks._masks import bench_masks
 
     if args.sizes:
         sizes = [tuple(int(v) for v in t.split("x")) for t in args.sizes.split(",")]

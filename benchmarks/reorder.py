@@ -23,13 +23,16 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-if "--package-root" in sys.argv:  # benchmark another checkout's foveawarp (e.g. the one before a change)
-    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
+from benchmarks._masks import bench_masks  # noqa: E402
+
+if "--package-root" in sys.argv:  # time another checkout's foveawarp (e.g. the one before a change)
+    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 
 STRATS = ["rows", "rows+balance", "scan", "tile"]
 
@@ -55,8 +58,6 @@ def foveated_mask(w, h, rate, rng, gaze=None):
 def overhead(args):
     """Issue 14: compaction cost per strategy on sparse and mostly-filled masks, per kernel."""
     import foveawarp as fw
-    from benchmarks._kernel_timing import graph_time, kernel_times
-    from benchmarks._masks import bench_masks
     from foveawarp.stages.reorder import ReorderStage
 
     wp.config.quiet = True
