@@ -11,6 +11,8 @@ Cost is paid at the non-seed pixels only. A seed is its own nearest seed in ever
   ping-pong buffer, and a seed pixel's pass reads its mask byte and stops;
 * the seed entries of the result buffer are written once, by the first pass (``final``), and never again;
   the other buffer's seed entries are never written nor read;
+* a non-seed pixel whose current seed is at squared distance 1 reads no tap (nothing can be strictly
+  nearer: that would be the pixel itself);
 * the first pass takes its candidates from the mask alone (it is the old "init" pass fused with step 1 of
   the schedule: a non-seed candidate has no seed yet);
 * the last pass also writes the squared nearest-seed radius and the Voronoi color (the finite color of the
@@ -67,7 +69,9 @@ def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i),
         best = src[y, x]
         if best[0] >= 0:
             best_d = seed_dist2(x, y, best)
-    if step > 0:
+    # a non-seed pixel at squared distance 1 from its seed is final: only a seed at distance 0 (itself) is
+    # strictly nearer, so its taps are skipped
+    if step > 0 and best_d > 1:
         for j in range(3):
             yy = y + (j - 1) * step
             if yy >= 0 and yy < h:
