@@ -31,17 +31,21 @@ def rows_compact_kernel(mask: wp.array2d(dtype=wp.uint8), coords: wp.array2d(dty
     seg = (w + wp.block_dim() - 1) // wp.block_dim()
     x0 = wp.min(lane * seg, w)
     x1 = wp.min(x0 + seg, w)
+    # a block of one thread (the CPU) writes while it counts: one walk
+    alone = wp.block_dim() == 1
     c = int(0)
-    for x in range(x0, x1):
-        if mask[y, x] != wp.uint8(0):
-            c += 1
-    o = wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
-    tot = wp.tile_sum(wp.tile(c))
-    if c > 0:
+    if not alone:
+        for x in range(x0, x1):
+            if mask[y, x] != wp.uint8(0):
+                c += 1
+    start = wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
+    o = start
+    if alone or c > 0:
         for x in range(x0, x1):
             if mask[y, x] != wp.uint8(0):
                 coords[y, o] = wp.vec2i(x, y)
                 o += 1
+    tot = wp.tile_sum(wp.tile(o - start))
     if lane == 0:
         counts[y] = tot[0]
 
@@ -85,56 +89,48 @@ def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int,
 
     Output order: ``tile`` 0: raster (position g is pixel g); else tiles in the order ``tile_order`` (row-major
     tile indices), raster order inside a tile, positions that fall outside the image (partial edge tiles)
-    skipped. The position is advanced incrementally (one division per run, not per pixel)."""
+    skipped. The run is walked as row segments (a plain loop over x each), one division per run."""
     h = mask.shape[0]
     w = mask.shape[1]
     c = int(0)
+    remaining = wp.min(per_thread, n - g0)
     if tile == 0:
         y = g0 // w
         x = g0 - y * w
-        for k in range(per_thread):
-            if g0 + k < n:
-                if mask[y, x] != wp.uint8(0):
+        while remaining > 0:
+            seg = wp.min(w - x, remaining)
+            for xx in range(x, x + seg):
+                if mask[y, xx] != wp.uint8(0):
                     if write != 0:
-                        work[o + c] = y * w + x
+                        work[o + c] = y * w + xx
                     c += 1
-                x += 1
-                if x == w:
-                    x = 0
-                    y += 1
+            remaining -= seg
+            x = 0
+            y += 1
         return c
     tt = tile * tile
     r = g0 // tt
     l = g0 - r * tt
     j = l // tile
     i = l - j * tile
-    t = int(0)
-    if g0 < n:
+    while remaining > 0:
         t = tile_order[r]
-    ty = t // tiles_x
-    bx = (t - ty * tiles_x) * tile
-    by = ty * tile
-    for k in range(per_thread):
-        if g0 + k < n:
-            x = bx + i
-            y = by + j
-            if x < w and y < h:
+        ty = t // tiles_x
+        seg = wp.min(tile - i, remaining)
+        y = ty * tile + j
+        if y < h:
+            x0 = (t - ty * tiles_x) * tile + i
+            for x in range(x0, wp.min(x0 + seg, w)):
                 if mask[y, x] != wp.uint8(0):
                     if write != 0:
                         work[o + c] = y * w + x
                     c += 1
-            i += 1
-            if i == tile:
-                i = 0
-                j += 1
-                if j == tile:
-                    j = 0
-                    r += 1
-                    if g0 + k + 1 < n:
-                        t = tile_order[r]
-                        ty = t // tiles_x
-                        bx = (t - ty * tiles_x) * tile
-                        by = ty * tile
+        remaining -= seg
+        i = 0
+        j += 1
+        if j == tile:
+            j = 0
+            r += 1
     return c
 
 
@@ -185,7 +181,11 @@ def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.arra
     h = mask.shape[0]
     w = mask.shape[1]
     g0 = (blk * wp.block_dim() + lane) * per_thread
-    c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
+    # a block of one thread (the CPU) knows its offset already: one walk that writes, no recount
+    alone = wp.block_dim() == 1
+    c = int(0)
+    if not alone:
+        c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
     o = block_offsets[blk] + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
-    if c > 0:
+    if alone or c > 0:
         walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)
