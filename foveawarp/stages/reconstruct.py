@@ -2,10 +2,12 @@
 (ALGORITHMS.md A5-A6). Allocates every buffer in ``__init__``; ``run`` only launches kernels.
 
 Launches of one ``run`` (n = number of JFA steps of the schedule, 5 for the default 1+JFA at block 4):
-pass 1 (init fused with the first step; writes the seeds' entries and zeroes the statistics), passes 2..n-1,
-pass n (tiled: also the nearest-seed radius, per-tile maxima and statistics, or the Voronoi color when Sibson
-is off), then the Sibson gather (seeds: one mask read, their color copied). n + 1 full-image launches in all
-(n with Sibson off), no memset; the work at a seed pixel is a 1-byte mask read per pass plus its color copy.
+pass 1 (init fused with the first step; writes the seeds' entries of the result and zeroes the statistics),
+passes 2..n-1, pass n (tiled: also the nearest-seed radius, the Voronoi color of the non-seed pixels, per-tile
+maxima and statistics; or the Voronoi fill of every pixel when Sibson is off), then the Sibson gather (seeds:
+one mask read, their color copied). n + 1 full-image launches in all (n with Sibson off) and no memset when
+n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-element memsets zero the
+statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
 """
 
 from __future__ import annotations
@@ -194,6 +196,9 @@ class ReconstructStage:
         self._check("seed_mask", seed_mask, wp.uint8)
         mode = 0
         cin, cout = self._dummy3, self._dummy3  # placeholders, never touched in mode 0
+        if color_out is not None and color_in is None:
+            raise ValueError(f"color_in must be given with color_out (a ({self.height}, {self.width}) wp.array of "
+                             f"vec3), got None")
         if color_in is not None:
             self._check("color_in", color_in, wp.vec3)
             cin, cout, mode = color_in, self.voronoi_color, 1
