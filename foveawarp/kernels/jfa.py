@@ -11,8 +11,8 @@ Cost is paid at the non-seed pixels only. A seed is its own nearest seed in ever
   ping-pong buffer, and a seed pixel's pass reads its mask byte and stops;
 * the seed entries of the result buffer are written once, by the first pass (``final``), and never again;
   the other buffer's seed entries are never written nor read;
-* a non-seed pixel whose current seed is at squared distance 1 reads no tap (nothing can be strictly
-  nearer: that would be the pixel itself);
+* a non-seed pixel whose current seed is at squared distance 1 (or 2, once a step-1 pass has run) reads
+  no tap: nothing can be strictly nearer (see :func:`jfa_visit`);
 * the first pass takes its candidates from the mask alone (it is the old "init" pass fused with step 1 of
   the schedule: a non-seed candidate has no seed yet);
 * the last pass also writes the squared nearest-seed radius and the Voronoi color (the finite color of the
@@ -56,11 +56,14 @@ def voronoi_color(color_in: wp.array2d(dtype=wp.vec3), s: wp.vec2i) -> wp.vec3:
 
 @wp.func
 def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i), x: int, y: int, step: int,
-              from_mask: int) -> wp.vec2i:
+              from_mask: int, settled: int) -> wp.vec2i:
     """Nearest seed of the NON-seed pixel (x, y) after one pass of step ``step`` (0: no neighbours).
 
     ``from_mask`` != 0: the first pass (the pixel and its non-seed neighbours have no seed yet, ``src`` is
-    not read); else the current entries come from ``src`` (seeds from the mask)."""
+    not read); else the current entries come from ``src`` (seeds from the mask). A pixel whose current seed
+    is at squared distance <= ``settled`` reads no tap: 1 always (only the pixel itself would be strictly
+    nearer), 2 once a step-1 pass has run (that pass saw every 4-neighbour seed, the only seeds at squared
+    distance 1, so a pixel still at 2 has none)."""
     h = mask.shape[0]
     w = mask.shape[1]
     best = wp.vec2i(NO_SEED, NO_SEED)
@@ -69,9 +72,8 @@ def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i),
         best = src[y, x]
         if best[0] >= 0:
             best_d = seed_dist2(x, y, best)
-    # a non-seed pixel at squared distance 1 from its seed is final: only a seed at distance 0 (itself) is
-    # strictly nearer, so its taps are skipped
-    if step > 0 and best_d > 1:
+    # a settled pixel is final: no seed can be strictly nearer, so its taps are skipped
+    if step > 0 and best_d > settled:
         for j in range(3):
             yy = y + (j - 1) * step
             if yy >= 0 and yy < h:
@@ -98,6 +100,7 @@ def jfa_pass_kernel(
     src: wp.array2d(dtype=wp.vec2i),
     step: int,
     from_mask: int,
+    settled: int,
     final: wp.array2d(dtype=wp.vec2i),
     dst: wp.array2d(dtype=wp.vec2i),
     max_r2: wp.array(dtype=wp.int32),
@@ -116,7 +119,7 @@ def jfa_pass_kernel(
         if from_mask != 0:
             final[y, x] = wp.vec2i(x, y)
         return
-    dst[y, x] = jfa_visit(mask, src, x, y, step, from_mask)
+    dst[y, x] = jfa_visit(mask, src, x, y, step, from_mask, settled)
 
 
 @wp.kernel(enable_backward=False)
@@ -125,6 +128,7 @@ def jfa_last_pass_kernel(
     src: wp.array2d(dtype=wp.vec2i),
     step: int,
     from_mask: int,
+    settled: int,
     color_in: wp.array2d(dtype=wp.vec3),
     color_mode: int,
     nearest: wp.array2d(dtype=wp.vec2i),
@@ -165,7 +169,7 @@ def jfa_last_pass_kernel(
                 if color_mode == 2:
                     color_out[y, x] = finite_or_zero(color_in[y, x])
             else:
-                s = jfa_visit(mask, src, x, y, step, from_mask)
+                s = jfa_visit(mask, src, x, y, step, from_mask, settled)
                 nearest[y, x] = s
                 r2 = int(-1)
                 if s[0] >= 0:

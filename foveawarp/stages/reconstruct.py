@@ -216,14 +216,18 @@ class ReconstructStage:
             self.max_radius.zero_()
             self.unreached.zero_()
         src = self.nearest
+        # squared distance at which a pixel is final before pass i: 2 once a step-1 pass has run, else 1
+        settled = [2 if 1 in steps[:i] else 1 for i in range(n)]
         for i in range(n - 1):
             dst = bufs[(n - 1 - i) % 2]
-            wp.launch(jfa_pass_kernel, dim=dim, inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0],
+            wp.launch(jfa_pass_kernel, dim=dim,
+                      inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
                       outputs=[self.nearest, dst, *self._stats_args()], device=dev)
             src = dst
         wp.launch_tiled(
             jfa_last_pass_kernel, dim=[self._num_tiles],
-            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, cin, mode],
+            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, settled[-1] if n else 1, cin,
+                    mode],
             outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
             block_dim=self._block_dim, device=dev,
         )
