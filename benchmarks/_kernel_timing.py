@@ -3,6 +3,7 @@ synchronized wall time of a call and of its captured CUDA graph's replay."""
 
 from __future__ import annotations
 
+import re
 import statistics
 
 import warp as wp
@@ -14,8 +15,9 @@ CUDA_FILTER = wp.TIMING_KERNEL | wp.TIMING_KERNEL_BUILTIN | wp.TIMING_MEMSET
 
 
 def _short(name: str) -> str:
-    # Warp names kernel activities "forward kernel <key>" (or similar): keep the last word
-    return name.split()[-1] if name else name
+    """"forward kernel jfa_pass_kernel_1a2b3c4d" -> "jfa_pass_kernel" (Warp's activity name, hash dropped)."""
+    last = name.split()[-1] if name else name
+    return re.sub(r"_[0-9a-f]{8}$", "", last)
 
 
 def kernel_times(fn, device, repeats: int, warmup: int) -> dict:
