@@ -9,7 +9,8 @@
   block counts the set pixels of its run of ``per_thread * block_dim`` consecutive positions of the output
   order; (2) ``block_scan_kernel``: one block turns those counts into exclusive offsets and the total
   (``count[0]``); (3) ``compact_scatter_kernel``: every block recounts its run, takes a block-local exclusive
-  prefix sum and writes its flat indices from its offset on. The output order (tile rank, then raster
+  prefix sum and writes its flat indices from its offset on (a block of one thread, the CPU, writes
+  without recounting). The output order (tile rank, then raster
   inside the tile; or raster) is fixed by the positions, so the list is deterministic.
 The compacted count stays on the device (``count[0]``).
 """
