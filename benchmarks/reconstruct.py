@@ -1,12 +1,24 @@
-"""Reconstruction benchmark: JFA variants (time, wrong-distance rate vs SciPy's EDT), bounded vs exact
-Sibson (time, max abs difference), and the stage's per-frame cost (1+JFA with the bounded start + bounded
-Sibson), over seed densities, for uniform random masks and masks with the block-4 guarantee.
+"""Reconstruction benchmark.
+
+``--overhead`` (issue 14): the per-frame cost of the stage as FrameLoop runs it (1+JFA, bounded start, bounded
+Sibson, block 4) on (a) a sparse mask (foveated sampling only, ~25 % seeds) and (b) a mostly-filled mask
+(~95 % seeds, holes clustered like disocclusions), at 1920x1080 and 3840x2160: median synchronized wall time
+of ``run`` (>= 20 repeats after warm-up), median replay time of its captured CUDA graph, and per-kernel GPU
+times from Warp's CUDA activity timing (``wp.timing_begin(cuda_filter=wp.TIMING_KERNEL | ...)``), no host
+sync between the kernels. Writes reconstruct-overhead-<cpu|cuda>.json/.md.
+
+    python benchmarks/reconstruct.py --overhead --device cuda:0
+    python benchmarks/reconstruct.py --overhead --device cpu --sizes 320x180
+
+Without ``--overhead``: the sweep of JFA variants (time, wrong-distance rate vs SciPy's EDT), bounded vs exact
+Sibson (time, max abs difference), and the stage's per-frame cost over seed densities, for uniform random
+masks and masks with the block-4 guarantee.
 
     python benchmarks/reconstruct.py --device cuda:0
     python benchmarks/reconstruct.py --device cpu --quick --out /tmp/bench
 
 Targets (H100): 1+JFA wrong-distance pixels <= 0.01%; JFA + bounded Sibson <= 1.5 ms at 4K;
-bounded Sibson >= 20x faster than exact at 5% seeds.
+bounded Sibson >= 20x faster than exact at 5% seeds. Issue 14: the stage <= 0.35 ms at 4K, <= 0.1 ms at 1080p.
 """
 
 from __future__ import annotations
@@ -21,6 +33,11 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
+from benchmarks._masks import bench_masks  # noqa: E402
+
+if "--package-root" in sys.argv:  # time another checkout's foveawarp (e.g. the one before a change)
+    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 from foveawarp._util import get_device  # noqa: E402
 from foveawarp.config import JFA_VARIANTS, ReconstructionConfig  # noqa: E402
 from foveawarp.stages.reconstruct import (  # noqa: E402
@@ -63,12 +80,67 @@ def nearest_d2(nearest):
     return (nearest[..., 1].astype(np.int64) - yy) ** 2 + (nearest[..., 0].astype(np.int64) - xx) ** 2
 
 
+def overhead(args, dev):
+    """Issue 14: the stage's per-frame cost on sparse and mostly-filled masks, per kernel."""
+
+    if args.sizes:
+        sizes = [tuple(int(v) for v in t.split("x")) for t in args.sizes.split(",")]
+    else:
+        sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
+    repeats = max(args.repeats or 20, 1 if args.quick else 20)
+    warmup = max(args.warmup, 1)
+    rng = np.random.default_rng(0)
+    rows, cases = [], []
+    for w, h in sizes:
+        stage = ReconstructStage(w, h, ReconstructionConfig(), BLOCK, dev)  # the FrameLoop default
+        color_in = wp.array(rng.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=dev)
+        out = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        for name, m in bench_masks(w, h, rng, BLOCK):
+            mask = wp.array(m, dtype=wp.uint8, device=dev)
+            run = lambda: stage.run(color_in, mask, out)  # noqa: E731
+            wall = time_ms(run, dev, repeats, warmup)
+            g = graph_time(run, dev, repeats, warmup)
+            k = kernel_times(run, dev, repeats, warmup)
+            rec = {"width": w, "height": h, "mask": name, "seeds_pct": 100.0 * float(m.mean()),
+                   "jfa_steps": list(stage.steps), "run_ms": wall["median_ms"], "run_p10_ms": wall["p10_ms"],
+                   "run_p90_ms": wall["p90_ms"], "graph_ms": g["graph_ms"], "graph_error": g["error"],
+                   "gpu_ms": None if k is None else k["gpu_ms"], "launches": None if k is None else k["launches"],
+                   "kernels": None if k is None else k["kernels"]}
+            cases.append(rec)
+            rows.append({"size": f"{w}x{h}", "mask": name, "seeds %": rec["seeds_pct"], "run ms": rec["run_ms"],
+                         "graph ms": "n/a" if g["graph_ms"] is None else g["graph_ms"],
+                         "GPU kernels ms": "n/a" if k is None else k["gpu_ms"],
+                         "launches": "n/a" if k is None else k["launches"],
+                         "per kernel (ms, launches)": "n/a (CPU)" if k is None else "; ".join(
+                             f"{n} {v['median_ms']:.4f} x{v['launches']:g}" for n, v in k["kernels"].items())})
+            print(rows[-1], flush=True)
+            if g["error"] and dev.is_cuda:
+                print(f"graph capture failed: {g['error']}", flush=True)
+    table = (f"## ReconstructStage.run, default config (1+JFA, bounded start, bounded Sibson, block {BLOCK}); "
+             f"device {dev.alias}; medians of {repeats}\n\n"
+             + md_table(rows, ["size", "mask", "seeds %", "run ms", "graph ms", "GPU kernels ms", "launches",
+                               "per kernel (ms, launches)"]))
+    print(table)
+    path = write_results("reconstruct-overhead", dev, {"block": BLOCK, "repeats": repeats, "cases": cases,
+                                                       "note": ("run ms: synchronized wall time of one run; "
+                                                                "graph ms: replay of its captured CUDA graph; "
+                                                                "GPU kernels ms: sum of the kernels' CUDA "
+                                                                "activity times")}, table, out=args.out)
+    print(f"wrote {path}")
+
+
 def main(argv=None):
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--no-edt-4k", action="store_true", help="skip the SciPy EDT (wrong-pixel rates) at 4K")
     p.add_argument("--no-exact", action="store_true", help="skip the exact (scatter) Sibson")
+    p.add_argument("--overhead", action="store_true", help="issue 14: per-kernel cost on sparse / filled masks")
+    p.add_argument("--sizes", default=None, help="--overhead sizes, e.g. 1920x1080,3840x2160")
+    p.add_argument("--package-root", default=None, help="import foveawarp from this checkout instead")
     args = p.parse_args(argv)
     dev = get_device(args.device)
+    if args.overhead:
+        overhead(args, dev)
+        return
     sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
     densities = [0.01, 0.05, 0.10, 0.30]
     repeats = args.repeats or (3 if args.quick else 20)

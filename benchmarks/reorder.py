@@ -1,8 +1,17 @@
 """Reordered versus unreordered tracing of the sampled pixels (thesis A3).
 
-For each scene, resolution, mask (foveated or scattered random, ~10 / 30 / 50 % sampling) and shading cost
-(light: direct light with shadow rays; heavy: + 8 ambient-occlusion rays), the median ms of:
-full-resolution shading, "none" (every pixel launched, unsampled threads exit), and each strategy
+``--overhead`` (issue 14): the compaction alone, per strategy ("tile" (FrameLoop's default), "scan", "rows",
+"rows+balance"), on (a) a sparse foveated sample mask (~25 %) and (b) a mostly-filled mask (~95 %), at
+1920x1080 and 3840x2160: median synchronized wall time of ``ReorderStage.run`` (>= 20 repeats after warm-up),
+median replay of its captured CUDA graph, per-kernel GPU times from Warp's CUDA activity timing. No scene
+needed. Writes reorder-overhead-<cpu|cuda>.json/.md.
+
+    python benchmarks/reorder.py --overhead --device cuda:0
+    python benchmarks/reorder.py --overhead --device cpu --sizes 320x180
+
+Without ``--overhead``: for each scene, resolution, mask (foveated or scattered random, ~10 / 30 / 50 %
+sampling) and shading cost (light: direct light with shadow rays; heavy: + 8 ambient-occlusion rays), the
+median ms of: full-resolution shading, "none" (every pixel launched, unsampled threads exit), and each strategy
 (compaction + tracing, and each part alone). Ratios to full and to "none"; "ideal" = rate x full.
 
 python benchmarks/reorder.py --device cuda:0
@@ -19,6 +28,11 @@ import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
+from benchmarks._masks import bench_masks  # noqa: E402
+
+if "--package-root" in sys.argv:  # time another checkout's foveawarp (e.g. the one before a change)
+    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
 
 STRATS = ["rows", "rows+balance", "scan", "tile"]
 
@@ -41,11 +55,67 @@ def foveated_mask(w, h, rate, rng, gaze=None):
     return (rng.random((h, w)) < p).astype(np.uint8)
 
 
+def overhead(args):
+    """Issue 14: compaction cost per strategy on sparse and mostly-filled masks, per kernel."""
+    import foveawarp as fw
+    from foveawarp.stages.reorder import ReorderStage
+
+    wp.config.quiet = True
+    wp.init()
+    dev = wp.get_device(args.device)
+    if args.sizes:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    else:
+        sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
+    repeats = max(args.repeats or 20, 20)
+    warmup = max(args.warmup, 1)
+    rng = np.random.default_rng(1)
+    rows, cases = [], []
+    for w, h in sizes:
+        for name, m in bench_masks(w, h, rng):
+            mask = wp.array(m, dtype=wp.uint8, device=dev)
+            for s in STRATS:
+                stage = ReorderStage(w, h, fw.ReorderConfig(strategy=s), dev)
+                run = lambda: stage.run(mask)  # noqa: E731
+                wall = time_ms(run, dev, repeats, warmup)
+                g = graph_time(run, dev, repeats, warmup)
+                k = kernel_times(run, dev, repeats, warmup)
+                rec = {"width": w, "height": h, "mask": name, "rate": float(m.mean()), "strategy": s,
+                       "run_ms": wall["median_ms"], "run_p10_ms": wall["p10_ms"], "run_p90_ms": wall["p90_ms"],
+                       "graph_ms": g["graph_ms"], "graph_error": g["error"],
+                       "gpu_ms": None if k is None else k["gpu_ms"],
+                       "launches": None if k is None else k["launches"],
+                       "kernels": None if k is None else k["kernels"]}
+                cases.append(rec)
+                rows.append({"size": f"{w}x{h}", "mask": name, "rate": rec["rate"], "strategy": s,
+                             "run ms": rec["run_ms"], "graph ms": "n/a" if g["graph_ms"] is None else g["graph_ms"],
+                             "GPU kernels ms": "n/a" if k is None else k["gpu_ms"],
+                             "launches": "n/a" if k is None else k["launches"],
+                             "per kernel (ms, launches)": "n/a (CPU)" if k is None else "; ".join(
+                                 f"{n} {v['median_ms']:.4f} x{v['launches']:g}" for n, v in k["kernels"].items())})
+                print(rows[-1], flush=True)
+                if g["error"] and dev.is_cuda:
+                    print(f"graph capture failed: {g['error']}", flush=True)
+    table = (f"## ReorderStage.run (compaction only); device {dev.alias}; medians of {repeats}\n\n"
+             + md_table(rows, ["size", "mask", "rate", "strategy", "run ms", "graph ms", "GPU kernels ms",
+                               "launches", "per kernel (ms, launches)"]))
+    print(table)
+    path = write_results("reorder-overhead", dev, {"repeats": repeats, "cases": cases, "note": (
+        "run ms: synchronized wall time of one run; graph ms: replay of its captured CUDA graph; GPU kernels "
+        "ms: sum of the kernels' CUDA activity times")}, table, args.out)
+    print(f"wrote {path}")
+
+
 def main():
     p = base_parser(__doc__)
     p.add_argument("--scenes", default="cornell,city,bunny")
     p.add_argument("--sizes", default=None, help="e.g. 1920x1080,3840x2160")
+    p.add_argument("--overhead", action="store_true", help="issue 14: compaction cost per kernel, no tracing")
+    p.add_argument("--package-root", default=None, help="import foveawarp from this checkout instead")
     args = p.parse_args()
+    if args.overhead:
+        overhead(args)
+        return
     import foveawarp as fw
     from foveawarp.kernels.shade import shade_rows_kernel
     from foveawarp.stages.reorder import ReorderStage

@@ -118,3 +118,73 @@ def test_bad_arguments():
         fw.ops.compact(np.ones(4))
     with pytest.raises(ValueError, match="balance_rows"):
         fw.ops.reorder_rows(np.ones((4, 4)), balance_rows=-1)
+
+
+# -- issue 14: count + one-block scan + scatter, block-local prefix sums --------------------------------------
+
+
+def filled_mask(h, w, rng):
+    """~95 % set, a few clustered holes (what the temporal fill leaves), plus sparse samples inside them."""
+    m = np.ones((h, w), bool)
+    for _ in range(5):
+        y, x = rng.integers(h), rng.integers(w)
+        m[max(0, y - 3):y + 4, max(0, x - 6):x + 7] = False
+    return m | (rng.random((h, w)) < 0.1)
+
+
+@pytest.mark.parametrize("tile", [2, 4, 8, 16, 64])
+@pytest.mark.parametrize("shape", [(45, 67), (130, 70), (1, 300), (300, 1), (64, 64)])
+def test_compact_many_blocks_and_partial_tiles(tile, shape, device, rng):
+    """Images larger than a compaction block (256 x 4 positions on CUDA, 256 on the CPU) and tiles that do
+    not divide the image: exactly the reference order."""
+    h, w = shape
+    for m in (filled_mask(h, w, rng), rng.random((h, w)) < 0.3, np.ones((h, w), bool), np.zeros((h, w), bool)):
+        np.testing.assert_array_equal(fw.ops.compact(m, order="tile", tile=tile, device=device),
+                                      tile_order_ref(m, tile))
+    np.testing.assert_array_equal(fw.ops.compact(m, order="row", device=device), np.flatnonzero(m))
+
+
+def test_stage_reuse_and_strategy_switch(device, rng):
+    """One stage, masks that change every frame and strategies switched per call (the frame loop compacts a
+    "scan" list after a "rows" one): every result equals the reference; the count is exact each time."""
+    h, w = 70, 90
+    st_ = ReorderStage(w, h, fw.ReorderConfig(strategy="tile", tile=8), device)
+    for i, m in enumerate([filled_mask(h, w, rng), rng.random((h, w)) < 0.05, np.zeros((h, w), bool),
+                           np.ones((h, w), bool), rng.random((h, w)) < 0.5]):
+        mk = wp.array(m.astype(np.uint8), dtype=wp.uint8, device=device)
+        for s in ("tile", "scan", "rows", "rows+balance", "tile"):
+            st_.run(mk, strategy=s)
+            if s in ("tile", "scan"):
+                n = int(st_.count.numpy()[0])
+                ref = tile_order_ref(m, 8) if s == "tile" else np.flatnonzero(m)
+                np.testing.assert_array_equal(st_.work.numpy()[:n], ref)
+            else:
+                counts = st_.counts.numpy()
+                ref = rows_ref(m)
+                if s == "rows+balance":
+                    ref = balance_ref(ref, st_.config.balance_rows)
+                np.testing.assert_array_equal(counts, [len(r) for r in ref])
+                coords = st_.coords.numpy()
+                for y, r in enumerate(ref):
+                    np.testing.assert_array_equal(coords[y, :len(r)], np.array(r, np.int32).reshape(-1, 2))
+
+
+@settings(max_examples=50, deadline=None)
+@given(arrays(np.bool_, st.tuples(st.integers(1, 40), st.integers(1, 40))),
+       st.sampled_from([2, 4, 8, 16, 32, 64]), st.sampled_from(["random", "filled", "empty", "full"]))
+def test_compaction_exact_order_properties(mask, tile, kind):
+    h, w = mask.shape
+    if kind == "filled":
+        mask = mask | (np.add.outer(np.arange(h), np.arange(w)) % 7 != 0)
+    elif kind == "empty":
+        mask = np.zeros_like(mask)
+    elif kind == "full":
+        mask = np.ones_like(mask)
+    np.testing.assert_array_equal(fw.ops.compact(mask, order="tile", tile=tile, device="cpu"),
+                                  tile_order_ref(mask, tile))
+    np.testing.assert_array_equal(fw.ops.compact(mask, order="row", device="cpu"), np.flatnonzero(mask))
+    coords, counts = fw.ops.reorder_rows(mask, device="cpu")
+    np.testing.assert_array_equal(counts, mask.sum(axis=1))
+    for y in range(h):
+        np.testing.assert_array_equal(coords[y, :counts[y], 0], np.flatnonzero(mask[y]))
+        assert np.all(coords[y, :counts[y], 1] == y)

@@ -745,6 +745,13 @@ arg("stages", "ReconstructStage.run_interpolate", lambda **kw: _recon().run_inte
     [(_warr((H, W), wp.vec2), "vec2f")])
 arg("stages", "ReconstructStage.run_jfa", lambda **kw: _recon().run_jfa(**kw), {}, "seed_mask",
     f"({H}, {W}) wp.array of uint8", [(np.ones((H, W)), "ndarray"), (_warr((H, W), wp.float32), "float32")])
+for n in ("color_in", "color_out"):  # the optional Voronoi outputs of the last JFA pass
+    arg("stages", "ReconstructStage.run_jfa", lambda **kw: _recon().run_jfa(**kw),
+        {"seed_mask": _warr((H, W), wp.uint8), "color_in": _warr((H, W), wp.vec3)}, n, f"({H}, {W}) wp.array",
+        [(np.zeros((H, W, 3)), "ndarray"), (_warr((2, 2), wp.vec3), "(2, 2)"), (_warr((H, W), wp.vec2), "vec2f")])
+arg("stages", "ReconstructStage.run_jfa", lambda **kw: _recon().run_jfa(**kw),
+    {"seed_mask": _warr((H, W), wp.uint8), "color_out": _warr((H, W), wp.vec3)}, "color_in", f"({H}, {W}) wp.array",
+    [(None, "None")])
 
 
 def _indirect_ctor(**kw):

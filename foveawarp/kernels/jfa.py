@@ -4,11 +4,31 @@ Buffers hold ``wp.vec2i(x, y)`` of the nearest seed found so far, ``(-1, -1)`` f
 Euclidean between pixel centres, compared as exact squared integers. One pass reads 9 pixels at offsets
 ``{-k, 0, k}^2`` and keeps the nearest seed seen; a candidate replaces the current one only when strictly
 nearer, so the result is deterministic and a seed always keeps itself.
+
+Cost is paid at the non-seed pixels only. A seed is its own nearest seed in every pass, so:
+
+* a candidate pixel that is a seed is read from the mask (1 byte) as the seed itself, never from the
+  ping-pong buffer, and a seed pixel's pass reads its mask byte and stops;
+* the seed entries of the result buffer are written once, by the first pass (``final``), and never again;
+  the other buffer's seed entries are never written nor read;
+* a non-seed pixel whose current seed is at squared distance 1 (or 2, once a step-1 pass has run) reads
+  no tap: nothing can be strictly nearer (see :func:`jfa_visit`);
+* the first pass takes its candidates from the mask alone (it is the old "init" pass fused with step 1 of
+  the schedule: a non-seed candidate has no seed yet);
+* the last pass also writes the squared nearest-seed radius and the Voronoi color (the finite color of the
+  nearest seed) of every non-seed pixel, and reduces, per
+  ``RTILE`` x ``RTILE`` screen tile, the largest radius (``tile_r2``, no atomics) and the count of pixels
+  without a seed; one atomic per tile folds them into the image maxima / count.
+
+Every pixel takes exactly the candidates, in exactly the order, of the plain ping-pong JFA (init pass, then
+one pass per step), so the results are identical to it.
 """
 
 import warp as wp
 
 NO_SEED = wp.constant(-1)
+INT_MAX = wp.constant(2147483647)
+RTILE = wp.constant(16)  # edge of the screen tiles of the radius reduction (RTILE^2 = 256 = the CUDA block)
 
 
 @wp.func
@@ -19,36 +39,241 @@ def seed_dist2(x: int, y: int, s: wp.vec2i) -> int:
     return dx * dx + dy * dy
 
 
+@wp.func
+def finite_or_zero(c: wp.vec3) -> wp.vec3:
+    if wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.isfinite(c[2]):
+        return c
+    return wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.func
+def voronoi_color(color_in: wp.array2d(dtype=wp.vec3), s: wp.vec2i) -> wp.vec3:
+    """Finite color of seed ``s`` (0 for no seed, or for a seed whose color is not finite)."""
+    if s[0] < 0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    return finite_or_zero(color_in[s[1], s[0]])
+
+
+@wp.func
+def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i), x: int, y: int, step: int,
+              from_mask: int, settled: int) -> wp.vec2i:
+    """Nearest seed of the NON-seed pixel (x, y) after one pass of step ``step`` (0: no neighbours).
+
+    ``from_mask`` != 0: the first pass (the pixel and its non-seed neighbours have no seed yet, ``src`` is
+    not read); else the current entries come from ``src`` (seeds from the mask). A pixel whose current seed
+    is at squared distance <= ``settled`` reads no tap: 1 always (only the pixel itself would be strictly
+    nearer), 2 once a step-1 pass has run (that pass saw every 4-neighbour seed, the only seeds at squared
+    distance 1, so a pixel still at 2 has none)."""
+    h = mask.shape[0]
+    w = mask.shape[1]
+    best = wp.vec2i(NO_SEED, NO_SEED)
+    best_d = int(INT_MAX)
+    if from_mask == 0:
+        best = src[y, x]
+        if best[0] >= 0:
+            best_d = seed_dist2(x, y, best)
+    # a settled pixel is final: no seed can be strictly nearer, so its taps are skipped
+    if step > 0 and best_d > settled:
+        for j in range(3):
+            yy = y + (j - 1) * step
+            if yy >= 0 and yy < h:
+                for i in range(3):
+                    xx = x + (i - 1) * step
+                    if xx >= 0 and xx < w and (i != 1 or j != 1):
+                        # both loads are independent (no load waits on the mask); a seed's src entry may be
+                        # stale and is discarded by the select
+                        s = wp.vec2i(NO_SEED, NO_SEED)
+                        if from_mask == 0:
+                            s = src[yy, xx]
+                        s = wp.where(mask[yy, xx] != wp.uint8(0), wp.vec2i(xx, yy), s)
+                        if s[0] >= 0:
+                            d = seed_dist2(x, y, s)
+                            if d < best_d:
+                                best_d = d
+                                best = s
+    return best
+
+
 @wp.kernel(enable_backward=False)
-def jfa_init_kernel(seed_mask: wp.array2d(dtype=wp.uint8), nearest: wp.array2d(dtype=wp.vec2i)):
-    """Seeds point at themselves, every other pixel at (-1, -1)."""
+def jfa_pass_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    src: wp.array2d(dtype=wp.vec2i),
+    step: int,
+    from_mask: int,
+    settled: int,
+    final: wp.array2d(dtype=wp.vec2i),
+    dst: wp.array2d(dtype=wp.vec2i),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """One pass that is not the last. With ``from_mask`` != 0 (the first pass) it also writes every seed's
+    entry of ``final`` (the buffer the last pass writes) and zeroes the statistics the last pass reduces
+    into (a later launch on the same stream, so no race)."""
     y, x = wp.tid()
-    if seed_mask[y, x] != wp.uint8(0):
-        nearest[y, x] = wp.vec2i(x, y)
+    if from_mask != 0 and x == 0 and y == 0:
+        max_r2[0] = 0
+        max_radius[0] = 0.0
+        unreached[0] = 0
+    if mask[y, x] != wp.uint8(0):
+        if from_mask != 0:
+            final[y, x] = wp.vec2i(x, y)
+        return
+    dst[y, x] = jfa_visit(mask, src, x, y, step, from_mask, settled)
+
+
+@wp.kernel(enable_backward=False)
+def jfa_last_pass_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    src: wp.array2d(dtype=wp.vec2i),
+    step: int,
+    from_mask: int,
+    settled: int,
+    color_in: wp.array2d(dtype=wp.vec3),
+    color_mode: int,
+    nearest: wp.array2d(dtype=wp.vec2i),
+    r2_out: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    color_out: wp.array2d(dtype=wp.vec3),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """The last pass (``step`` 0 when the schedule is empty), tiled: block b covers the RTILE x RTILE screen
+    tile b (row-major over the tile grid); with fewer threads than RTILE^2 (the CPU runs 1) each thread takes
+    every block_dim-th pixel of the tile.
+
+    Writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels (seed entries of
+    ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass), ``tile_r2`` (the tile's
+    largest r2, 0 when none) and, by ``color_mode``: 1: the Voronoi color (finite color of the nearest seed,
+    0 without one) of the non-seed pixels to ``color_out`` (the gather's ``vor`` buffer); 2: the Voronoi
+    color of every pixel (seeds: their own) to ``color_out`` (the Voronoi fill); 0: no color.
+    ``max_r2`` / ``max_radius`` / ``unreached`` must be zero before the launch."""
+    blk, lane = wp.tid()
+    h = mask.shape[0]
+    w = mask.shape[1]
+    tiles_x = tile_r2.shape[1]
+    ty = blk // tiles_x
+    tx = blk - ty * tiles_x
+    bd = wp.block_dim()
+    r2max = int(0)
+    missing = int(0)
+    for k in range(lane, RTILE * RTILE, bd):
+        ly = k // RTILE
+        y = ty * RTILE + ly
+        x = tx * RTILE + (k - ly * RTILE)
+        if y < h and x < w:
+            if mask[y, x] != wp.uint8(0):
+                if from_mask != 0:
+                    nearest[y, x] = wp.vec2i(x, y)
+                if color_mode == 2:
+                    color_out[y, x] = finite_or_zero(color_in[y, x])
+            else:
+                s = jfa_visit(mask, src, x, y, step, from_mask, settled)
+                nearest[y, x] = s
+                r2 = int(-1)
+                if s[0] >= 0:
+                    r2 = seed_dist2(x, y, s)
+                    r2max = wp.max(r2max, r2)
+                else:
+                    missing += 1
+                r2_out[y, x] = r2
+                if color_mode != 0:
+                    color_out[y, x] = voronoi_color(color_in, s)
+    # cooperative block reductions: every thread of the block reaches them
+    tmax = wp.tile_max(wp.tile(r2max))
+    tmiss = wp.tile_sum(wp.tile(missing))
+    if lane == 0:
+        m = tmax[0]
+        tile_r2[ty, tx] = m
+        if m > 0:
+            wp.atomic_max(max_r2, 0, m)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+        if tmiss[0] > 0:
+            wp.atomic_add(unreached, 0, tmiss[0])
+
+
+@wp.kernel(enable_backward=False)
+def voronoi_from_nearest_kernel(
+    given: wp.array2d(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
+    seeds: wp.array2d(dtype=wp.uint8),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    r2_out: wp.array2d(dtype=wp.int32),
+    vor: wp.array2d(dtype=wp.vec3),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """What :func:`jfa_last_pass_kernel` leaves behind, from a given nearest map instead of JFA (the ops'
+    ``nearest=`` argument): ``nearest`` = ``given``, ``seeds`` = the pixels that are their own nearest seed,
+    ``r2_out`` and ``vor`` (color mode 1) at the other pixels, ``tile_r2`` and the statistics (zeroed before
+    the launch). Same tiling."""
+    blk, lane = wp.tid()
+    h = given.shape[0]
+    w = given.shape[1]
+    tiles_x = tile_r2.shape[1]
+    ty = blk // tiles_x
+    tx = blk - ty * tiles_x
+    bd = wp.block_dim()
+    r2max = int(0)
+    missing = int(0)
+    for k in range(lane, RTILE * RTILE, bd):
+        ly = k // RTILE
+        y = ty * RTILE + ly
+        x = tx * RTILE + (k - ly * RTILE)
+        if y < h and x < w:
+            s = given[y, x]
+            nearest[y, x] = s
+            if s[0] == x and s[1] == y:
+                seeds[y, x] = wp.uint8(1)
+            else:
+                seeds[y, x] = wp.uint8(0)
+                r2 = int(-1)
+                if s[0] >= 0:
+                    r2 = seed_dist2(x, y, s)
+                    r2max = wp.max(r2max, r2)
+                else:
+                    missing += 1
+                r2_out[y, x] = r2
+                vor[y, x] = voronoi_color(color_in, s)
+    tmax = wp.tile_max(wp.tile(r2max))
+    tmiss = wp.tile_sum(wp.tile(missing))
+    if lane == 0:
+        m = tmax[0]
+        tile_r2[ty, tx] = m
+        if m > 0:
+            wp.atomic_max(max_r2, 0, m)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+        if tmiss[0] > 0:
+            wp.atomic_add(unreached, 0, tmiss[0])
+
+
+@wp.kernel(enable_backward=False)
+def voronoi_fill_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
+    color_out: wp.array2d(dtype=wp.vec3),
+):
+    """Voronoi (nearest-seed) color of every pixel; seeds keep their own (finite) color."""
+    y, x = wp.tid()
+    if mask[y, x] != wp.uint8(0):
+        color_out[y, x] = finite_or_zero(color_in[y, x])
     else:
-        nearest[y, x] = wp.vec2i(NO_SEED, NO_SEED)
+        color_out[y, x] = voronoi_color(color_in, nearest[y, x])
 
 
 @wp.kernel(enable_backward=False)
-def jfa_step_kernel(src: wp.array2d(dtype=wp.vec2i), step: int, dst: wp.array2d(dtype=wp.vec2i)):
-    """One jump-flooding pass with step ``step`` pixels (>= 1): ``dst`` = nearest of the 9 candidates."""
+def voronoi_color_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
+    vor: wp.array2d(dtype=wp.vec3),
+):
+    """Voronoi color (color mode 1 of :func:`jfa_last_pass_kernel`) of the non-seed pixels, for a
+    ``run_interpolate`` whose colors the last pass did not see."""
     y, x = wp.tid()
-    h = src.shape[0]
-    w = src.shape[1]
-    best = src[y, x]
-    best_d = int(2147483647)
-    if best[0] >= 0:
-        best_d = seed_dist2(x, y, best)
-    for j in range(3):
-        yy = y + (j - 1) * step
-        if yy >= 0 and yy < h:
-            for i in range(3):
-                xx = x + (i - 1) * step
-                if xx >= 0 and xx < w and (i != 1 or j != 1):
-                    s = src[yy, xx]
-                    if s[0] >= 0:
-                        d = seed_dist2(x, y, s)
-                        if d < best_d:
-                            best_d = d
-                            best = s
-    dst[y, x] = best
+    if mask[y, x] == wp.uint8(0):
+        vor[y, x] = voronoi_color(color_in, nearest[y, x])

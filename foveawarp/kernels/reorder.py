@@ -1,15 +1,21 @@
 """Work compaction and reordering of the sampled pixels (thesis A3).
 
-- row CSR (strategy 1): each row's sampled pixels packed to the left of a same-size coordinate buffer;
+- row CSR (strategy 1): each row's sampled pixels packed to the left of a same-size coordinate buffer; one
+  thread block per row, each thread a contiguous segment, placed by a block-local prefix sum;
 - block balancing (strategy 2): within a block of rows, the last entry of the longest row moves to the end of
   the shortest row until the lengths differ by at most one;
-- global stream compaction: flags -> exclusive scan -> scatter of flat indices (raster order), or the same over
-  screen tiles taken in Morton order so that a warp's rays are neighbours.
+- global stream compaction, in raster order or over screen tiles taken in Morton order (so that a warp's
+  rays are neighbours): three launches, no temporary buffers: (1) ``compact_count_kernel``: every thread
+  block counts the set pixels of its run of ``per_thread * block_dim`` consecutive positions of the output
+  order; (2) ``block_scan_kernel``: one block turns those counts into exclusive offsets and the total
+  (``count[0]``); (3) ``compact_scatter_kernel``: every block recounts its run, takes a block-local exclusive
+  prefix sum and writes its flat indices from its offset on (a block of one thread, the CPU, writes
+  without recounting). The output order (tile rank, then raster
+  inside the tile; or raster) is fixed by the positions, so the list is deterministic.
 The compacted count stays on the device (``count[0]``).
 """
 
 import warp as wp
-
 
 # ---------------------------------------------------------------------------------------------------
 # strategy 1 / 2: row CSR
@@ -18,15 +24,31 @@ import warp as wp
 @wp.kernel(enable_backward=False)
 def rows_compact_kernel(mask: wp.array2d(dtype=wp.uint8), coords: wp.array2d(dtype=wp.vec2i),
                         counts: wp.array(dtype=wp.int32)):
-    """One thread per row: sampled (x, y) to the left of coords[y], count to counts[y] (thesis strategy 1)."""
-    y = wp.tid()
+    """Tiled, one block per row (thesis strategy 1): sampled (x, y) to the left of coords[y], in raster order,
+    count to counts[y]. Thread i takes a contiguous segment of ceil(W / block_dim) pixels; one block-local
+    exclusive prefix sum of the segment counts places every segment."""
+    y, lane = wp.tid()
     w = mask.shape[1]
-    n = int(0)
-    for x in range(w):
-        if mask[y, x] != wp.uint8(0):
-            coords[y, n] = wp.vec2i(x, y)
-            n += 1
-    counts[y] = n
+    seg = (w + wp.block_dim() - 1) // wp.block_dim()
+    x0 = wp.min(lane * seg, w)
+    x1 = wp.min(x0 + seg, w)
+    # a block of one thread (the CPU) writes while it counts: one walk
+    alone = wp.block_dim() == 1
+    c = int(0)
+    if not alone:
+        for x in range(x0, x1):
+            if mask[y, x] != wp.uint8(0):
+                c += 1
+    start = wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
+    o = start
+    if alone or c > 0:
+        for x in range(x0, x1):
+            if mask[y, x] != wp.uint8(0):
+                coords[y, o] = wp.vec2i(x, y)
+                o += 1
+    tot = wp.tile_sum(wp.tile(o - start))
+    if lane == 0:
+        counts[y] = tot[0]
 
 
 @wp.kernel(enable_backward=False)
@@ -60,72 +82,111 @@ def rows_balance_kernel(coords: wp.array2d(dtype=wp.vec2i), counts: wp.array(dty
 # global stream compaction
 
 
-@wp.kernel(enable_backward=False)
-def flags_kernel(mask: wp.array2d(dtype=wp.uint8), flags: wp.array(dtype=wp.int32)):
-    y, x = wp.tid()
-    v = int(0)
-    if mask[y, x] != wp.uint8(0):
-        v = 1
-    flags[y * mask.shape[1] + x] = v
+@wp.func
+def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int, tile: int, tiles_x: int,
+             tile_order: wp.array(dtype=wp.int32), write: int, o: int, work: wp.array(dtype=wp.int32)) -> int:
+    """Visit positions g0, g0 + 1, ... (``per_thread`` of them, below ``n``) of the output order and count
+    the set pixels; with ``write`` != 0 also store their flat indices y * W + x at ``work[o]``, ``work[o + 1]``...
 
-
-@wp.kernel(enable_backward=False)
-def scatter_kernel(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
-                   work: wp.array(dtype=wp.int32)):
-    i = wp.tid()
-    if flags[i] != 0:
-        work[offsets[i]] = i
-
-
-@wp.kernel(enable_backward=False)
-def total_kernel(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
-                 count: wp.array(dtype=wp.int32)):
-    n = flags.shape[0]
-    if n == 0:
-        count[0] = 0
-    else:
-        count[0] = offsets[n - 1] + flags[n - 1]
-
-
-@wp.kernel(enable_backward=False)
-def tile_count_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
-                      tiles_x: int, tile_counts: wp.array(dtype=wp.int32)):
-    """One thread per tile, taken in Morton rank order: number of sampled pixels in the tile."""
-    r = wp.tid()
-    t = tile_order[r]
-    ty = t // tiles_x
-    tx = t - ty * tiles_x
+    Output order: ``tile`` 0: raster (position g is pixel g); else tiles in the order ``tile_order`` (row-major
+    tile indices), raster order inside a tile, positions that fall outside the image (partial edge tiles)
+    skipped. The run is walked as row segments (a plain loop over x each), one division per run."""
     h = mask.shape[0]
     w = mask.shape[1]
-    n = int(0)
-    for j in range(tile):
+    c = int(0)
+    remaining = wp.min(per_thread, n - g0)
+    if tile == 0:
+        y = g0 // w
+        x = g0 - y * w
+        while remaining > 0:
+            seg = wp.min(w - x, remaining)
+            for xx in range(x, x + seg):
+                if mask[y, xx] != wp.uint8(0):
+                    if write != 0:
+                        work[o + c] = y * w + xx
+                    c += 1
+            remaining -= seg
+            x = 0
+            y += 1
+        return c
+    tt = tile * tile
+    r = g0 // tt
+    l = g0 - r * tt
+    j = l // tile
+    i = l - j * tile
+    while remaining > 0:
+        t = tile_order[r]
+        ty = t // tiles_x
+        seg = wp.min(tile - i, remaining)
         y = ty * tile + j
         if y < h:
-            for i in range(tile):
-                x = tx * tile + i
-                if x < w:
-                    if mask[y, x] != wp.uint8(0):
-                        n += 1
-    tile_counts[r] = n
+            x0 = (t - ty * tiles_x) * tile + i
+            for x in range(x0, wp.min(x0 + seg, w)):
+                if mask[y, x] != wp.uint8(0):
+                    if write != 0:
+                        work[o + c] = y * w + x
+                    c += 1
+        remaining -= seg
+        i = 0
+        j += 1
+        if j == tile:
+            j = 0
+            r += 1
+    return c
 
 
 @wp.kernel(enable_backward=False)
-def tile_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
-                        tiles_x: int, tile_offsets: wp.array(dtype=wp.int32), work: wp.array(dtype=wp.int32)):
-    """One thread per tile: write the tile's sampled flat indices (raster order inside the tile) at its offset."""
-    r = wp.tid()
-    t = tile_order[r]
-    ty = t // tiles_x
-    tx = t - ty * tiles_x
+def compact_count_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
+                         tiles_x: int, n: int, per_thread: int, block_counts: wp.array(dtype=wp.int32)):
+    """Tiled: block b counts the set pixels of positions [b * m, (b + 1) * m) of the output order
+    (m = block_dim * ``per_thread``; ``n`` positions in all)."""
+    blk, lane = wp.tid()
+    g0 = (blk * wp.block_dim() + lane) * per_thread
+    c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, block_counts)
+    tot = wp.tile_sum(wp.tile(c))
+    if lane == 0:
+        block_counts[blk] = tot[0]
+
+
+@wp.kernel(enable_backward=False)
+def block_scan_kernel(block_counts: wp.array(dtype=wp.int32), block_offsets: wp.array(dtype=wp.int32),
+                      count: wp.array(dtype=wp.int32)):
+    """One block: exclusive prefix sums of ``block_counts`` into ``block_offsets`` and the total into
+    ``count[0]``. Thread i sums a contiguous segment serially; one block-wide scan joins the segments."""
+    _, lane = wp.tid()
+    bd = wp.block_dim()
+    nb = block_counts.shape[0]
+    seg = (nb + bd - 1) // bd
+    i0 = wp.min(lane * seg, nb)
+    i1 = wp.min(i0 + seg, nb)
+    s = int(0)
+    for i in range(i0, i1):
+        s += block_counts[i]
+    e = wp.untile(wp.tile_scan_exclusive(wp.tile(s)))
+    tot = wp.tile_sum(wp.tile(s))
+    o = e
+    for i in range(i0, i1):
+        block_offsets[i] = o
+        o += block_counts[i]
+    if lane == 0:
+        count[0] = tot[0]
+
+
+@wp.kernel(enable_backward=False)
+def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
+                           tiles_x: int, n: int, per_thread: int, block_offsets: wp.array(dtype=wp.int32),
+                           work: wp.array(dtype=wp.int32)):
+    """Tiled, same blocks as :func:`compact_count_kernel`: flat indices y * W + x of the set pixels of the
+    block's positions, in order, from ``block_offsets[b]`` on."""
+    blk, lane = wp.tid()
     h = mask.shape[0]
     w = mask.shape[1]
-    o = tile_offsets[r]
-    for j in range(tile):
-        y = ty * tile + j
-        if y < h:
-            for i in range(tile):
-                x = tx * tile + i
-                if x < w:
-                    if mask[y, x] != wp.uint8(0):
-                        work[o] = y * w + x
-                        o += 1
+    g0 = (blk * wp.block_dim() + lane) * per_thread
+    # a block of one thread (the CPU) knows its offset already: one walk that writes, no recount
+    alone = wp.block_dim() == 1
+    c = int(0)
+    if not alone:
+        c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
+    o = block_offsets[blk] + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
+    if alone or c > 0:
+        walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)

@@ -5,21 +5,24 @@ with ``|p - q| <= r_q`` (``r_q`` = distance from q to its nearest seed, pixels);
 Two forms of the same sum:
 
 * ``sibson_gather_kernel``: the bounded gather of the thesis (Code 4), q in ``[p - J, p + J]^2``. It equals
-  the scatter exactly once ``J >= max r_q``; the loop never goes past ``floor(max r_q)`` either, because no
-  farther q can reach p.
+  the scatter exactly once ``J >= max r_q``. The loop never visits a q that cannot reach p: q reaches p only
+  when ``|p - q|^2 <= r_q^2 <= R^2``, where R^2 is the largest r_q^2 of the ``RTILE`` x ``RTILE`` screen tiles
+  that the window overlaps (``tile_r2``, at most the image's largest), so the window is clipped to the disc
+  of radius R. Every q that reaches p is still visited, in the same raster order, so the sum is the same.
 * ``sibson_scatter_kernel`` + ``sibson_resolve_kernel``: Park's scatter with atomics (the exact reference).
 
-Both read the Voronoi buffers written by ``voronoi_finalize_kernel``: per pixel q, ``vor_color`` (the finite
-color of q's nearest seed; 0 where q has none) and ``vor_r2`` = ``r_q^2`` in pixels^2 (exact int32; 0 exactly
-at seeds; -1 where q has no seed). The gather reads the 4-byte r2 at every tap and the color only at the taps
-that cover p. Seeds always output their own color; pixels that received nothing output their Voronoi color
-(0 without a seed); a sum that overflows float32 (colors near float max) is redone with scaled terms, so no
-output is NaN/Inf.
+Both read what the last JFA pass (``kernels/jfa.py``) leaves: the seed mask (nonzero = seed) and, at the
+non-seed pixels only (seed entries are never read: a seed's r_q is 0, so it reaches no pixel but itself),
+``vor`` (the finite color of q's nearest seed; 0 where q has none) and ``r2`` = ``r_q^2`` in pixels^2 (exact
+int32; -1 where q has no seed), plus ``tile_r2``. A tap of the gather reads the 1-byte mask, the 4-byte r2
+only at a non-seed q, and the 12-byte color only at the taps that cover p. Seeds output their own (finite)
+color after one mask read; pixels that received nothing output their Voronoi color (0 without a seed); a
+sum that overflows float32 (colors near float max) is redone with scaled terms, so no output is NaN/Inf.
 """
 
 import warp as wp
 
-from .jfa import seed_dist2
+from .jfa import RTILE, finite_or_zero
 
 
 @wp.func
@@ -36,76 +39,17 @@ def isqrt(n: int) -> int:
     return r
 
 
-@wp.func
-def finite_or_zero(c: wp.vec3) -> wp.vec3:
-    if wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.isfinite(c[2]):
-        return c
-    return wp.vec3(0.0, 0.0, 0.0)
-
-
-@wp.kernel(enable_backward=False)
-def voronoi_finalize_kernel(
-    nearest: wp.array2d(dtype=wp.vec2i),
-    color_in: wp.array2d(dtype=wp.vec3),
-    write_out: int,
-    vor_color: wp.array2d(dtype=wp.vec3),
-    vor_r2: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    max_r2: wp.array(dtype=wp.int32),
-    max_radius: wp.array(dtype=wp.float32),
-    unreached: wp.array(dtype=wp.int32),
-):
-    """Tiled launch over the flattened image (any block size; 1 on the CPU).
-
-    Writes ``vor_color`` / ``vor_r2`` (and the Voronoi color to ``color_out`` when ``write_out`` != 0), and
-    reduces per block the largest r2 (into ``max_r2`` / ``max_radius``, pixels^2 / pixels) and the count of
-    pixels without a seed (into ``unreached``). The three statistics must be zeroed before the launch.
-    """
-    blk, lane = wp.tid()
-    h = nearest.shape[0]
-    w = nearest.shape[1]
-    idx = blk * wp.block_dim() + lane
-    r2 = int(0)
-    missing = int(0)
-    if idx < h * w:
-        y = idx // w
-        x = idx - y * w
-        s = nearest[y, x]
-        c = wp.vec3(0.0, 0.0, 0.0)
-        r2w = int(-1)
-        if s[0] >= 0:
-            c = finite_or_zero(color_in[s[1], s[0]])
-            r2 = seed_dist2(x, y, s)
-            r2w = r2
-        else:
-            missing = 1
-        vor_color[y, x] = c
-        vor_r2[y, x] = r2w
-        if write_out != 0:
-            color_out[y, x] = c
-    # cooperative block reductions: every thread of the block reaches them
-    tmax = wp.tile_max(wp.tile(r2))
-    tmiss = wp.tile_sum(wp.tile(missing))
-    if lane == 0:
-        m = tmax[0]
-        if m > 0:
-            wp.atomic_max(max_r2, 0, m)
-            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
-        if tmiss[0] > 0:
-            wp.atomic_add(unreached, 0, tmiss[0])
-
-
 # largest finite float32: the overflow-safe mean clamps to it (a mean of finite values is finite)
 F32_MAX = wp.constant(3.4028234663852886e38)
 
 
 @wp.func
-def disc_sum(vor_color: wp.array2d(dtype=wp.vec3), vor_r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
-             rmax2: int, scale: float) -> wp.vec4:
-    """(sum of ``scale * vor_color[q]``, count) over the q within the half window ``rw`` whose disc covers
-    p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every r_q^2)."""
-    h = vor_r2.shape[0]
-    w = vor_r2.shape[1]
+def disc_sum(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int, scale: float) -> wp.vec4:
+    """(sum of ``scale * vor[q]``, count) over the non-seed q within the half window ``rw`` whose disc
+    covers the non-seed p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every such
+    r_q^2). Raster order over (dy, dx)."""
+    h = mask.shape[0]
+    w = mask.shape[1]
     y0 = wp.max(-rw, -y)
     y1 = wp.min(rw, h - 1 - y)
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -114,74 +58,91 @@ def disc_sum(vor_color: wp.array2d(dtype=wp.vec3), vor_r2: wp.array2d(dtype=wp.i
         dxm = wp.min(rw, isqrt(rmax2 - dy * dy))
         x0 = wp.max(-dxm, -x)
         x1 = wp.min(dxm, w - 1 - x)
+        qy = y + dy
         for dx in range(x0, x1 + 1):
-            if dx * dx + dy * dy <= vor_r2[y + dy, x + dx]:
-                acc = acc + vor_color[y + dy, x + dx] * scale
+            qx = x + dx
+            # both loads are independent; a seed's r2 entry may be stale and is discarded
+            if (dx * dx + dy * dy <= r2[qy, qx]) and (mask[qy, qx] == wp.uint8(0)):
+                acc = acc + vor[qy, qx] * scale
                 n = n + 1
     return wp.vec4(acc[0], acc[1], acc[2], float(n))
 
 
 @wp.func
-def disc_mean(vor_color: wp.array2d(dtype=wp.vec3), vor_r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
-              rmax2: int) -> wp.vec3:
-    """Mean of the colors q scatters onto p (see :func:`disc_sum`); the Voronoi color when none does.
+def disc_mean(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int) -> wp.vec3:
+    """Mean of the colors q scatters onto the non-seed p (see :func:`disc_sum`); p's Voronoi color when
+    none does (0 without a seed).
 
     Finite for any finite colors: when the plain float32 sum overflows (colors near float max), the sum is
     taken again with every term scaled by 0.5 / n, then doubled and clamped to +-float max."""
-    s = disc_sum(vor_color, vor_r2, x, y, rw, rmax2, 1.0)
+    s = disc_sum(mask, vor, r2, x, y, rw, rmax2, 1.0)
     n = s[3]
     if n <= 0.0:
-        return vor_color[y, x]
+        return vor[y, x]
     out = wp.vec3(s[0], s[1], s[2]) / n
     if wp.isfinite(out):
         return out
-    t = disc_sum(vor_color, vor_r2, x, y, rw, rmax2, 0.5 / n)
+    t = disc_sum(mask, vor, r2, x, y, rw, rmax2, 0.5 / n)
     return wp.vec3(wp.clamp(2.0 * t[0], -F32_MAX, F32_MAX), wp.clamp(2.0 * t[1], -F32_MAX, F32_MAX),
                    wp.clamp(2.0 * t[2], -F32_MAX, F32_MAX))
 
 
 @wp.kernel(enable_backward=False)
 def sibson_gather_kernel(
-    vor_color: wp.array2d(dtype=wp.vec3),
-    vor_r2: wp.array2d(dtype=wp.int32),
+    mask: wp.array2d(dtype=wp.uint8),
+    vor: wp.array2d(dtype=wp.vec3),
+    r2: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    color_in: wp.array2d(dtype=wp.vec3),
     window: int,
     max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
 ):
     """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
     y, x = wp.tid()
-    if vor_r2[y, x] == 0:  # a seed keeps its color
-        color_out[y, x] = vor_color[y, x]
+    if mask[y, x] != wp.uint8(0):  # a seed keeps its color
+        color_out[y, x] = finite_or_zero(color_in[y, x])
         return
-    # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc
-    rmax2 = max_r2[0]
-    rw = wp.min(window, isqrt(rmax2))
-    color_out[y, x] = disc_mean(vor_color, vor_r2, x, y, rw, rmax2)
+    # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc ...
+    rw = wp.min(window, isqrt(max_r2[0]))
+    # ... and to the disc of the largest r_q^2 of the screen tiles the window overlaps (<= max_r2)
+    h = mask.shape[0]
+    w = mask.shape[1]
+    loc = int(0)
+    for ty in range(wp.max(y - rw, 0) // RTILE, wp.min(y + rw, h - 1) // RTILE + 1):
+        for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + rw, w - 1) // RTILE + 1):
+            loc = wp.max(loc, tile_r2[ty, tx])
+    rw = wp.min(rw, isqrt(loc))
+    color_out[y, x] = disc_mean(mask, vor, r2, x, y, rw, loc)
 
 
 @wp.kernel(enable_backward=False)
 def sibson_scatter_kernel(
-    vor_color: wp.array2d(dtype=wp.vec3),
-    vor_r2: wp.array2d(dtype=wp.int32),
+    mask: wp.array2d(dtype=wp.uint8),
+    vor: wp.array2d(dtype=wp.vec3),
+    r2: wp.array2d(dtype=wp.int32),
     accum: wp.array2d(dtype=wp.vec4),
 ):
-    """Park et al.'s scatter: q adds ``vec4(color(seed(q)), 1)`` to every p with ``|p - q| <= r_q``.
+    """Park et al.'s scatter: each non-seed q adds ``vec4(color(seed(q)), 1)`` to every p with
+    ``|p - q| <= r_q`` (a seed's disc is itself, which keeps its color anyway).
 
     ``accum`` must be zeroed first. Cost is the sum of the disc areas, about N / seed density taps in all for
     N pixels: slow with few seeds at large sizes (a lone seed makes it quadratic in N)."""
     y, x = wp.tid()
-    h = vor_r2.shape[0]
-    w = vor_r2.shape[1]
-    r2 = vor_r2[y, x]
-    if r2 < 0:
+    if mask[y, x] != wp.uint8(0):
         return
-    c = vor_color[y, x]
+    h = mask.shape[0]
+    w = mask.shape[1]
+    rq2 = r2[y, x]
+    if rq2 < 0:
+        return
+    c = vor[y, x]
     add = wp.vec4(c[0], c[1], c[2], 1.0)
-    r = isqrt(r2)
+    r = isqrt(rq2)
     y0 = wp.max(-r, -y)
     y1 = wp.min(r, h - 1 - y)
     for dy in range(y0, y1 + 1):
-        dxm = isqrt(r2 - dy * dy)
+        dxm = isqrt(rq2 - dy * dy)
         x0 = wp.max(-dxm, -x)
         x1 = wp.min(dxm, w - 1 - x)
         for dx in range(x0, x1 + 1):
@@ -190,8 +151,10 @@ def sibson_scatter_kernel(
 
 @wp.kernel(enable_backward=False)
 def sibson_resolve_kernel(
-    vor_color: wp.array2d(dtype=wp.vec3),
-    vor_r2: wp.array2d(dtype=wp.int32),
+    mask: wp.array2d(dtype=wp.uint8),
+    vor: wp.array2d(dtype=wp.vec3),
+    r2: wp.array2d(dtype=wp.int32),
+    color_in: wp.array2d(dtype=wp.vec3),
     accum: wp.array2d(dtype=wp.vec4),
     max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
@@ -200,13 +163,15 @@ def sibson_resolve_kernel(
     scattered float32 sum overflowed (colors near float max), the pixel gathers the same terms itself with
     the overflow-safe :func:`disc_mean` (window = the largest radius, so the same set of senders)."""
     y, x = wp.tid()
-    own = vor_color[y, x]
+    if mask[y, x] != wp.uint8(0):
+        color_out[y, x] = finite_or_zero(color_in[y, x])
+        return
     a = accum[y, x]
-    if vor_r2[y, x] == 0 or a[3] <= 0.0:
-        color_out[y, x] = own
+    if a[3] <= 0.0:
+        color_out[y, x] = vor[y, x]
     else:
         c = wp.vec3(a[0], a[1], a[2]) / a[3]
         if not wp.isfinite(c):
             rmax2 = max_r2[0]
-            c = disc_mean(vor_color, vor_r2, x, y, isqrt(rmax2), rmax2)
+            c = disc_mean(mask, vor, r2, x, y, isqrt(rmax2), rmax2)
         color_out[y, x] = c

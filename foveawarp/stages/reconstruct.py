@@ -1,5 +1,14 @@
 """Reconstruction stage: Jump Flooding Voronoi over the filled pixels, then bounded Sibson interpolation
-(ALGORITHMS.md A5-A6). Allocates every buffer in ``__init__``; ``run`` only launches kernels."""
+(ALGORITHMS.md A5-A6). Allocates every buffer in ``__init__``; ``run`` only launches kernels.
+
+Launches of one ``run`` (n = number of JFA steps of the schedule, 5 for the default 1+JFA at block 4):
+pass 1 (init fused with the first step; writes the seeds' entries of the result and zeroes the statistics),
+passes 2..n-1, pass n (tiled: also the nearest-seed radius, the Voronoi color of the non-seed pixels, per-tile
+maxima and statistics; or the Voronoi fill of every pixel when Sibson is off), then the Sibson gather (seeds:
+one mask read, their color copied). n + 1 full-image launches in all (n with Sibson off) and no memset when
+n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-element memsets zero the
+statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
+"""
 
 from __future__ import annotations
 
@@ -10,13 +19,15 @@ import warp as wp
 
 from .._util import check_image_size, get_device
 from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
-from ..kernels.jfa import jfa_init_kernel, jfa_step_kernel
-from ..kernels.sibson import (
-    sibson_gather_kernel,
-    sibson_resolve_kernel,
-    sibson_scatter_kernel,
-    voronoi_finalize_kernel,
+from ..kernels.jfa import (
+    RTILE,
+    jfa_last_pass_kernel,
+    jfa_pass_kernel,
+    voronoi_color_kernel,
+    voronoi_fill_kernel,
+    voronoi_from_nearest_kernel,
 )
+from ..kernels.sibson import sibson_gather_kernel, sibson_resolve_kernel, sibson_scatter_kernel
 
 __all__ = [
     "ReconstructStage",
@@ -26,7 +37,8 @@ __all__ = [
     "sibson_window_for_block",
 ]
 
-_CUDA_BLOCK = 256  # threads per block of the tiled reduction on CUDA (the CPU runs blocks of 1)
+_RTILE = int(RTILE)  # screen tile edge of the radius reduction (kernels/jfa.py)
+_CUDA_BLOCK = _RTILE * _RTILE  # threads per block of the tiled last pass on CUDA (the CPU runs blocks of 1)
 
 
 def max_seed_distance_for_block(block: int) -> float:
@@ -106,10 +118,15 @@ class ReconstructStage:
         start_step: overrides the first JFA step in pixels, in [1, 16384] (default: config / block).
 
     Buffers (all on ``device``, overwritten by each ``run``):
-        nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found.
-        voronoi_color: (H, W) ``wp.vec3``, color of the nearest seed (0 where none was found).
-        radius_sq: (H, W) int32, squared distance r_q^2 to the nearest seed in pixels^2 (0 exactly at seeds,
-            -1 where none was found).
+        nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found (a seed
+            pixel holds itself).
+        voronoi_color: (H, W) ``wp.vec3``, finite color of the nearest seed at the NON-seed pixels (0 where
+            none was found), written when Sibson is on. Seed entries are not written (a seed's color is its own).
+        radius_sq: (H, W) int32, squared distance r_q^2 to the nearest seed in pixels^2 at the NON-seed pixels
+            (-1 where none was found). Seed entries are not written (a seed's radius is 0; the mask says
+            which pixels are seeds).
+        tile_radius_sq: (ceil(H / 16), ceil(W / 16)) int32, the largest ``radius_sq`` of each 16 x 16 screen
+            tile (0 when the tile has no reached non-seed pixel): the gather's local window bound.
         max_radius: (1,) float32, the largest nearest-seed distance r_q in pixels (0 without seeds).
         max_radius_sq: (1,) int32, its square (exact), pixels^2.
         unreached: (1,) int32, pixels for which no seed was found (all of them without seeds; nonzero with a
@@ -143,16 +160,20 @@ class ReconstructStage:
         shape = (self.height, self.width)
         dev = self.device
         self.nearest = wp.empty(shape, dtype=wp.vec2i, device=dev)
-        self._pong = wp.empty(shape, dtype=wp.vec2i, device=dev) if self.steps else None
+        self._pong = wp.empty(shape, dtype=wp.vec2i, device=dev) if len(self.steps) > 1 else None
         self.voronoi_color = wp.zeros(shape, dtype=wp.vec3, device=dev)
-        self.radius_sq = wp.zeros(shape, dtype=wp.int32, device=dev)
+        self.radius_sq = wp.full(shape, -1, dtype=wp.int32, device=dev)
+        tiles = ((self.height + _RTILE - 1) // _RTILE, (self.width + _RTILE - 1) // _RTILE)
+        self.tile_radius_sq = wp.zeros(tiles, dtype=wp.int32, device=dev)
         self.max_radius = wp.zeros(1, dtype=wp.float32, device=dev)
         self.max_radius_sq = wp.zeros(1, dtype=wp.int32, device=dev)
         self.unreached = wp.zeros(1, dtype=wp.int32, device=dev)
         self._accum = wp.zeros(shape, dtype=wp.vec4, device=dev) if self.exact_sibson else None
         self._block_dim = _CUDA_BLOCK if dev.is_cuda else 1
-        n = self.width * self.height
-        self._num_blocks = (n + self._block_dim - 1) // self._block_dim
+        self._num_tiles = tiles[0] * tiles[1]
+        self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
+        self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
+        self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
 
     # -- checks (host-side attribute reads only: no sync, no allocation) --------------------------------------
     def _check(self, name, arr, dtype):
@@ -164,51 +185,100 @@ class ReconstructStage:
             raise ValueError(f"{name} must be on {self.device}, got {arr.device}")
 
     # -- passes ------------------------------------------------------------------------------------------------
-    def run_jfa(self, seed_mask) -> None:
-        """Jump flooding: ``nearest`` <- nearest seed of every pixel. ``seed_mask``: (H, W) uint8, nonzero = seed."""
-        self._check("seed_mask", seed_mask, wp.uint8)
-        dim = (self.height, self.width)
-        # ping-pong so that the last pass writes self.nearest
-        bufs = [self.nearest, self._pong]
-        cur = len(self.steps) % 2
-        wp.launch(jfa_init_kernel, dim=dim, inputs=[seed_mask], outputs=[bufs[cur]], device=self.device)
-        for k in self.steps:
-            wp.launch(jfa_step_kernel, dim=dim, inputs=[bufs[cur], int(k)], outputs=[bufs[1 - cur]],
-                      device=self.device)
-            cur = 1 - cur
+    def _stats_args(self):
+        return [self.max_radius_sq, self.max_radius, self.unreached]
 
-    def run_interpolate(self, color_in, color_out, nearest=None) -> None:
-        """Voronoi buffer and statistics from ``nearest`` (default: this stage's), then Sibson (or the plain
-        Voronoi color when ``config.sibson`` is False) into ``color_out``. ``color_in`` is read at seeds only."""
-        self._check("color_in", color_in, wp.vec3)
-        self._check("color_out", color_out, wp.vec3)
-        if nearest is None:
-            nearest = self.nearest
-        else:
-            self._check("nearest", nearest, wp.vec2i)
+    def run_jfa(self, seed_mask, *, color_in=None, color_out=None) -> None:
+        """Jump flooding: ``nearest`` <- nearest seed of every pixel, plus ``radius_sq``, ``tile_radius_sq`` and
+        the statistics. ``seed_mask``: (H, W) uint8, nonzero = seed. With ``color_in`` ((H, W) vec3, read at
+        seeds) the last pass also writes ``voronoi_color`` (for the Sibson gather), or, when ``color_out`` is
+        given too, the Voronoi fill of every pixel to ``color_out``."""
+        self._check("seed_mask", seed_mask, wp.uint8)
+        mode = 0
+        cin, cout = self._dummy3, self._dummy3  # placeholders, never touched in mode 0
+        if color_out is not None and color_in is None:
+            raise ValueError(f"color_in must be given with color_out (a ({self.height}, {self.width}) wp.array of "
+                             f"vec3), got None")
+        if color_in is not None:
+            self._check("color_in", color_in, wp.vec3)
+            cin, cout, mode = color_in, self.voronoi_color, 1
+            if color_out is not None:
+                self._check("color_out", color_out, wp.vec3)
+                cout, mode = color_out, 2
         dev = self.device
-        sibson = self.config.sibson or self.exact_sibson
-        self.max_radius.zero_()
-        self.max_radius_sq.zero_()
-        self.unreached.zero_()
+        dim = (self.height, self.width)
+        steps = self.steps
+        n = len(steps)
+        # ping-pong so that the last pass writes self.nearest: pass i writes nearest when n - 1 - i is even
+        bufs = [self.nearest, self._pong]
+        if n <= 1:  # no pass before the last one to zero the statistics
+            self.max_radius_sq.zero_()
+            self.max_radius.zero_()
+            self.unreached.zero_()
+        src = self.nearest
+        # squared distance at which a pixel is final before pass i: 2 once a step-1 pass has run, else 1
+        settled = [2 if 1 in steps[:i] else 1 for i in range(n)]
+        for i in range(n - 1):
+            dst = bufs[(n - 1 - i) % 2]
+            wp.launch(jfa_pass_kernel, dim=dim,
+                      inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
+                      outputs=[self.nearest, dst, *self._stats_args()], device=dev)
+            src = dst
         wp.launch_tiled(
-            voronoi_finalize_kernel, dim=[self._num_blocks],
-            inputs=[nearest, color_in, 0 if sibson else 1],
-            outputs=[self.voronoi_color, self.radius_sq, color_out, self.max_radius_sq, self.max_radius,
-                     self.unreached],
+            jfa_last_pass_kernel, dim=[self._num_tiles],
+            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, settled[-1] if n else 1, cin,
+                    mode],
+            outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
             block_dim=self._block_dim, device=dev,
         )
-        if not sibson:
-            return
+        self._mask = seed_mask
+
+    def run_interpolate(self, color_in, color_out, nearest=None) -> None:
+        """Sibson (or the plain Voronoi color when ``config.sibson`` is False) into ``color_out``, from the
+        last ``run_jfa`` (its mask, ``nearest``, radii and statistics) or, when given, from ``nearest`` ((H, W)
+        vec2i; its seeds are the pixels that map to themselves). ``color_in`` is read at seeds only."""
+        self._check("color_in", color_in, wp.vec3)
+        self._check("color_out", color_out, wp.vec3)
+        self._interpolate(color_in, color_out, nearest, vor_ready=False)
+
+    def _interpolate(self, color_in, color_out, nearest, vor_ready: bool) -> None:
+        """``vor_ready``: the last pass of the JFA just run wrote ``voronoi_color`` for ``color_in``."""
+        dev = self.device
         dim = (self.height, self.width)
-        vor = [self.voronoi_color, self.radius_sq]
+        if nearest is not None:
+            self._check("nearest", nearest, wp.vec2i)
+            if self._seeds is None:
+                self._seeds = wp.zeros(dim, dtype=wp.uint8, device=dev)
+            self.max_radius_sq.zero_()
+            self.max_radius.zero_()
+            self.unreached.zero_()
+            wp.launch_tiled(voronoi_from_nearest_kernel, dim=[self._num_tiles], inputs=[nearest, color_in],
+                            outputs=[self._seeds, self.nearest, self.radius_sq, self.voronoi_color,
+                                     self.tile_radius_sq, *self._stats_args()],
+                            block_dim=self._block_dim, device=dev)
+            mask = self._seeds
+            vor_ready = True
+        else:
+            if self._mask is None:
+                raise ValueError("nearest must be given (a (H, W) wp.array of vec2i) before run_jfa has run")
+            mask = self._mask
+        sibson = self.config.sibson or self.exact_sibson
+        if not sibson:
+            wp.launch(voronoi_fill_kernel, dim=dim, inputs=[mask, self.nearest, color_in], outputs=[color_out],
+                      device=dev)
+            return
+        if not vor_ready:
+            wp.launch(voronoi_color_kernel, dim=dim, inputs=[mask, self.nearest, color_in],
+                      outputs=[self.voronoi_color], device=dev)
+        near = [mask, self.voronoi_color, self.radius_sq]
         if self.exact_sibson:
             self._accum.zero_()
-            wp.launch(sibson_scatter_kernel, dim=dim, inputs=vor, outputs=[self._accum], device=dev)
-            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*vor, self._accum, self.max_radius_sq],
+            wp.launch(sibson_scatter_kernel, dim=dim, inputs=near, outputs=[self._accum], device=dev)
+            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                       outputs=[color_out], device=dev)
         else:
-            wp.launch(sibson_gather_kernel, dim=dim, inputs=[*vor, int(self.window), self.max_radius_sq],
+            wp.launch(sibson_gather_kernel, dim=dim,
+                      inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq],
                       outputs=[color_out], device=dev)
 
     def run(self, color_in, seed_mask, color_out) -> None:
@@ -217,5 +287,10 @@ class ReconstructStage:
         color. Launches only: no allocation, no host synchronization (CUDA-graph capturable)."""
         if color_in is color_out:
             raise ValueError("color_out must be a different array from color_in")
-        self.run_jfa(seed_mask)
-        self.run_interpolate(color_in, color_out)
+        self._check("color_in", color_in, wp.vec3)
+        self._check("color_out", color_out, wp.vec3)
+        if self.config.sibson or self.exact_sibson:
+            self.run_jfa(seed_mask, color_in=color_in)
+            self._interpolate(color_in, color_out, None, vor_ready=True)
+        else:  # the last JFA pass writes the Voronoi colors
+            self.run_jfa(seed_mask, color_in=color_in, color_out=color_out)

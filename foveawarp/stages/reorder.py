@@ -8,16 +8,19 @@ import warp as wp
 from .._util import check_image_size, get_device
 from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, show
 from ..kernels.reorder import (
-    flags_kernel,
+    block_scan_kernel,
+    compact_count_kernel,
+    compact_scatter_kernel,
     rows_balance_kernel,
     rows_compact_kernel,
-    scatter_kernel,
-    tile_count_kernel,
-    tile_scatter_kernel,
-    total_kernel,
 )
 
 __all__ = ["ReorderStage", "morton_tile_order"]
+
+_CUDA_BLOCK = 256  # threads per block of the compaction / row kernels on CUDA (the CPU runs blocks of 1)
+_CUDA_SCAN_BLOCK = 1024  # threads of the one-block offset scan on CUDA
+_CUDA_PER_THREAD = 4  # consecutive output positions per compaction thread on CUDA
+_CPU_PER_THREAD = 256  # on the CPU (blocks of one thread: longer runs, fewer blocks)
 
 
 def _part1by1(v: np.ndarray) -> np.ndarray:
@@ -43,6 +46,10 @@ class ReorderStage:
       - "scan" / "tile": ``work`` (N,) int32 flat indices y * W + x, ``count`` (1,) int32;
       - "rows" / "rows+balance": ``coords`` (H, W) vec2i and ``counts`` (H,) int32 (row CSR);
       - "none": nothing (the caller launches over the mask).
+
+    Launches per ``run``: "scan" / "tile": 3 (count, one-block scan of the per-block counts, scatter; the
+    mask is read twice, the list written once); "rows": 1; "rows+balance": 2. No memset, no temporary
+    allocation, no host read (CUDA-graph capturable).
     """
 
     def __init__(self, width: int, height: int, config: ReorderConfig, device):
@@ -54,17 +61,26 @@ class ReorderStage:
         n = width * height
         self.count = wp.zeros(1, dtype=wp.int32, device=device)
         self.work = wp.zeros(n, dtype=wp.int32, device=device)
-        self.flags = wp.zeros(n, dtype=wp.int32, device=device)
-        self.offsets = wp.zeros(n, dtype=wp.int32, device=device)
         t = config.tile
         self.tiles_x = (width + t - 1) // t
         self.tiles_y = (height + t - 1) // t
         nt = self.tiles_x * self.tiles_y
         self.tile_order = wp.array(morton_tile_order(self.tiles_x, self.tiles_y), dtype=wp.int32, device=device)
-        self.tile_counts = wp.zeros(nt, dtype=wp.int32, device=device)
-        self.tile_offsets = wp.zeros(nt, dtype=wp.int32, device=device)
         self.coords = wp.zeros((height, width), dtype=wp.vec2i, device=device)
         self.counts = wp.zeros(height, dtype=wp.int32, device=device)
+        self._block_dim = _CUDA_BLOCK if device.is_cuda else 1
+        self._scan_block_dim = _CUDA_SCAN_BLOCK if device.is_cuda else 1
+        self._per_thread = _CUDA_PER_THREAD if device.is_cuda else _CPU_PER_THREAD
+        per_block = self._block_dim * self._per_thread
+        # positions of the output order: every pixel (raster), or every slot of every tile (partial tiles too)
+        self._n_order = {"scan": n, "tile": nt * t * t}
+        nb = max(1, (max(self._n_order.values()) + per_block - 1) // per_block)
+        self.block_counts = wp.zeros(nb, dtype=wp.int32, device=device)
+        self.block_offsets = wp.zeros(nb, dtype=wp.int32, device=device)
+        self._blocks = {}  # strategy -> (blocks, count view, offset view): views made once, not per run
+        for s, no in self._n_order.items():
+            b = (no + per_block - 1) // per_block
+            self._blocks[s] = (b, self.block_counts[:b], self.block_offsets[:b])
 
     @property
     def strategy(self) -> str:
@@ -83,28 +99,19 @@ class ReorderStage:
         if s == "none":
             return
         if s in ("rows", "rows+balance"):
-            wp.launch(rows_compact_kernel, dim=self.height, inputs=[mask], outputs=[self.coords, self.counts],
-                      device=dev)
+            wp.launch_tiled(rows_compact_kernel, dim=[self.height], inputs=[mask], outputs=[self.coords, self.counts],
+                            block_dim=self._block_dim, device=dev)
             if s == "rows+balance":
                 k = self.config.balance_rows
                 nb = (self.height + k - 1) // k
                 wp.launch(rows_balance_kernel, dim=nb, inputs=[self.coords, self.counts, k], device=dev)
             return
-        if s == "scan":
-            wp.launch(flags_kernel, dim=(self.height, self.width), inputs=[mask], outputs=[self.flags], device=dev)
-            wp.utils.array_scan(self.flags, self.offsets, inclusive=False)
-            wp.launch(scatter_kernel, dim=self.flags.shape[0], inputs=[self.flags, self.offsets],
-                      outputs=[self.work], device=dev)
-            wp.launch(total_kernel, dim=1, inputs=[self.flags, self.offsets], outputs=[self.count], device=dev)
-            return
-        if s == "tile":
-            nt = self.tile_counts.shape[0]
-            t = self.config.tile
-            wp.launch(tile_count_kernel, dim=nt, inputs=[mask, self.tile_order, t, self.tiles_x],
-                      outputs=[self.tile_counts], device=dev)
-            wp.utils.array_scan(self.tile_counts, self.tile_offsets, inclusive=False)
-            wp.launch(tile_scatter_kernel, dim=nt, inputs=[mask, self.tile_order, t, self.tiles_x,
-                      self.tile_offsets], outputs=[self.work], device=dev)
-            wp.launch(total_kernel, dim=1, inputs=[self.tile_counts, self.tile_offsets], outputs=[self.count],
-                      device=dev)
-            return
+        nb, counts, offsets = self._blocks[s]
+        tile = 0 if s == "scan" else self.config.tile
+        common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
+        wp.launch_tiled(compact_count_kernel, dim=[nb], inputs=common, outputs=[counts],
+                        block_dim=self._block_dim, device=dev)
+        wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
+                        block_dim=self._scan_block_dim, device=dev)
+        wp.launch_tiled(compact_scatter_kernel, dim=[nb], inputs=[*common, offsets], outputs=[self.work],
+                        block_dim=self._block_dim, device=dev)

@@ -210,3 +210,102 @@ def test_seed_sets_empty_single_full_collinear_voronoi_sibson(device, cases, kin
         np.testing.assert_allclose(sib, ref, rtol=1e-5, atol=float(1e-5 * scale.max() + 1e-6),
                                    err_msg=f"{kind} window={window} colors={cmode}")
     cases.add("seed sets: voronoi + sibson (masks)", 1)
+
+
+# -- issue 14: the stage's lean frame path over sequences of seed sets --------------------------------------
+
+
+def plain_jfa(mask, steps):
+    """Ping-pong JFA as ALGORITHMS.md A5 states it (init pass, then 9 taps per step, strictly nearer wins,
+    taps in raster order), in NumPy: (H, W, 2) int (x, y), -1 for none."""
+    h, w = mask.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    big = np.iinfo(np.int64).max
+    cur = np.where(mask[..., None], np.stack([xx, yy], -1), -1).astype(np.int64)
+    for k in steps:
+        nxt = cur.copy()
+        bd = np.where(cur[..., 0] >= 0, (cur[..., 0] - xx) ** 2 + (cur[..., 1] - yy) ** 2, big)
+        for j in (-1, 0, 1):
+            for i in (-1, 0, 1):
+                if i or j:
+                    sy, sx = yy + j * k, xx + i * k
+                    ok = (sy >= 0) & (sy < h) & (sx >= 0) & (sx < w)
+                    c = np.full((h, w, 2), -1, np.int64)
+                    c[ok] = cur[sy[ok], sx[ok]]
+                    d = np.where(c[..., 0] >= 0, (c[..., 0] - xx) ** 2 + (c[..., 1] - yy) ** 2, big)
+                    better = d < bd
+                    nxt[better], bd[better] = c[better], d[better]
+        cur = nxt
+    return cur
+
+
+def code4_f32(colors, nearest, window):
+    """Code 4's bounded gather in float32 over all pixels at once, offsets in raster order (a tap that does
+    not cover adds +0.0, which changes no sum of non-negative colors): bit-equal to the kernel's sum."""
+    h, w = nearest.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    nx, ny = nearest[..., 0], nearest[..., 1]
+    has = nx >= 0
+    vor = np.where(has[..., None], colors[ny.clip(0), nx.clip(0)], 0).astype(np.float32)
+    r2 = np.where(has, (nx - xx) ** 2 + (ny - yy) ** 2, -1)
+    rw = min(window, int(np.sqrt(max(int(r2.max()), 0))))
+    acc = np.zeros((h, w, 3), np.float32)
+    n = np.zeros((h, w), np.int64)
+    for dy in range(-rw, rw + 1):
+        for dx in range(-rw, rw + 1):
+            qy, qx = yy + dy, xx + dx
+            ok = (qy >= 0) & (qy < h) & (qx >= 0) & (qx < w)
+            cov = np.zeros((h, w), bool)
+            cov[ok] = dx * dx + dy * dy <= r2[qy[ok], qx[ok]]
+            add = np.zeros((h, w, 3), np.float32)
+            add[cov] = vor[qy[cov], qx[cov]]
+            acc = (acc + add).astype(np.float32)
+            n += cov
+    out = np.where((n > 0)[..., None], acc / np.maximum(n, 1).astype(np.float32)[..., None], vor)
+    seed = has & (nx == xx) & (ny == yy)
+    return np.where(seed[..., None], vor, out).astype(np.float32)
+
+
+@examples(120, 1200)
+@given(kinds=st.lists(st.sampled_from(KINDS + ("filled",)), min_size=2, max_size=4), h=st.integers(1, 22),
+       w=st.integers(1, 22), seed=st.integers(0, 2**32 - 1), variant=st.sampled_from(VARIANTS),
+       block=st.integers(1, 8), bounded=st.booleans(), window=st.sampled_from([None, 1, 2, 6]),
+       sibson_on=st.booleans())
+def test_stage_lean_path_over_frames(device, cases, kinds, h, w, seed, variant, block, bounded, window, sibson_on):
+    """One ReconstructStage over a sequence of seed sets (entries it skips at seeds hold older frames'
+    values): nearest equals the plain ping-pong JFA, colors equal Code 4's float32 gather (Sibson on) or the
+    Voronoi fill (off) bit for bit, the statistics match, seeds keep their color."""
+    import warp as wp
+
+    from foveawarp import ReconstructionConfig
+    from foveawarp.stages.reconstruct import ReconstructStage
+
+    rng = np.random.default_rng(seed)
+    cfg = ReconstructionConfig(jfa_variant=variant, sibson=sibson_on, sibson_window=window,
+                               bounded_jfa_start=bounded)
+    stage = ReconstructStage(w, h, cfg, block=block, device=device)
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for kind in kinds:
+        if kind == "filled":
+            m = ~(rng.random((h, w)) < 0.08) | (rng.random((h, w)) < 0.1)
+        else:
+            m = make_mask(kind, h, w, rng)
+        col = make_colors("unit", h, w, rng)
+        stage.run(wp.array(col, dtype=wp.vec3, device=device), wp.array(m.astype(np.uint8), dtype=wp.uint8,
+                                                                        device=device), out)
+        o = out.numpy()
+        n = stage.nearest.numpy()
+        ref_n = plain_jfa(m, stage.steps)
+        assert np.array_equal(n, ref_n), f"{kind}: nearest differs from the plain JFA"
+        reached = ref_n[..., 0] >= 0
+        d2 = np.where(reached, (ref_n[..., 0] - xx) ** 2 + (ref_n[..., 1] - yy) ** 2, 0)
+        assert int(stage.unreached.numpy()[0]) == int((~reached).sum())
+        assert int(stage.max_radius_sq.numpy()[0]) == int(d2.max())
+        if sibson_on:
+            ref = code4_f32(col, ref_n, stage.window)
+        else:
+            ref = np.where(reached[..., None], col[ref_n[..., 1].clip(0), ref_n[..., 0].clip(0)], 0)
+        assert np.array_equal(o, ref.astype(np.float32)), f"{kind}: colors differ ({np.abs(o - ref).max()})"
+        assert np.array_equal(o[m], col[m])
+    cases.add("stage lean path: frames of seed sets", len(kinds))
