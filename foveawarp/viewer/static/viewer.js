@@ -216,7 +216,7 @@
       ["jpeg encode", ms(st.ms_encode)],
     ];
     for (const k of Object.keys(st).sort()) {
-      if (k.startsWith("ms_") && !["ms_frame", "ms_encode"].includes(k)) rows.push(["  " + k.slice(3), ms(st[k])]);
+      if (k.startsWith("ms_") && !["ms_frame", "ms_encode"].includes(k)) rows.push(["stage " + k.slice(3), ms(st[k])]);
     }
     rows.push(["sampling rate", pct(st.sampling_rate)]);
     rows.push(["cache hits", pct(st.cache_hit_rate)]);
@@ -226,13 +226,12 @@
     rows.push(["gaze->shown p50 (here)", ms(quantile(roundTrips, 0.5))]);
     rows.push(["gaze px", h ? h.gaze.map((v) => v.toFixed(0)).join(", ") : "-"]);
     rows.push(["device", state ? state.device : "-"]);
-    const tb = $("stats").tBodies[0];
-    tb.innerHTML = "";
+    const box = $("stats");
+    box.textContent = "";
     for (const [a, b] of rows) {
-      const tr = document.createElement("tr");
-      const t1 = document.createElement("td"); t1.textContent = a;
-      const t2 = document.createElement("td"); t2.textContent = b;
-      tr.appendChild(t1); tr.appendChild(t2); tb.appendChild(tr);
+      const k = document.createElement("span"); k.className = "k"; k.textContent = a;
+      const v = document.createElement("span"); v.className = "v"; v.textContent = b;
+      box.appendChild(k); box.appendChild(v);
     }
   }
   setInterval(renderStats, 250);
