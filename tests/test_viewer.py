@@ -486,3 +486,64 @@ def test_cross_origin_websocket_is_refused(server):
                 pass
         assert ei.value.response.status_code == 403
     asyncio.run(run())
+
+
+def test_foveawarp_view_command_serves_and_stops_on_ctrl_c():
+    """The console command as a user starts it: prints the URL, serves the page and /stats.json, and exits
+    cleanly on SIGINT (Ctrl-C)."""
+    pytest.importorskip("websockets", reason="the viewer extra (websockets) is not installed")
+    import os
+    import signal
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parent.parent
+    proc = subprocess.Popen([sys.executable, "-m", "foveawarp.cli", "view", "--device", "cpu", "--width", "32",
+                             "--height", "18", "--port", "0"], cwd=repo, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines, found = [], threading.Event()
+
+    def read():
+        for line in proc.stdout:
+            lines.append(line)
+            if "open http://127.0.0.1:" in line:
+                found.set()
+        found.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        assert found.wait(120), "".join(lines)
+        url = next(ln for ln in lines if "open http://" in ln).split("open ")[1].split()[0]
+        assert url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(url, timeout=10) as r:
+            assert b"<canvas" in r.read()
+        with urllib.request.urlopen(url + "stats.json", timeout=10) as r:
+            st = json.loads(r.read())
+        assert st["width"] == 32 and st["height"] == 18 and st["frames"] == 0
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 0, "".join(lines)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+def test_view_warns_when_listening_beyond_loopback(monkeypatch, capsys):
+    """--host other than loopback prints a warning (the server start itself is stubbed out here)."""
+    pytest.importorskip("websockets", reason="the viewer extra (websockets) is not installed")
+    from foveawarp import cli
+    from foveawarp.viewer import server as server_mod
+
+    started = []
+
+    async def fake_start(self):
+        started.append((self.host, self.port))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(server_mod.ViewerServer, "start", fake_start)
+    assert cli.main(["view", "--device", "cpu", "--width", "16", "--height", "9", "--host", "0.0.0.0",
+                     "--port", "0"]) == 0
+    assert started == [("0.0.0.0", 0)]
+    assert "warning" in capsys.readouterr().err
