@@ -332,8 +332,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="serve the live viewer: a page whose foveated frames follow the mouse")
-    v.add_argument("--scene", action="append", default=None, metavar="NAME|PATH",
-                   help="a scene the page may show (repeat for several; default cornell)")
+    v.add_argument("--scene", action="extend", nargs="+", default=None, metavar="NAME|PATH",
+                   help="the scenes the page may offer (default cornell); the page names them, never sends paths")
     v.add_argument("--device", default=None, help='"cpu", "cuda:0", ... (default: CUDA when present)')
     v.add_argument("--width", type=_positive_int, default=None, help="render width (default 1280 CUDA, 320 CPU)")
     v.add_argument("--height", type=_positive_int, default=None, help="render height (default 720 CUDA, 180 CPU)")

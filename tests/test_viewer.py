@@ -547,3 +547,29 @@ def test_view_warns_when_listening_beyond_loopback(monkeypatch, capsys):
                      "--port", "0"]) == 0
     assert started == [("0.0.0.0", 0)]
     assert "warning" in capsys.readouterr().err
+
+
+def test_a_scene_that_fails_to_load_is_reported_and_the_session_goes_on(tmp_path):
+    pytest.importorskip("websockets", reason="the viewer extra (websockets) is not installed")
+    from foveawarp.viewer.server import ViewerServer
+
+    bad = tmp_path / "broken.obj"
+    bad.write_bytes(b"\x00\x01 not a mesh \xff" * 8)
+    srv = ViewerServer(ViewerSession(["cornell", str(bad)], W, H, device="cpu"), port=0).start_in_thread()
+    try:
+        async def run():
+            async with _connect(srv) as ws:
+                state = json.loads(await ws.recv())
+                assert state["scenes"] == ["cornell", "broken"] and "JPEG" not in state["encoder"]
+                await ws.send(json.dumps({"type": "scene", "name": "broken"}))
+                back = lambda m: isinstance(m, dict) and m["type"] == "state" and m["scene"] == "cornell"  # noqa
+                err, texts = await _until(ws, lambda m: isinstance(m, dict) and m["type"] == "error")
+                assert "render failed" in err["message"] and "broken.obj" in err["message"]
+                if not any(back(t) for t in texts):     # the state may come before or after the error
+                    await _until(ws, back)
+                await ws.send(json.dumps({"type": "gaze", "x": 9, "y": 9, "seq": 401}))
+                (h, img), _ = await _until(ws, _frame_with_seq(401))
+                assert img.shape == (H, W, 3) and h["stats"]["scene"] == "cornell"
+        asyncio.run(run())
+    finally:
+        srv.stop()

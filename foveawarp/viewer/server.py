@@ -12,6 +12,7 @@ that falls behind sees the newest frame next. Rendering runs on the session's re
 from __future__ import annotations
 
 import asyncio
+import http
 import json
 import logging
 import threading
@@ -262,15 +263,15 @@ class ViewerServer:
                 pass
 
     def _on_error(self, text: str) -> None:
+        state = json.dumps(self.session.state_message())  # e.g. the scene went back to one that loads
         for c in list(self._clients):
             if len(c.errors) < 16:
                 c.errors.append(text)
+            c.state = state
             c.wake.set()
 
 
 def _response(status: int, body: bytes, ctype: str) -> Response:
-    import http
-
     st = http.HTTPStatus(status)
     headers = Headers([("Content-Type", ctype), ("Content-Length", str(len(body))), ("Cache-Control", "no-store"),
                        ("X-Content-Type-Options", "nosniff"), ("Connection", "close")])

@@ -115,6 +115,7 @@ class ViewerSession:
         self._publish: Optional[Callable] = None
         self._publish_error: Optional[Callable] = None
         self._scenes: dict = {}
+        self._failed_scenes: set = set()
         self._loop = self._ref_loop = None
         self._loop_key = None
         self._camera: Optional[Camera] = None
@@ -218,7 +219,7 @@ class ViewerSession:
                 "scenes": list(self._sources), "scene": self.scene, "mode": self.mode, "modes": list(MODES),
                 "overlays": dict(self.overlays), "playing": self.playing, "gaze_source": self.gaze_source,
                 "has_trace": self.trace is not None, "knobs": dict(self.knobs),
-                "knob_info": {k: v.describe() for k, v in KNOBS.items()},
+                "knob_info": {k: v.describe() for k, v in KNOBS.items()}, "encoder": jpeg_encoder(),
             }
 
     def stats_snapshot(self) -> dict:
@@ -279,12 +280,18 @@ class ViewerSession:
                 try:
                     payload, meta = self._render(snap)
                 except Exception as e:  # a failed scene load or render must not end the session
+                    with self._cond:
+                        if snap["scene"] not in self._scenes:  # it did not load: go back to one that may
+                            self._failed_scenes.add(snap["scene"])
+                            if self.scene == snap["scene"]:
+                                ok = [s for s in self._sources if s not in self._failed_scenes]
+                                fallback = next((s for s in ok if s in self._scenes), ok[0] if ok else None)
+                                if fallback is not None:
+                                    self.scene = fallback
+                                    self._version += 1
+                        self._converge_left = 0
                     if self._publish_error is not None:
                         self._publish_error(f"render failed: {type(e).__name__}: {e}")
-                    with self._cond:
-                        if snap["scene"] not in self._scenes and self.scene == snap["scene"]:
-                            self.scene = next(iter(self._scenes), self.scene)
-                        self._converge_left = 0
                     time.sleep(0.2)
                     continue
                 if self._publish is not None:
@@ -458,6 +465,15 @@ def _rotate(v, axis, angle):
 
 
 # -- helpers ------------------------------------------------------------------------------------------------
+
+
+def jpeg_encoder() -> str:
+    """Which JPEG encoder the frames use, e.g. "Pillow 13.0.0, libjpeg-turbo 3.2.0"."""
+    import PIL
+    from PIL import features
+
+    turbo = features.version_feature("libjpeg_turbo") if features.check_feature("libjpeg_turbo") else None
+    return f"Pillow {PIL.__version__}, " + (f"libjpeg-turbo {turbo}" if turbo else "libjpeg")
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:

@@ -226,6 +226,7 @@
     rows.push(["gaze->shown p50 (here)", ms(quantile(roundTrips, 0.5))]);
     rows.push(["gaze px", h ? h.gaze.map((v) => v.toFixed(0)).join(", ") : "-"]);
     rows.push(["device", state ? state.device : "-"]);
+    rows.push(["encoder", state && state.encoder ? state.encoder.replace("Pillow ", "PIL ") : "-"]);
     const box = $("stats");
     box.textContent = "";
     for (const [a, b] of rows) {
