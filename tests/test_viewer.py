@@ -573,3 +573,31 @@ def test_a_scene_that_fails_to_load_is_reported_and_the_session_goes_on(tmp_path
         asyncio.run(run())
     finally:
         srv.stop()
+
+
+def test_gaze_trace_drives_the_viewer_until_the_page_switches_to_the_mouse():
+    pytest.importorskip("websockets", reason="the viewer extra (websockets) is not installed")
+    from foveawarp.viewer.server import ViewerServer
+
+    trace = GazeTrace([0.0, 0.5, 1.0], [10.0, 50.0, 10.0], [20.0, 20.0, 20.0])
+    srv = ViewerServer(ViewerSession(["cornell"], W, H, device="cpu", gaze_trace=trace), port=0).start_in_thread()
+    try:
+        async def run():
+            async with _connect(srv) as ws:
+                state = json.loads(await ws.recv())
+                assert state["gaze_source"] == "trace" and state["has_trace"] and state["overlays"]["gaze"]
+                await ws.send(json.dumps({"type": "gaze", "x": 90, "y": 50, "seq": 501}))   # ignored
+                xs = set()
+                for _ in range(12):
+                    (h, img), _ = await _until(ws, lambda m: isinstance(m, tuple))
+                    gx, gy = h["gaze"]
+                    assert gy == pytest.approx(20.0) and 10.0 <= gx <= 50.0 and h["seq"] is None
+                    xs.add(round(gx, 3))
+                assert len(xs) > 1                                 # the trace moves the gaze
+                await ws.send(json.dumps({"type": "gaze_source", "value": "mouse"}))
+                await ws.send(json.dumps({"type": "gaze", "x": 90, "y": 50, "seq": 502}))
+                (h, img), _ = await _until(ws, _frame_with_seq(502))
+                assert h["gaze"] == [90.0, 50.0]
+        asyncio.run(run())
+    finally:
+        srv.stop()
