@@ -77,6 +77,8 @@ def _wait(pred, timeout=60.0, step=0.1):
 
 def test_mouse_over_canvas_steers_the_gaze_in_headless_chromium(browser, server):
     page = browser.new_page(viewport={"width": 900, "height": 500})
+    js_errors = []
+    page.on("pageerror", lambda e: js_errors.append(str(e)))
     try:
         page.goto(server.url, timeout=60_000)
         page.wait_for_function("document.getElementById('conn').textContent === 'live'", timeout=60_000)
@@ -106,5 +108,15 @@ def test_mouse_over_canvas_steers_the_gaze_in_headless_chromium(browser, server)
         assert spread[1] - spread[0] > 60 and spread[2] > 10, spread
         # the stats panel filled in
         assert "%" in page.locator("#stats").inner_text()
+        # side by side: the canvas doubles, and the right half (the reference) maps to the same gaze
+        page.check("input[name=mode][value=side_by_side]")
+        page.wait_for_function("document.getElementById('view').width === %d" % (2 * W), timeout=30_000)
+        box = page.locator("#view").bounding_box()
+        page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.5 * box["height"])
+        tol = 1.5 * 2 * W / box["width"]
+        assert _wait(lambda: abs(_stats(server)["gaze_px"][0] - 0.8 * W) <= tol), _stats(server)["gaze_px"]
+        page.check("input[name=mode][value=foveated]")
+        page.wait_for_function("document.getElementById('view').width === %d" % W, timeout=30_000)
+        assert js_errors == []
     finally:
         page.close()
