@@ -96,7 +96,7 @@ def main():
                                 def trace():
                                     wp.launch(shade_rows_kernel, dim=(h, w),
                                               inputs=[sp, stage.coords, stage.counts, *loop._shade_inputs()],
-                                              outputs=[loop.radiance], device=dev)
+                                              outputs=[loop.radiance, loop.radiance_stoch], device=dev)
                             else:
                                 def trace():
                                     loop.shade_list(cam, stage.work, stage.count)

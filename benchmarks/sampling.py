@@ -54,7 +54,7 @@ def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
         "fused pass": lambda: wp.launch(
             sampling_map_kernel, dim=(h, w),
             inputs=[stage.params, stage.frame_params, stage.ranks, stage.lab, g.normal, g.depth, g.hit, g.velocity,
-                    g.position, g.reproj_uv, stage.depth_prev, stage.valid_prev],
+                    g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev],
             outputs=[stage.probability, stage.saliency, stage.sample_map, stage.cache_hit, stage.prev_index],
             device=dev),
         "tile pass": lambda: launch_tile_pass(stage.ranks, stage.params, stage.frame_params, stage.tiles,

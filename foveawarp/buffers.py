@@ -14,10 +14,14 @@ class GBuffer:
     position (vec3, world), normal (vec3, unit, facing the viewer; 0 on misses), depth (float, distance from
     the eye; the ray's max distance on misses), albedo (vec3), face (int32, -1 on misses), hit (uint8),
     velocity (vec2, pixels moved since the previous frame: current - previous position),
-    reproj_uv (vec2, this point's pixel position in the previous frame; -1e4 when it has none).
+    reproj_uv (vec2, this point's pixel position in the previous frame; -1e4 when it has none),
+    prev_dist (float, the same surface point's distance from the previous eye at the previous frame's object
+    transforms, metres: what the previous frame's depth at ``reproj_uv`` must be when the point was visible
+    there; 0 on misses), moved (uint8, 1 where the surface point moved in world space since the previous
+    frame: object motion).
     """
 
-    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv")
+    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist", "moved")
 
     def __init__(self, width: int, height: int, device):
         from ._util import check_image_size, get_device
@@ -34,6 +38,8 @@ class GBuffer:
         self.hit = wp.zeros(shape, dtype=wp.uint8, device=device)
         self.velocity = wp.zeros(shape, dtype=wp.vec2, device=device)
         self.reproj_uv = wp.zeros(shape, dtype=wp.vec2, device=device)
+        self.prev_dist = wp.zeros(shape, dtype=float, device=device)
+        self.moved = wp.zeros(shape, dtype=wp.uint8, device=device)
 
     def numpy(self) -> dict:
         return {k: getattr(self, k).numpy() for k in self.FIELDS}

@@ -34,6 +34,16 @@ def _positive_int(s: str) -> int:
     return v
 
 
+def _positive_float(s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {s!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {s!r}")
+    return v
+
+
 def _default_device(dev):
     import warp as wp
 
@@ -238,7 +248,10 @@ def cmd_view(args) -> int:
         print(f"foveawarp view: {', '.join(session.limits.scenes)} at {w}x{h} on {device}; open {server.url}"
               f" (Ctrl-C stops)", flush=True)
         try:
-            await asyncio.Event().wait()
+            if args.serve_seconds is None:
+                await asyncio.Event().wait()
+            else:
+                await asyncio.sleep(args.serve_seconds)
         finally:
             await server.close()
 
@@ -317,7 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser("render", help="render frames of a scene (built-in name or mesh file)")
-    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny | PATH")
+    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny-in-box | bunny | "
+                   "spot | teapot | nefertiti | ogre | PATH (a mesh file)")
     r.add_argument("--width", type=_positive_int, default=640)
     r.add_argument("--height", type=_positive_int, default=360)
     r.add_argument("--frames", type=_positive_int, default=1)
@@ -344,6 +358,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--timing", choices=("on", "off"), default=None,
                    help="per-stage timing (default: on for the CPU, off on CUDA, which then replays CUDA graphs)")
     v.add_argument("--quality", type=int, default=80, help="JPEG quality in [10, 100] (default 80)")
+    v.add_argument("--serve-seconds", type=_positive_float, default=None,
+                   help="stop after this many seconds (scripted runs; default: until Ctrl-C)")
     v.set_defaults(func=cmd_view)
 
     w = sub.add_parser("warmup", help="compile every kernel module for a device ahead of time")

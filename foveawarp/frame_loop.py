@@ -14,7 +14,7 @@ import warp as wp
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
-from .config import Config, check_bool, check_int_range, show
+from .config import Config, check_bool, check_choice, check_int_range, show
 from .kernels.gbuffer import gbuffer_kernel
 from .kernels.shade import (
     ShadeParams,
@@ -44,10 +44,21 @@ class FrameLoop:
             benchmarks of whole frames, which use CUDA graphs on CUDA).
         graph: capture the steady-state frame body as a CUDA graph and replay it. None (default): on CUDA
             when ``timing`` is False. Ignored (eager launches) on the CPU and when ``timing`` is True.
+        policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
+            "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
+            every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
+            both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
+            on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison, and on the
+            CPU device the choice is left to the user until the CPU frame path is multi-threaded).
     """
 
+    POLICY_PERIOD = 600  # frames between two measurements of the policy
+    POLICY_WARM = 3  # untimed frames before each timed run of a path (compile, graph capture)
+    POLICY_TIMED = 4  # timed frames per path; the median counts
+    POLICY_MARGIN = 0.05  # full resolution is chosen when at least this fraction cheaper
+
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
-                 timing: bool = True, graph: Optional[bool] = None):
+                 timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None):
         self.width, self.height = check_image_size(width, height)
         if config is None:
             config = Config()
@@ -61,6 +72,8 @@ class FrameLoop:
         w, h, dev = self.width, self.height, self.device
         self.gbuffer = GBuffer(w, h, dev)
         self.radiance = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        # the stochastic part of ``radiance`` (AO, area-light samples), written when the shading has one
+        self.radiance_stoch = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.image = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.full_map = wp.ones((h, w), dtype=wp.uint8, device=dev)
         from .stages.dof import DofStage
@@ -84,6 +97,14 @@ class FrameLoop:
         self._warm_keys: set = set()
         self._graph_error: Optional[str] = None
         self._static_frames = 0
+        if policy is None:
+            policy = "auto" if (dev.is_cuda and not self.timing) else "foveated"
+        self.policy = check_choice("policy", policy, ("auto", "foveated", "full"))
+        self._pol_frame = 0  # frames since the last policy measurement began
+        self._pol_ms = {"foveated": [], "full": []}
+        self._pol_choice = "foveated"
+        self._pol_est: dict = {}
+        self._last_full = False
 
     def _ensure_foveated_stages(self) -> None:
         """Allocate the foveated stages' buffers (once, on the first ``render``)."""
@@ -144,7 +165,15 @@ class FrameLoop:
         sp.frame = int(self.frame_index)
         sp.width = self.width
         sp.eye = wp.vec3(*camera.eye)
+        sp.split_stochastic = 1 if self._stochastic_shading(sp.ao_samples) else 0
         return sp
+
+    def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:
+        """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
+        samples): the temporal resolve then accumulates them (``TemporalStage``)."""
+        sc = self.config.shading
+        ao = sc.ao_samples if ao_samples is None else ao_samples
+        return bool(ao > 0 or (self.dscene.num_area_lights > 0 and sc.area_light_samples > 0))
 
     @staticmethod
     def _require_camera(camera) -> Camera:
@@ -181,7 +210,8 @@ class FrameLoop:
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                     camera.params(self.width, self.height), prev_camera.params(self.width, self.height),
                     self._max_t(camera)],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                     g.moved],
             device=self.device,
         )
 
@@ -202,7 +232,7 @@ class FrameLoop:
             self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_full_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device): ``work`` a 1-D int32
@@ -219,7 +249,7 @@ class FrameLoop:
         wp.launch(shade_list_kernel, dim=work.shape[0],
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), work, count,
                           *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the pixels where ``mask`` ((H, W) uint8 wp.array) is nonzero, launching every pixel."""
@@ -228,7 +258,7 @@ class FrameLoop:
             self._check_image_array("out", out, wp.vec3)
         wp.launch(shade_masked_kernel, dim=(self.height, self.width),
                   inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance], device=self.device)
+                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
 
     def _tonemap(self, hdr, out) -> None:
         sc = self.config.shading
@@ -302,8 +332,24 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
+        mode, pol_timed = self._policy_mode()
+        if mode == "full" and cfg.foveation.enabled:
+            est = self._pol_est
+            if self.policy == "full":
+                skipped["foveation"] = "policy 'full': every pixel traced"
+            elif est and self._pol_choice == "full":
+                skipped["foveation"] = (f"policy 'auto': full resolution is cheaper here (measured "
+                                        f"{est['full_ms']:.3f} ms full vs {est['foveated_ms']:.3f} ms foveated)")
+            else:
+                skipped["foveation"] = "policy 'auto': timing the full-resolution path"
+        elif self._last_full and not (first or cut):
+            cut = True
+            skipped["reprojection"] = "previous frame rendered at full resolution"
+        if pol_timed:
+            wp.synchronize_device(self.device)
+            t_pol = _now()
         if first or cut:
-            skipped["reprojection"] = "first frame" if first else "camera cut"
+            skipped.setdefault("reprojection", "first frame" if first else "camera cut")
             self.temporal.reset()
             self.dscene.reset_history()
         history = not (first or cut)
@@ -314,7 +360,7 @@ class FrameLoop:
             skipped["bvh_refit"] = "static scene"
         with self._stage("gbuffer"):
             self._gbuffer(camera, prev_cam)
-        foveated = cfg.foveation.enabled
+        foveated = cfg.foveation.enabled and mode == "foveated"
         strategy = cfg.reorder.strategy if foveated else "full"
         with self._stage("sampling"):
             if foveated:
@@ -359,6 +405,7 @@ class FrameLoop:
         stats["strategy"] = strategy
         stats["graph"] = graph_state
         stats["static_frames"] = self._static_frames
+        stats["policy"] = {"policy": self.policy, "path": mode, **self._pol_est}
         if foveated:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
@@ -369,11 +416,38 @@ class FrameLoop:
         if self.timing:
             wp.synchronize_device(self.device)
             stats["ms_frame"] = (_now() - t0) * 1e3
+        if pol_timed:
+            wp.synchronize_device(self.device)
+            self._pol_ms[mode].append((_now() - t_pol) * 1e3)
+        self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
         extras = {"sparse": self.temporal.color, "filled": self.temporal.filled} if foveated else {}
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
                      extras)
+
+    def _policy_mode(self) -> tuple:
+        """(path of this frame, whether to time it) under ``self.policy``. "auto" runs a measurement every
+        ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of each path, the timed ones
+        synchronized; then renders the path with the smaller median (full resolution only when it is at least
+        ``POLICY_MARGIN`` cheaper) until the next measurement."""
+        if self.policy != "auto" or not self.config.foveation.enabled:
+            return ("full" if self.policy == "full" else "foveated"), False
+        n = self.POLICY_WARM + self.POLICY_TIMED
+        f = self._pol_frame
+        self._pol_frame = (f + 1) % self.POLICY_PERIOD
+        if f == 0:
+            self._pol_ms = {"foveated": [], "full": []}
+        if f < n:
+            return "foveated", f >= self.POLICY_WARM
+        if f < 2 * n:
+            return "full", f - n >= self.POLICY_WARM
+        if f == 2 * n:
+            fov_ms = float(np.median(self._pol_ms["foveated"]))
+            full_ms = float(np.median(self._pol_ms["full"]))
+            self._pol_choice = "full" if full_ms < (1.0 - self.POLICY_MARGIN) * fov_ms else "foveated"
+            self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index}
+        return self._pol_choice, False
 
     def _refresh_due(self, foveated: bool) -> bool:
         """Whether this frame traces only the refresh budget: foveation and history on, a refresh fraction
@@ -408,8 +482,9 @@ class FrameLoop:
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
-                self.temporal.run(smap, self.sampling.cache_hit, self.sampling.prev_index, self.radiance,
-                                  use_history=history)
+                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, self.sampling.depth_prev,
+                                  self.sampling.valid_prev, use_history=history,
+                                  stochastic=self._stochastic_shading(), background=cfg.shading.background)
         with self._stage("reconstruct"):
             if foveated:
                 self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
@@ -465,18 +540,18 @@ class FrameLoop:
         sp, dev = self._sp_dev, self.device
         if strategy == "full":
             wp.launch(shade_full_kernel, dim=(self.height, self.width), inputs=[sp, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         elif strategy == "none":
             wp.launch(shade_masked_kernel, dim=(self.height, self.width), inputs=[sp, smap, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         elif strategy in ("rows", "rows+balance"):
             wp.launch(shade_rows_kernel, dim=(self.height, self.width),
                       inputs=[sp, self.reorder.coords, self.reorder.counts, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
         else:
             wp.launch(shade_list_kernel, dim=self.reorder.work.shape[0],
                       inputs=[sp, self.reorder.work, self.reorder.count, *self._shade_inputs()],
-                      outputs=[self.radiance], device=dev)
+                      outputs=[self.radiance, self.radiance_stoch], device=dev)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

@@ -11,12 +11,13 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional
 
 import numpy as np
 
 from .camera import Camera
 from .config import check_array, check_choice, check_finite, check_int_range, check_range, check_vec, show
+from .meshio import NAMED_MESHES, find_named_mesh, load_mesh_arrays, named_mesh_help, scene_search_dirs  # noqa: F401
 
 __all__ = ["Light", "AreaLight", "SceneObject", "Scene", "DeviceScene", "load_scene", "scene_search_dirs"]
 
@@ -377,115 +378,61 @@ class DeviceScene:
 
 # ---------------------------------------------------------------------------------------------------
 # loading
+#
+# Mesh files are read by foveawarp.meshio (re-exported here). The built-in scene builders live in
+# foveawarp.scenes, which imports this module; it registers its builders here when it is imported (the package's
+# __init__ imports it), so this module never imports foveawarp.scenes and the two do not import each other.
+
+_REGISTRY: dict = {"builtin": None, "file": None}
 
 
-def scene_search_dirs() -> list:
-    """Folders searched for named mesh files ("bunny", "spot", ...): $FOVEAWARP_SCENES (os.pathsep
-    separated), ./shared/scenes, ../shared/scenes, and the shared/scenes beside this checkout."""
-    dirs = []
-    env = os.environ.get("FOVEAWARP_SCENES")
-    if env:
-        dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    here = Path(__file__).resolve().parent
-    dirs += [Path("shared/scenes"), Path("../shared/scenes"), here.parent / "shared" / "scenes",
-             here.parent.parent / "shared" / "scenes"]
-    return dirs
+def register_builtin_scenes(builtin: dict, file_builder: Callable) -> None:
+    """Called once by :mod:`foveawarp.scenes`: ``builtin`` maps a scene name to its builder (the dict itself is
+    kept, so later additions to it are seen), ``file_builder(path, name=None, **kw)`` builds a scene around a mesh
+    file."""
+    if not isinstance(builtin, dict) or not all(isinstance(k, str) and callable(b) for k, b in builtin.items()):
+        raise ValueError(f"builtin must be a dict of scene name -> builder, got {show(builtin)}")
+    if not callable(file_builder):
+        raise ValueError(f"file_builder must be a callable (path, name=None, **kw) -> Scene, got {show(file_builder)}")
+    _REGISTRY["builtin"] = builtin
+    _REGISTRY["file"] = file_builder
 
 
-NAMED_MESHES = {
-    "bunny": "stanford-bunny.obj",
-    "spot": "spot.obj",
-    "nefertiti": "nefertiti.obj",
-    "ogre": "ogre.obj",
-    "teapot": "teapot.obj",
-}
-
-
-def find_named_mesh(name: str) -> Optional[Path]:
-    fname = NAMED_MESHES.get(name, name)
-    for d in scene_search_dirs():
-        p = d / fname
-        if p.is_file():
-            return p
-    return None
-
-
-def load_mesh_arrays(path) -> tuple:
-    """Read any mesh file trimesh reads -> (vertices, faces, face_albedo or None, vertex_normals)."""
-    import trimesh
-
-    if not isinstance(path, (str, os.PathLike)):
-        raise ValueError(f"scene path must be a file path (str or os.PathLike), got {show(path)}")
-    p = Path(path)
-    if not p.exists():
-        raise ValueError(f"scene path {str(path)!r} does not exist")
-    if not p.is_file():
-        raise ValueError(f"scene path {str(path)!r} is not a file")
-    try:
-        loaded = trimesh.load(str(p), force="mesh", process=False)
-    except Exception as e:  # trimesh raises many types for unreadable input
-        raise ValueError(f"scene file {str(path)!r} could not be read as a mesh: {e}") from None
-    if isinstance(loaded, trimesh.Scene):  # older trimesh versions may still return a Scene
-        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
-        loaded = trimesh.util.concatenate(geoms) if geoms else None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) < 3:
-        raise ValueError(f"scene file {str(path)!r} holds no triangle mesh (empty, points only, or not a mesh)")
-    v = np.asarray(loaded.vertices, dtype=np.float64)
-    f = np.asarray(loaded.faces, dtype=np.int64)
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"scene file {str(path)!r} has non-finite vertex coordinates")
-    albedo = None
-    try:
-        vis = loaded.visual
-        kind = getattr(vis, "kind", None)
-        if kind == "face":
-            albedo = np.asarray(vis.face_colors[:, :3], dtype=np.float32) / 255.0
-        elif kind == "vertex":
-            vc = np.asarray(vis.vertex_colors[:, :3], dtype=np.float32) / 255.0
-            albedo = vc[f].mean(axis=1)
-    except Exception:
-        albedo = None
-    try:
-        vn = np.asarray(loaded.vertex_normals, dtype=np.float32)
-    except Exception:
-        vn = None
-    return v, f, albedo, vn
+def _builders():
+    if _REGISTRY["builtin"] is None:  # only when foveawarp.scene is used without the package's __init__
+        raise RuntimeError("no scene builders registered: import foveawarp (or foveawarp.scenes) first")
+    return _REGISTRY["builtin"], _REGISTRY["file"]
 
 
 def load_scene(name_or_path, **kwargs) -> Scene:
     """A built-in scene by name (``cornell``, ``city``, ``eyechart``, ``earth``, ``bunny-in-box``), a named
-    mesh from the shared scene folder (``bunny``, ``spot``, ``nefertiti``, ``ogre``, ``teapot``), or any
-    mesh file trimesh reads (.obj .ply .glb .gltf .stl ...), placed on a ground plane with a default spot
-    light and camera. Keyword arguments go to the builder (e.g. ``seed``, ``motion``)."""
-    from . import scenes
-
+    mesh (``bunny``, ``spot``, ``teapot`` ship with the package; ``nefertiti``, ``ogre`` are read from
+    ``$FOVEAWARP_SCENES`` or a ``shared/scenes`` folder), or any mesh file (.obj .ply .glb .gltf .stl ..., PLY
+    triangle strips included; several meshes of a glTF / OBJ are placed by their transforms and keep their base
+    colours), placed on a ground plane with a default spot light and camera. Keyword arguments go to the builder
+    (e.g. ``seed``, ``motion``)."""
     if isinstance(name_or_path, Scene):
         return name_or_path
     if not isinstance(name_or_path, (str, os.PathLike)):
         raise ValueError(f"name_or_path must be a scene name or a file path, got {name_or_path!r}")
+    builtin, on_ground = _builders()
     key = str(name_or_path)
-    if key in scenes.BUILTIN:
-        builder = scenes.BUILTIN[key]
-    else:
-        builder = scenes.mesh_on_ground
-    _check_kwargs(builder, kwargs, () if key in scenes.BUILTIN else ("path", "name") if key in NAMED_MESHES
+    builder = builtin[key] if key in builtin else on_ground
+    _check_kwargs(builder, kwargs, () if key in builtin else ("path", "name") if key in NAMED_MESHES
                   else ("path",))
-    if key in scenes.BUILTIN:
+    if key in builtin:
         return builder(**kwargs)
     if key in NAMED_MESHES:
         p = find_named_mesh(key)
         if p is None:
-            raise ValueError(
-                f"scene {key!r} needs {NAMED_MESHES[key]!r}, not found in "
-                f"{[str(d) for d in scene_search_dirs()]}; set FOVEAWARP_SCENES to its folder"
-            )
-        return scenes.mesh_on_ground(p, name=key, **kwargs)
+            raise ValueError(named_mesh_help(key))
+        return on_ground(p, name=key, **kwargs)
     if not Path(key).exists():
         raise ValueError(
-            f"scene {key!r} is neither a built-in name {sorted(scenes.BUILTIN) + sorted(NAMED_MESHES)} "
+            f"scene {key!r} is neither a built-in name {sorted(builtin) + sorted(NAMED_MESHES)} "
             "nor an existing file"
         )
-    return scenes.mesh_on_ground(key, **kwargs)
+    return on_ground(key, **kwargs)
 
 
 def _check_kwargs(builder, kwargs: dict, exclude: tuple) -> None:

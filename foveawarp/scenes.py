@@ -4,7 +4,10 @@
 - ``city``: a seeded voxel city of more than 1M triangles (the large-scene performance case).
 - ``eyechart``: walls of high-contrast gratings and letters at many spatial frequencies and distances.
 - ``earth``: a low-poly sphere (960 triangles) with a procedural albedo.
-- ``bunny-in-box``: the Cornell box with the Stanford bunny (from the shared scene folder) inside.
+- ``bunny-in-box``: the Cornell box with the Stanford bunny (shipped in ``foveawarp/assets``) inside.
+
+Importing this module registers ``BUILTIN`` and :func:`mesh_on_ground` with :func:`foveawarp.scene.load_scene`
+(``scene`` never imports this module).
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import numpy as np
 
 from .camera import Camera
 from .config import check_array, check_bool, check_choice, check_finite, check_int_range, check_range, check_vec, show
-from .scene import BVH_CONSTRUCTORS, AreaLight, Light, Scene, SceneObject, find_named_mesh, load_mesh_arrays
+from .meshio import find_named_mesh, load_mesh_arrays, load_mesh_parts, named_mesh_help
+from .scene import BVH_CONSTRUCTORS, AreaLight, Light, Scene, SceneObject, register_builtin_scenes
 
 __all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "mesh_on_ground", "BUILTIN"]
 
@@ -218,7 +222,7 @@ def bunny_in_box(path=None, bvh_constructor: str = "sah") -> Scene:
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     p = Path(path) if path is not None else find_named_mesh("bunny")
     if p is None:
-        raise ValueError("bunny-in-box needs stanford-bunny.obj in the shared scene folder; set FOVEAWARP_SCENES")
+        raise ValueError("bunny-in-box: " + named_mesh_help("bunny"))
     v, f, _, vn = load_mesh_arrays(p)
     b = SceneBuilder()
     b.add_quad((-1, 0, -1), (0, 0, 2), (2, 0, 0), WHITE, name="floor")
@@ -490,31 +494,37 @@ def _rot4(r3):
 # ---------------------------------------------------------------------------------------------------
 def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "sah") -> Scene:
     """Any mesh file, in its own units and orientation (y up), centred on a ground plane, with a spot light
-    and a camera framing it. Vertex/face colours become the albedo (else ``albedo``, 3 numbers in [0, 1])."""
+    and a camera framing it. Every mesh of the file is placed by its transform (glTF nodes, OBJ objects) and
+    keeps its colour: material base colour factor times vertex colours, or face colours, averaged per face; a
+    mesh without colours gets ``albedo`` (3 numbers in [0, 1]). Textures are not read."""
     if name is not None and not isinstance(name, str):
         raise ValueError(f"name must be None or a str, got {show(name)}")
     albedo = check_vec("albedo", albedo, 3, 0.0, 1.0)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    v, f, alb, vn = load_mesh_arrays(path)
-    lo, hi = v.min(0), v.max(0)
+    parts = load_mesh_parts(path)
+    lo = np.min([pt.vertices.min(0) for pt in parts], axis=0)
+    hi = np.max([pt.vertices.max(0) for pt in parts], axis=0)
     size = float(np.max(hi - lo))
     if not size > 0:
         raise ValueError(f"scene file {str(path)!r} has a degenerate bounding box (all vertices coincide)")
-    v = v - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    shift = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
     h = float(hi[1] - lo[1])
     b = SceneBuilder()
     g = 3.0 * size
     b.add_quad((-g, 0.0, -g), (0, 0, 2 * g), (2 * g, 0, 0), (0.5, 0.5, 0.52), name="ground")
-    b.add_mesh(v, f, alb if alb is not None else albedo, normals=vn, smooth=vn is not None,
-               name=name or Path(path).stem)
+    label = name or Path(path).stem
+    for pt in parts:
+        b.add_mesh(pt.vertices - shift, pt.faces, pt.albedo if pt.albedo is not None else albedo,
+                   normals=pt.normals, smooth=pt.normals is not None,
+                   name=label if len(parts) == 1 else f"{label}/{pt.name}")
     lpos = (0.6 * size, 2.5 * size, 1.2 * size)
     ldir = -np.asarray(lpos) + np.array([0.0, 0.4 * h, 0.0])
     lights = [Light(kind="spot", position=lpos, direction=tuple(ldir), cone_deg=40.0,
                     intensity=tuple(np.array([2.4, 2.3, 2.1]) * (3.0 * size) ** 2))]
     center = (0.0, 0.45 * h, 0.0)
     cam = Camera(eye=(0.0, 0.7 * h + 0.2 * size, 2.0 * size), target=center, up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
-    return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 15.0, 8.0),
-                   name=name or Path(path).stem, bvh_constructor=bvh_constructor)
+    return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 15.0, 8.0), name=label,
+                   bvh_constructor=bvh_constructor)
 
 
 BUILTIN = {
@@ -524,3 +534,5 @@ BUILTIN = {
     "earth": earth,
     "bunny-in-box": bunny_in_box,
 }
+
+register_builtin_scenes(BUILTIN, mesh_on_ground)

@@ -175,7 +175,8 @@ def test_refresh_budget_on_static_converged_view_matches_full_sampling_path(devi
         assert both.mean() > 0.9
         np.testing.assert_allclose(ia[both], ib[both], atol=2e-5)
         # and the whole frame is at least as close to the full-resolution reference
-        assert psnr(ia, ref) >= psnr(ib, ref) - 0.5, (i, psnr(ia, ref), psnr(ib, ref))
+        # (capped at 100 dB: the non-skipping path now reproduces a static deterministic view exactly)
+        assert min(psnr(ia, ref), 100.0) >= min(psnr(ib, ref), 100.0) - 0.5, (i, psnr(ia, ref), psnr(ib, ref))
 
 
 def test_refresh_budget_never_when_view_or_scene_changes(device):

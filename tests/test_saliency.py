@@ -140,7 +140,7 @@ def _gbuffer(arrs, device):
     return g
 
 
-CFG = fw.Config().with_(foveation={"mar_slope": 0.3, "min_probability": 0.05, "block": 4},
+CFG = fw.Config().with_(foveation={"mar_slope": 0.3, "min_probability": 0.05, "block": 4, "falloff_deg": None, "fovea_deg": 0.0},
                         saliency={"albedo_scale": 2.0, "normal_scale": 1.0, "velocity_scale_px": 8.0,
                                   "sigma1_m": 0.5, "sigma2_m": 2.0, "dof_floor": 0.1},
                         dof={"aperture_m": 0.01})

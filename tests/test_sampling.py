@@ -123,6 +123,34 @@ def test_foveation_probability_with_falloff_matches_reference(device, falloff):
         fw.FoveationConfig(falloff_deg=float("nan"))
 
 
+@pytest.mark.parametrize("fovea", [0.0, 2.5, 5.0, 30.0])
+def test_foveation_probability_full_rate_fovea(device, fovea):
+    """FoveationConfig.fovea_deg: probability 1 where the (independently computed) eccentricity is <= fovea_deg,
+    eq. 2 elsewhere; the SamplingStage then samples every pixel of the fovea in every frame."""
+    m, b, xi = 0.028, 1.0 / 48.0, 0.05
+    for gaze in GAZES[:5]:
+        got = ops.foveation_probability(W, H, gaze, 60.0, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                        falloff_deg=20.0, fovea_deg=fovea, device=device)
+        ref = ref_probability(W, H, gaze, 60.0, m, b, xi, 20.0)
+        e = ref_eccentricity(W, H, gaze, 60.0)
+        inside = e <= fovea
+        clear = np.abs(e - fovea) > 1e-3  # float32 eccentricity vs float64 at the boundary
+        ref = np.where(inside, 1.0, ref)
+        assert np.abs(got - ref)[clear].max() < 2e-5, (gaze, fovea)
+    with pytest.raises(ValueError, match="fovea_deg"):
+        ops.foveation_probability(W, H, (1, 1), 60.0, mar_slope=m, mar_fovea_deg=b, min_probability=xi,
+                                  fovea_deg=-1.0, device=device)
+    cfg = fw.Config().with_(foveation={"fovea_deg": 10.0, "falloff_deg": 12.0})
+    st = SamplingStage(96, 64, cfg, device=device)
+    gb = GBuffer(96, 64, device)
+    cam = fw.Camera(eye=(0, 0, 3), target=(0, 0, 0), fov_y_deg=60.0)
+    e = ref_eccentricity(96, 64, (40.0, 30.0), 60.0)
+    for i in range(3):
+        st.run(gb, cam, (40.0, 30.0), i, moving=False, first_frame=True)
+        smap = st.sample_map.numpy().astype(bool)
+        assert smap[e <= 10.0 - 1e-3].all()
+
+
 def test_falloff_lowers_the_frame_loop_sampling_rate(device):
     scene = fw.load_scene("eyechart")
     rates = {}
@@ -291,10 +319,14 @@ def test_stage_probability_matches_op_and_counters(device):
     stage = SamplingStage(W, H, cfg, device=device)
     for f, gaze in enumerate([(10.0, 20.0), (-40.0, 90.0)]):
         stage.run(g, cam, gaze, f, moving=False, first_frame=True)
-        ref = ref_probability(W, H, gaze, 50.0, cfg.foveation.mar_slope, cfg.foveation.mar_fovea_deg,
-                              cfg.foveation.effective_min_probability)
+        fc = cfg.foveation  # the defaults: falloff_deg 12, full-rate fovea of 5 deg
+        ref = ref_probability(W, H, gaze, 50.0, fc.mar_slope, fc.mar_fovea_deg, fc.effective_min_probability,
+                              fc.falloff_deg)
+        e = ref_eccentricity(W, H, gaze, 50.0)
+        ref = np.where(e <= fc.fovea_deg, 1.0, ref)
+        clear = np.abs(e - fc.fovea_deg) > 1e-3
         prob = stage.probability.numpy()
-        assert np.abs(prob - ref).max() < 2e-5
+        assert np.abs(prob - ref)[clear].max() < 2e-5
         # uniform albedo and normals, no motion, pinhole: saliency is the foveation probability
         assert np.abs(stage.saliency.numpy() - prob).max() == 0.0
         s = stage.sample_map.numpy()

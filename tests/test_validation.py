@@ -24,9 +24,9 @@ import pytest
 import warp as wp
 
 import foveawarp as fw
-from foveawarp import metrics, ops, scenes
+from foveawarp import meshio, metrics, ops, scenes
 from foveawarp.buffers import GBuffer
-from foveawarp.scene import DeviceScene, SceneObject
+from foveawarp.scene import DeviceScene, SceneObject, register_builtin_scenes
 from foveawarp.stages.dof import DofStage
 from foveawarp.stages.indirect import IndirectStage
 from foveawarp.stages.reconstruct import ReconstructStage
@@ -246,6 +246,10 @@ field(fw.TemporalConfig, "depth_eps_rel", "(0.0, 1.0]", [0.0, 1.5])
 field(fw.TemporalConfig, "cut_threshold_deg", "(0.0, 180.0]", [0.0, 181.0])
 field(fw.TemporalConfig, "refresh_fraction", "[0.0, 1.0]", [-0.1, 1.1])
 field(fw.TemporalConfig, "enabled", "True or False", kind="bool")
+field(fw.FoveationConfig, "fovea_deg", "[0.0, 180.0]", [-0.1, 181.0])
+field(fw.TemporalConfig, "normal_cos_min", "[-1.0, 1.0]", [-1.5, 1.5])
+field(fw.TemporalConfig, "clamp_gamma", "[0.0, 100.0]", [-0.1, 101.0])
+field(fw.TemporalConfig, "motion_alpha_per_px", "[0.0, 1.0]", [-0.1, 1.1])
 for st in ("foveation", "saliency", "reorder", "shading", "reconstruction", "dof", "indirect", "temporal"):
     case("Config fields", f"Config.{st}=5", fw.Config, {st: 5}, f"Config.{st}", "5", "Config")
 case("Config fields", "Config.with_:unknown stage", lambda **kw: fw.Config().with_(**kw), {"bogus": {}},
@@ -496,6 +500,86 @@ int_arg("scene builders", "SceneBuilder.add_sphere", lambda **kw: _b().add_spher
         [1])
 arg("scene builders", "SceneBuilder.add_sphere", lambda **kw: _b().add_sphere(**kw), _as, "albedo_fn", "callable",
     [(5, "5")])
+
+# ================================================================================================================
+# mesh files (foveawarp/meshio.py) and the scene registry
+
+
+@functools.lru_cache(maxsize=None)
+def _ply_files():
+    import tempfile
+    from pathlib import Path
+
+    d = Path(tempfile.mkdtemp(prefix="fw-validation-ply-"))
+    head = "ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n" \
+           "element tristrips 1\nproperty list int int vertex_indices\nend_header\n"
+    asc = head.format(fmt="ascii")
+    (d / "range.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n4 0 1 2 7\n")
+    (d / "low.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n4 0 1 -2 2\n")
+    (d / "nanv.ply").write_text(asc + "0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n")
+    (d / "words.ply").write_text(asc + "0 0 zero\n1 0 0\n0 1 0\n3 0 1 2\n")
+    (d / "short.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n5 0 1 2\n")
+    (d / "degen.ply").write_text(asc + "0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n")
+    (d / "fmt.ply").write_text(head.format(fmt="binary_middle_endian") + "")
+    (d / "type.ply").write_text(asc.replace("property float z", "property float128 z"))
+    (d / "novert.ply").write_text("ply\nformat ascii 1.0\nelement tristrips 1\n"
+                                  "property list int int vertex_indices\nend_header\n3 0 1 2\n")
+    (d / "notply.ply").write_text("solid nothing\nendsolid\n")
+    (d / "trunc.ply").write_bytes(head.format(fmt="binary_little_endian").encode() + b"\x00" * 20)
+    return d
+
+
+def _ply(name):
+    return str(_ply_files() / name)
+
+
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "1-D index list",
+    [(np.zeros((2, 3), dtype=int), "(2, 3)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "integer vertex indices",
+    [(np.array([0.0, 1.0, 2.0]), "float64")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", ">= 0 or -1",
+    [(np.array([0, -2, 1]), "got -2 at index (1,)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "finite real numbers",
+    [(np.array([0.0, NAN, 1.0]), "got nan at index (1,)")])
+arg("mesh files", "strips_to_triangles", meshio.strips_to_triangles, {}, "strips", "array of real numbers",
+    [(np.array(["a", "b", "c"]), "<U1"), (None, "object")])
+for fname, f in (("read_ply", meshio.read_ply), ("load_mesh_parts", meshio.load_mesh_parts),
+                 ("load_mesh_arrays", meshio.load_mesh_arrays), ("ply_has_tristrips", meshio.ply_has_tristrips)):
+    arg("mesh files", fname, f, {}, "path", "a file path", [(None, "None"), (5, "5")], param="scene path")
+for fname, f in (("read_ply", meshio.read_ply), ("load_mesh_parts", meshio.load_mesh_parts)):
+    arg("mesh files", fname, f, {}, "path", "does not exist", [("/nonexistent/m.ply", "'/nonexistent/m.ply'")],
+        param="scene path")
+for fname, f in (("read_ply", meshio.read_ply), ("load_scene", fw.load_scene)):
+    case("mesh files", f"{fname}:tristrip index too high", lambda _f=f, _n="range.ply": _f(_ply(_n)), {},
+         "tristrips[0].vertex_indices", "got 7 at index (3,)", "[-1, 2]")
+    case("mesh files", f"{fname}:tristrip index below -1", lambda _f=f, _n="low.ply": _f(_ply(_n)), {},
+         "tristrips[0].vertex_indices", "got -2 at index (2,)", "[-1, 2]")
+    case("mesh files", f"{fname}:nan vertex", lambda _f=f, _n="nanv.ply": _f(_ply(_n)), {}, "scene file", "nanv.ply",
+         "non-finite vertex coordinates")
+    case("mesh files", f"{fname}:word in body", lambda _f=f, _n="words.ply": _f(_ply(_n)), {}, "scene file", "words.ply",
+         "non-numeric value in PLY element 'vertex'")
+    case("mesh files", f"{fname}:list past the end", lambda _f=f, _n="short.ply": _f(_ply(_n)), {}, "scene file",
+         "short.ply", "truncated in PLY element 'tristrips'")
+    case("mesh files", f"{fname}:binary truncated", lambda _f=f, _n="trunc.ply": _f(_ply(_n)), {}, "scene file",
+         "trunc.ply", "truncated in PLY element 'vertex'")
+    case("mesh files", f"{fname}:only degenerate triangles", lambda _f=f, _n="degen.ply": _f(_ply(_n)), {}, "scene file",
+         "degen.ply", "holds no triangle mesh")
+    case("mesh files", f"{fname}:unknown format", lambda _f=f, _n="fmt.ply": _f(_ply(_n)), {}, "PLY format",
+         "'binary_middle_endian'", "['ascii', 'binary_little_endian', 'binary_big_endian']")
+    case("mesh files", f"{fname}:unknown property type", lambda _f=f, _n="type.ply": _f(_ply(_n)), {}, "scene file",
+         "float128", "unreadable PLY header line")
+    case("mesh files", f"{fname}:no vertex element", lambda _f=f, _n="novert.ply": _f(_ply(_n)), {}, "scene file",
+         "novert.ply", "no 'vertex' element with x, y, z")
+case("mesh files", "read_ply:not a PLY file", lambda: meshio.read_ply(_ply("notply.ply")), {}, "scene file",
+     "notply.ply", "not a PLY file")
+vec_arg("mesh files", "load_mesh_arrays", lambda **kw: meshio.load_mesh_arrays(_ply("degen.ply"), **kw), {},
+        "default_albedo", 3, "[0.0, 1.0]", 1.5)
+arg("mesh files", "find_named_mesh", meshio.find_named_mesh, {}, "name", "a named mesh ['bunny'",
+    [(5, "5"), (None, "None")])
+arg("mesh files", "register_builtin_scenes", register_builtin_scenes, {"file_builder": scenes.mesh_on_ground},
+    "builtin", "dict of scene name -> builder", [(None, "None"), ({"x": 5}, "{'x': 5}"), ({3: print}, "{3: ")])
+arg("mesh files", "register_builtin_scenes", register_builtin_scenes, {"builtin": scenes.BUILTIN}, "file_builder",
+    "callable (path, name=None, **kw) -> Scene", [(None, "None"), ("mesh", "'mesh'")])
 
 # ================================================================================================================
 # FrameLoop
@@ -896,6 +980,59 @@ arg("metrics", "region_masks", metrics.region_masks, _EC, "regions", "(5.0, inf]
     param="regions['a'][1]")
 arg("metrics", "region_masks", metrics.region_masks, _EC, "regions", "[0.0, inf]", [({"a": (NAN, 1)}, "nan")],
     param="regions['a'][0]")
+
+# device metrics: NumPy inputs are checked on the host like psnr's; Warp vec3 inputs on the device (count of
+# non-finite values, reported after the one read)
+class _AsWarp:
+    """A NumPy image that ``_warp_call`` uploads as a (H, W) vec3 Warp array (or (N,) for a (N, 3) one)."""
+
+    def __init__(self, v):
+        self.v = np.asarray(v, dtype=np.float32)
+
+
+def _warp_call(f):
+    def call(**kw):
+        return f(**{k: (wp.array(v.v, dtype=wp.vec3, device=DEV) if isinstance(v, _AsWarp) else v)
+                    for k, v in kw.items()})
+    return call
+
+
+for fname, f in (("psnr_device", metrics.psnr_device), ("ssim_device", metrics.ssim_device)):
+    base = {"a": _IMG, "b": _IMG, "device": DEV}
+    for n in ("a", "b"):
+        array_arg("metrics", fname, f, base, n, _IMG)
+        case("metrics", f"{fname}:{n}=1-D", f, {**base, n: np.zeros(12)}, n, "(12,)", "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=4 channels", f, {**base, n: np.zeros((12, 12, 4))}, n, "(12, 12, 4)",
+             "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=empty", f, {**base, n: np.zeros((0, 0))}, n, "(0, 0)", "non-empty")
+        case("metrics", f"{fname}:{n}=1-D warp", _warp_call(f), {**base, n: _AsWarp(np.zeros((12, 3)))}, n,
+             "(12, 3)", "(H, W) or (H, W, 3)")
+        case("metrics", f"{fname}:{n}=warp nan", _warp_call(f), {**base, n: _AsWarp(_with(_IMG, (2, 3, 1), NAN))},
+             n, "got 1 non-finite", "finite real numbers")
+    case("metrics", f"{fname}:shape mismatch", f, {**base, "b": _IMG[:, :4]}, "a and b", "(12, 4, 3)", "same shape")
+    array_arg("metrics", fname, f, base, "mask", np.ones((12, 12)), shape_bad=(4, 4), shape_allowed="(12, 12)")
+    case("metrics", f"{fname}:mask=warp shape", f, {**base, "mask": wp.zeros((4, 4), dtype=wp.uint8, device=DEV)},
+         "mask", "(4, 4)", "(12, 12)")
+    arg("metrics", fname, f, base, "device", "or None for the default", [("tpu:9", "'tpu:9'")])
+real_arg("metrics", "psnr_device", metrics.psnr_device, {"a": _IMG, "b": _IMG, "device": DEV}, "data_range",
+         "(0.0, inf]", [0.0, -1.0])
+for shp in ((4, 4), (10, 30), (1, 40), (40, 1)):
+    case("metrics", f"ssim_device:too small {shp}", metrics.ssim_device,
+         {"a": np.zeros(shp), "b": np.zeros(shp), "device": DEV}, "a and b", repr(shp), "at least 11 x 11")
+_RMD = {**_RM, "device": DEV}
+case("metrics", "region_metrics_device:too small", metrics.region_metrics_device,
+     {**_RMD, "img": _IMG[:8, :8], "ref": _IMG[:8, :8]}, "img and ref", "(8, 8)", "at least 11 x 11")
+for n in ("img", "ref"):
+    array_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, n, _IMG)
+    case("metrics", f"region_metrics_device:{n}=warp inf", _warp_call(metrics.region_metrics_device),
+         {**_RMD, n: _AsWarp(_with(_IMG, (0, 0, 0), INF))}, n, "got 1 non-finite", "finite real numbers")
+case("metrics", "region_metrics_device:shape mismatch", metrics.region_metrics_device, {**_RMD, "ref": _IMG[:11]},
+     "img and ref", "(11, 12, 3)", "same shape")
+vec_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "gaze_px", 2, "finite real number")
+real_arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "fov_y_deg", "(0.0, 180.0)",
+         [0.0, 180.0])
+arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "device", "or None for the default",
+    [("tpu:9", "'tpu:9'")])
 
 
 # ================================================================================================================

@@ -46,6 +46,8 @@ def gbuffer_kernel(
     out_hit: wp.array2d(dtype=wp.uint8),
     out_velocity: wp.array2d(dtype=wp.vec2),
     out_reproj: wp.array2d(dtype=wp.vec2),
+    out_prev_dist: wp.array2d(dtype=float),
+    out_moved: wp.array2d(dtype=wp.uint8),
 ):
     y, x = wp.tid()
     px = float(x) + 0.5
@@ -64,6 +66,12 @@ def gbuffer_kernel(
         # the same surface point at the previous frame's vertex positions (object motion)
         pp = points_prev[i0] * q.u + points_prev[i1] * q.v + points_prev[i2] * (1.0 - q.u - q.v)
         pr = camera_project(cam_prev, pp)
+        out_prev_dist[y, x] = wp.length(pp - cam_prev.eye)
+        # the surface point itself moved (object motion): its lighting may have changed too
+        moved = wp.uint8(0)
+        if wp.length(pp - p) > 1.0e-6 * q.t + 1.0e-7:
+            moved = wp.uint8(1)
+        out_moved[y, x] = moved
         uv = wp.vec2(NO_REPROJ, NO_REPROJ)
         vel = wp.vec2(0.0, 0.0)
         if pr[2] > 0.0:
@@ -86,3 +94,5 @@ def gbuffer_kernel(
         out_hit[y, x] = wp.uint8(0)
         out_velocity[y, x] = wp.vec2(0.0, 0.0)
         out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
+        out_prev_dist[y, x] = 0.0
+        out_moved[y, x] = wp.uint8(0)

@@ -5,9 +5,12 @@ A pixel's history is reusable (a cache hit) when all of these hold:
     * its previous-frame pixel position ``uv_prev`` (the G-buffer's ``reproj_uv``, continuous pixels, centre
       of pixel (x, y) at (x + 0.5, y + 0.5)) lies on screen: ``0 <= u < width`` and ``0 <= v < height``;
     * the previous pixel, looked up by nearest pixel ``(floor(u), floor(v))``, held a valid color;
-    * ``|depth_prev(uv_prev) - |pos - eye_prev|| < depth_eps_rel * depth`` (the absolute value, as
-      clarified in ALGORITHMS.md; ``depth`` is the current distance from the eye, metres, so the tolerance
-      scales with distance like the depth precision of the G-buffer).
+    * ``|depth_prev(uv_prev) - dist_prev| < depth_eps_rel * depth`` (the absolute value, as clarified in
+      ALGORITHMS.md; ``depth`` is the current distance from the eye, metres, so the tolerance scales with
+      distance like the depth precision of the G-buffer). ``dist_prev`` is the surface point's distance from
+      the previous eye: thesis eq. 4 writes ``|pos - eye_prev|`` (the current position), which is right for
+      static geometry; for a moving object the frame loop passes the G-buffer's ``prev_dist``, the distance of
+      the same point at the object's previous transform, so moving objects keep their history.
 """
 
 import warp as wp
@@ -16,12 +19,11 @@ import warp as wp
 @wp.func
 def cache_lookup(
     uv: wp.vec2,
-    pos: wp.vec3,
+    dist_prev: float,
     hit: wp.uint8,
     depth: float,
     depth_prev: wp.array2d(dtype=float),
     valid_prev: wp.array2d(dtype=wp.uint8),
-    eye_prev: wp.vec3,
     eps_rel: float,
 ) -> int:
     """Flat index ``iy * width + ix`` of the previous pixel on a cache hit, -1 on a miss."""
@@ -36,7 +38,7 @@ def cache_lookup(
     iy = wp.min(int(wp.floor(uv[1])), h - 1)
     if valid_prev[iy, ix] == wp.uint8(0):
         return -1
-    x = depth_prev[iy, ix] - wp.length(pos - eye_prev)  # thesis eq. 4
+    x = depth_prev[iy, ix] - dist_prev  # thesis eq. 4
     if wp.abs(x) < eps_rel * depth:
         return iy * w + ix
     return -1
@@ -56,8 +58,8 @@ def cache_test_kernel(
     out_prev_index: wp.array2d(dtype=wp.int32),
 ):
     y, x = wp.tid()
-    idx = cache_lookup(reproj_uv[y, x], position[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev, eye_prev,
-                       eps_rel)
+    idx = cache_lookup(reproj_uv[y, x], wp.length(position[y, x] - eye_prev), hit[y, x], depth[y, x], depth_prev,
+                       valid_prev, eps_rel)
     out_prev_index[y, x] = wp.int32(idx)
     if idx >= 0:
         out_hit[y, x] = wp.uint8(1)

@@ -32,6 +32,7 @@ class SamplingParams:
 
     mar_slope: float  # deg / deg
     mar_fovea_deg: float  # deg
+    fovea_deg: float  # probability 1 within this eccentricity (the fovea traced at full rate)
     xi: float  # minimum probability, >= 1 / block^2
     foveation: int  # 0: every probability is 1
     use_albedo: int
@@ -145,8 +146,11 @@ def max_eccentricity_deg(gaze: wp.vec2, width: float, height: float, tan_half: f
 
 @wp.func
 def foveation_prob(e_deg: float, mar_slope: float, mar_fovea_deg: float, w_min_deg: float, w_far_deg: float,
-                   xi: float) -> float:
-    """Thesis eq. 2: w = m e + b; p = clamp(1 - (w - w_min) / w_far, xi, 1). w_far >= b > 0."""
+                   xi: float, fovea_deg: float) -> float:
+    """Thesis eq. 2: w = m e + b; p = clamp(1 - (w - w_min) / w_far, xi, 1). w_far >= b > 0. Within
+    ``fovea_deg`` of the gaze p = 1 (the fovea is traced at full rate)."""
+    if e_deg <= fovea_deg:
+        return 1.0
     w = mar_slope * e_deg + mar_fovea_deg
     return wp.clamp(1.0 - (w - w_min_deg) / w_far_deg, xi, 1.0)
 
@@ -261,7 +265,7 @@ def probability_kernel(sp: SamplingParams, frame: wp.array(dtype=FrameParams), o
     fw = float(out.shape[1])
     fh = float(out.shape[0])
     e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, fw, fh, fp.tan_half_fov_y)
-    out[y, x] = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi)
+    out[y, x] = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi, sp.fovea_deg)
 
 
 @wp.kernel(enable_backward=False)
@@ -344,6 +348,7 @@ def sampling_map_kernel(
     velocity: wp.array2d(dtype=wp.vec2),
     position: wp.array2d(dtype=wp.vec3),
     reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
     depth_prev: wp.array2d(dtype=float),
     valid_prev: wp.array2d(dtype=wp.uint8),
     out_probability: wp.array2d(dtype=float),
@@ -367,7 +372,7 @@ def sampling_map_kernel(
     s = float(1.0)
     if sp.foveation != 0:
         e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
-        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi)
+        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi, sp.fovea_deg)
         s = p
         # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
         # remaining terms cannot change it (the fovea skips them)
@@ -397,8 +402,8 @@ def sampling_map_kernel(
     out_sample[y, x] = dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase)
     idx = int(-1)
     if fp.do_cache != 0:
-        idx = cache_lookup(reproj_uv[y, x], position[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev,
-                           fp.eye_prev, sp.depth_eps_rel)
+        idx = cache_lookup(reproj_uv[y, x], prev_dist[y, x], hit[y, x], depth[y, x], depth_prev, valid_prev,
+                           sp.depth_eps_rel)
     out_prev_index[y, x] = wp.int32(idx)
     if idx >= 0:
         out_cache_hit[y, x] = wp.uint8(1)

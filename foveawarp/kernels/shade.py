@@ -1,5 +1,10 @@
 """Shading of G-buffer points: direct light with shadow rays, Lambert + Blinn-Phong, ambient (with optional
-ambient occlusion), emission. Launched over a full frame, a pixel list (compacted work) or a mask."""
+ambient occlusion), emission. Launched over a full frame, a pixel list (compacted work) or a mask.
+
+Every entry kernel writes the pixel's radiance to ``out`` and, when ``ShadeParams.split_stochastic`` is 1, its
+stochastic part (the Monte Carlo terms, whose noise changes every frame: area-light samples and ambient
+occlusion) to ``out_stoch``; ``out - out_stoch`` is then the deterministic part (point/spot lights, plain
+ambient, emission). The temporal resolve accumulates only the stochastic part over frames."""
 
 import warp as wp
 
@@ -42,6 +47,7 @@ class ShadeParams:
     frame: int
     width: int
     eye: wp.vec3
+    split_stochastic: int  # 1: also write the stochastic part to out_stoch
 
 
 @wp.func
@@ -65,7 +71,7 @@ def spot_factor(l: LightParams, to_point: wp.vec3) -> float:
 
 
 @wp.func
-def shade_point(
+def shade_point_parts(
     sp: ShadeParams,
     pixel: int,
     p: wp.vec3,
@@ -75,7 +81,9 @@ def shade_point(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
-) -> wp.vec3:
+):
+    """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
+    with AO rays, the occluded ambient term."""
     v = wp.normalize(sp.eye - p)
     diffuse = albedo / wp.pi
     col = wp.vec3(0.0, 0.0, 0.0)
@@ -100,6 +108,7 @@ def shade_point(
                         e = l.intensity * (att * cos_i / dist2)
                         col += wp.cw_mul(e, diffuse * (1.0 - sp.specular) + wp.vec3(spec, spec, spec))
     rng = pixel_rng(sp.seed, sp.frame, pixel)
+    stoch = wp.vec3(0.0, 0.0, 0.0)
     for ai in range(sp.num_area_lights):
         a = area_lights[ai]
         an = wp.cross(a.edge_u, a.edge_v)
@@ -121,15 +130,34 @@ def shade_point(
                         if sp.shadows != 0:
                             vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
                         acc += a.radiance * (vis * cos_i * cos_l / dist2)
-            col += wp.cw_mul(diffuse, acc * (area / float(sp.area_samples)))
+            stoch += wp.cw_mul(diffuse, acc * (area / float(sp.area_samples)))
     amb = wp.cw_mul(albedo, sp.ambient)
     if sp.ao_samples > 0:
         unocc = float(0.0)
         for s in range(sp.ao_samples):
             d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
             unocc += visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius)
-        amb = amb * (unocc / float(sp.ao_samples))
-    return col + amb + face_emission[face]
+        stoch += amb * (unocc / float(sp.ao_samples))
+    else:
+        col += amb
+    return col + stoch + face_emission[face], stoch
+
+
+@wp.func
+def shade_point(
+    sp: ShadeParams,
+    pixel: int,
+    p: wp.vec3,
+    n: wp.vec3,
+    albedo: wp.vec3,
+    face: int,
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """Radiance at surface point p (direct light, ambient or AO, emission)."""
+    c, st = shade_point_parts(sp, pixel, p, n, albedo, face, lights, area_lights, face_emission)
+    return c
 
 
 @wp.func
@@ -146,13 +174,20 @@ def shade_pixel(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
 ):
-    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss)."""
+    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
+    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss)."""
     if hit[y, x] == wp.uint8(0):
         out[y, x] = sp.background
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
     else:
-        out[y, x] = shade_point(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                                area_lights, face_emission)
+        c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                                  area_lights, face_emission)
+        out[y, x] = c
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = st
 
 
 @wp.kernel(enable_backward=False)
@@ -167,10 +202,11 @@ def shade_full_kernel(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
 ):
     y, x = wp.tid()
     sp = spa[0]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)
@@ -187,6 +223,7 @@ def shade_list_kernel(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
 ):
     """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
     i = wp.tid()
@@ -196,7 +233,7 @@ def shade_list_kernel(
     idx = work[i]
     y = idx // sp.width
     x = idx - y * sp.width
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)
@@ -212,13 +249,14 @@ def shade_masked_kernel(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
 ):
     """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
     y, x = wp.tid()
     if mask[y, x] == wp.uint8(0):
         return
     sp = spa[0]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)
@@ -235,6 +273,7 @@ def shade_rows_kernel(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
 ):
     """Row-CSR launch (thesis strategies 1/2): thread (v, u) shades coords[v, u] when u < counts[v]."""
     v, u = wp.tid()
@@ -244,7 +283,7 @@ def shade_rows_kernel(
     c = coords[v, u]
     x = c[0]
     y = c[1]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)

@@ -1,62 +1,245 @@
-"""Temporal resolve (thesis A4): traced pixels blend into their reprojected history, unsampled pixels with a
-cache hit reuse it, the rest stay empty (not seeds). History ages out after ``max_frames`` frames."""
+"""Temporal resolve (thesis A4, with the rule of ``stages.temporal``): fresh values where this frame traced,
+bilinear depth- and normal-validated history elsewhere, and an accumulated (neighbourhood-clamped) history of
+the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh."""
 
 import warp as wp
 
+from .gbuffer import NO_REPROJ
 from .sampling import FrameParams
+
+# bilinear fractions closer than this (pixels) to a pixel centre snap to it
+SNAP_PX = wp.constant(1.0 / 128.0)
+
+
+@wp.struct
+class TemporalParams:
+    """Constants of the resolve (from ``TemporalConfig``) and the frame's switches."""
+
+    max_frames: int  # history length: running mean over at most this many frames; stale limit
+    use_history: int  # 0: first frame, cut, or history disabled
+    stochastic: int  # 1: the shading has Monte Carlo terms (``fresh_stoch`` holds them)
+    depth_eps_rel: float  # a history tap's depth must match within this fraction of the current depth
+    normal_cos_min: float  # ... and its normal within this cosine
+    clamp_gamma: float  # variance clipping box half-width, in standard deviations
+    motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
+    background: wp.vec3  # radiance of rays that miss
+
+
+@wp.func
+def bilinear_taps(uv: wp.vec2, w: int, h: int):
+    """Top-left tap (x0, y0) and fractions (fx, fy) of the bilinear footprint of continuous pixel position uv
+    (pixel centres at +0.5). Fractions within ``SNAP_PX`` of a pixel centre snap to it: a static view
+    reprojects every pixel onto itself up to float rounding, and without the snap each frame would mix a
+    1e-5 share of the neighbours into the history, a blur that compounds over frames."""
+    u = uv[0] - 0.5
+    v = uv[1] - 0.5
+    x0 = int(wp.floor(u))
+    y0 = int(wp.floor(v))
+    fx = u - float(x0)
+    fy = v - float(y0)
+    if fx < SNAP_PX:
+        fx = 0.0
+    elif fx > 1.0 - SNAP_PX:
+        fx = 1.0
+    if fy < SNAP_PX:
+        fy = 0.0
+    elif fy > 1.0 - SNAP_PX:
+        fy = 1.0
+    return x0, y0, fx, fy
+
+
+@wp.func
+def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth: float, tp: TemporalParams,
+           depth_prev: wp.array2d(dtype=float), valid_prev: wp.array2d(dtype=wp.uint8),
+           normal_prev: wp.array(dtype=wp.vec3), age_prev: wp.array(dtype=wp.int32)) -> int:
+    """1 when history tap (tx, ty) holds a colour of the same surface: on screen, filled last frame, the depth
+    the point had there (``dist_prev``) within ``depth_eps_rel * depth``, the normal within ``normal_cos_min``."""
+    if tx < 0 or ty < 0 or tx >= w or ty >= h:
+        return 0
+    if valid_prev[ty, tx] == wp.uint8(0):
+        return 0
+    i = ty * w + tx
+    if age_prev[i] <= 0:
+        return 0
+    if not (wp.abs(depth_prev[ty, tx] - dist_prev) < tp.depth_eps_rel * depth):
+        return 0
+    if wp.dot(normal_prev[i], n) < tp.normal_cos_min:
+        return 0
+    return 1
+
+
+@wp.func
+def clip_to_box(h: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> wp.vec3:
+    """Clip h towards the box centre along the segment (variance clipping, Salvi 2016): the result lies in the
+    box [lo, hi] and on the line from the centre to h."""
+    c = (lo + hi) * 0.5
+    e = (hi - lo) * 0.5
+    d = h - c
+    t = float(1.0)
+    for k in range(3):
+        a = wp.abs(d[k])
+        if a > e[k]:
+            t = wp.min(t, e[k] / a)
+    return c + d * t
+
+
+@wp.func
+def neighbourhood_box(x: int, y: int, radius: int, sample_map: wp.array2d(dtype=wp.uint8),
+                      hit: wp.array2d(dtype=wp.uint8), fresh_stoch: wp.array2d(dtype=wp.vec3), gamma: float):
+    """Mean +- gamma * standard deviation of the fresh stochastic values traced this frame on surfaces within the
+    (2 radius + 1)^2 window around (x, y), and how many there were."""
+    w = sample_map.shape[1]
+    h = sample_map.shape[0]
+    m1 = wp.vec3(0.0, 0.0, 0.0)
+    m2 = wp.vec3(0.0, 0.0, 0.0)
+    cnt = int(0)
+    for dy in range(-radius, radius + 1):
+        yy = y + dy
+        if yy >= 0 and yy < h:
+            for dx in range(-radius, radius + 1):
+                xx = x + dx
+                if xx >= 0 and xx < w:
+                    if sample_map[yy, xx] != wp.uint8(0) and hit[yy, xx] != wp.uint8(0):
+                        c = fresh_stoch[yy, xx]
+                        m1 += c
+                        m2 += wp.cw_mul(c, c)
+                        cnt += 1
+    mu = m1 / float(wp.max(cnt, 1))
+    var = m2 / float(wp.max(cnt, 1)) - wp.cw_mul(mu, mu)
+    sd = wp.vec3(wp.sqrt(wp.max(var[0], 0.0)), wp.sqrt(wp.max(var[1], 0.0)), wp.sqrt(wp.max(var[2], 0.0)))
+    return mu - sd * gamma, mu + sd * gamma, cnt
 
 
 @wp.kernel(enable_backward=False)
 def resolve_kernel(
+    tp: TemporalParams,
     sample_map: wp.array2d(dtype=wp.uint8),
-    cache_hit: wp.array2d(dtype=wp.uint8),
-    prev_index: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
+    velocity: wp.array2d(dtype=wp.vec2),
+    moved: wp.array2d(dtype=wp.uint8),
     fresh: wp.array2d(dtype=wp.vec3),
+    fresh_stoch: wp.array2d(dtype=wp.vec3),
+    depth_prev: wp.array2d(dtype=float),
+    valid_prev: wp.array2d(dtype=wp.uint8),
     hist_color_prev: wp.array(dtype=wp.vec3),
+    hist_stoch_prev: wp.array(dtype=wp.vec3),
+    hist_normal_prev: wp.array(dtype=wp.vec3),
     hist_age_prev: wp.array(dtype=wp.int32),
     hist_stale_prev: wp.array(dtype=wp.int32),
-    max_frames: int,
-    use_history: int,
     out_color: wp.array2d(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     hist_color: wp.array(dtype=wp.vec3),
+    hist_stoch: wp.array(dtype=wp.vec3),
+    hist_normal: wp.array(dtype=wp.vec3),
     hist_age: wp.array(dtype=wp.int32),
     hist_stale: wp.array(dtype=wp.int32),
 ):
     y, x = wp.tid()
-    i = y * out_color.shape[1] + x
-    pi = int(-1)
-    if use_history != 0 and cache_hit[y, x] != wp.uint8(0):
-        pi = prev_index[y, x]
-        if pi >= 0:
-            if hist_age_prev[pi] <= 0:
-                pi = -1
-    col = wp.vec3(0.0, 0.0, 0.0)
-    age = int(0)
-    stale = int(0)
-    filled = wp.uint8(0)
-    if sample_map[y, x] != wp.uint8(0):
-        new = fresh[y, x]
-        if pi >= 0:
-            # running mean over at most max_frames values: converges on a static view (thesis A4)
-            n = wp.min(hist_age_prev[pi], max_frames - 1)
-            col = (hist_color_prev[pi] * float(n) + new) / float(n + 1)
-            age = n + 1
-        else:
-            col = new
-            age = 1
-        filled = wp.uint8(1)
-    elif pi >= 0:
-        if hist_stale_prev[pi] + 1 < max_frames:
-            col = hist_color_prev[pi]
-            age = hist_age_prev[pi]
-            stale = hist_stale_prev[pi] + 1
-            filled = wp.uint8(1)
-    out_color[y, x] = col
-    out_filled[y, x] = filled
-    hist_color[i] = col
-    hist_age[i] = age
-    hist_stale[i] = stale
+    w = out_color.shape[1]
+    h = out_color.shape[0]
+    i = y * w + x
+    zero = wp.vec3(0.0, 0.0, 0.0)
+    sampled = sample_map[y, x] != wp.uint8(0)
+    if hit[y, x] == wp.uint8(0):
+        # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
+        out_color[y, x] = tp.background
+        out_filled[y, x] = wp.uint8(1)
+        hist_color[i] = tp.background
+        hist_stoch[i] = zero
+        hist_normal[i] = zero
+        hist_age[i] = 0
+        hist_stale[i] = 0
+        return
+    n = normal[y, x]
+    if sampled and tp.stochastic == 0:
+        # deterministic shading: the fresh value is the answer; history would only add error
+        c = fresh[y, x]
+        out_color[y, x] = c
+        out_filled[y, x] = wp.uint8(1)
+        hist_color[i] = c
+        hist_stoch[i] = zero
+        hist_normal[i] = n
+        hist_age[i] = 1
+        hist_stale[i] = 0
+        return
+    # bilinear history at the reprojected position, each tap validated by depth and normal
+    wsum = float(0.0)
+    hc = zero
+    hs = zero
+    age_h = int(1 << 30)
+    stale_h = int(0)
+    uv = reproj_uv[y, x]
+    if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
+        x0, y0, fx, fy = bilinear_taps(uv, w, h)
+        d = depth[y, x]
+        dp = prev_dist[y, x]
+        for k in range(4):
+            tx = x0 + (k & 1)
+            ty = y0 + (k >> 1)
+            wx = fx
+            if (k & 1) == 0:
+                wx = 1.0 - fx
+            wy = fy
+            if (k >> 1) == 0:
+                wy = 1.0 - fy
+            wt = wx * wy
+            if wt > 0.0:
+                if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, valid_prev, hist_normal_prev, hist_age_prev) != 0:
+                    j = ty * w + tx
+                    wsum += wt
+                    hc += hist_color_prev[j] * wt
+                    hs += hist_stoch_prev[j] * wt
+                    age_h = wp.min(age_h, hist_age_prev[j])
+                    stale_h = wp.max(stale_h, hist_stale_prev[j])
+    have = wsum > 1.0e-3
+    if have:
+        hc = hc / wsum
+        hs = hs / wsum
+    if sampled:
+        # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
+        c = fresh[y, x]
+        s = fresh_stoch[y, x]
+        age = int(1)
+        if have:
+            lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
+            if cnt >= 3:
+                hs = clip_to_box(hs, lo, hi)
+            m = wp.min(age_h, tp.max_frames - 1)
+            alpha = 1.0 / float(m + 1)
+            alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
+            alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
+            s_acc = hs + (s - hs) * alpha
+            c = c - s + s_acc
+            s = s_acc
+            age = m + 1
+        out_color[y, x] = c
+        out_filled[y, x] = wp.uint8(1)
+        hist_color[i] = c
+        hist_stoch[i] = s
+        hist_normal[i] = n
+        hist_age[i] = age
+        hist_stale[i] = 0
+        return
+    if have and stale_h + 1 < tp.max_frames and moved[y, x] == wp.uint8(0):
+        out_color[y, x] = hc
+        out_filled[y, x] = wp.uint8(1)
+        hist_color[i] = hc
+        hist_stoch[i] = hs
+        hist_normal[i] = n
+        hist_age[i] = age_h
+        hist_stale[i] = stale_h + 1
+        return
+    out_color[y, x] = zero
+    out_filled[y, x] = wp.uint8(0)
+    hist_color[i] = zero
+    hist_stoch[i] = zero
+    hist_normal[i] = n
+    hist_age[i] = 0
+    hist_stale[i] = 0
 
 
 @wp.func

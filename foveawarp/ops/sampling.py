@@ -73,7 +73,7 @@ def eccentricity_deg(width, height, gaze_px, fov_y_deg, device=None) -> np.ndarr
 
 
 def foveation_probability(width, height, gaze_px, fov_y_deg, *, mar_slope, mar_fovea_deg, min_probability,
-                          falloff_deg=None, device=None) -> np.ndarray:
+                          falloff_deg=None, fovea_deg=0.0, device=None) -> np.ndarray:
     """(H, W) float32 thesis eq. 2: ``clip(1 - (w - w_min) / w_far, min_probability, 1)``.
 
     ``w = mar_slope * e + mar_fovea_deg`` (degrees; e = ``eccentricity_deg``); ``w_min`` = angle between the
@@ -82,17 +82,20 @@ def foveation_probability(width, height, gaze_px, fov_y_deg, *, mar_slope, mar_f
     [0, W] x [0, H] (its corners, or an edge point for gazes far off screen).
     ``mar_slope`` in (0, 1] deg/deg, ``mar_fovea_deg`` in (0, 1], ``min_probability`` in [0, 1] (used as is;
     the SamplingStage raises it to 1 / block^2). ``falloff_deg`` (None or in (0, 180]): when given, ``w_far``
-    uses ``min(e_max, falloff_deg)`` instead of ``e_max`` (``FoveationConfig.falloff_deg``).
+    uses ``min(e_max, falloff_deg)`` instead of ``e_max`` (``FoveationConfig.falloff_deg``). ``fovea_deg`` in
+    [0, 180]: the probability is 1 where ``e <= fovea_deg`` (``FoveationConfig.fovea_deg``; 0 = eq. 2 alone).
     """
     m = check_range("mar_slope", mar_slope, 0.0, 1.0, lo_open=True)
     b = check_range("mar_fovea_deg", mar_fovea_deg, 0.0, 1.0, lo_open=True)
     xi = check_range("min_probability", min_probability, 0.0, 1.0)
     dev = get_device(device)
     fo = NO_FALLOFF if falloff_deg is None else check_range("falloff_deg", falloff_deg, 0.0, 180.0, lo_open=True)
+    fd = check_range("fovea_deg", fovea_deg, 0.0, 180.0)
     frame, w, h = _frame(width, height, gaze_px, fov_y_deg, dev, mar_slope=m, mar_fovea_deg=b, falloff_deg=fo)
     cfg = Config(foveation=FoveationConfig(mar_slope=m, mar_fovea_deg=b, min_probability=xi, block=1))
     sp = sampling_params(cfg, w, h)
     sp.xi = xi  # exactly as given (block 1 would raise it to 1)
+    sp.fovea_deg = fd
     out = wp.zeros((h, w), dtype=float, device=dev)
     wp.launch(probability_kernel, dim=(h, w), inputs=[sp, frame], outputs=[out], device=dev)
     return out.numpy()

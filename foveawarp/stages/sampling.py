@@ -97,6 +97,7 @@ def sampling_params(config: Config, width: int, height: int, seed: int = 0) -> S
     sp = SamplingParams()
     sp.mar_slope = float(fc.mar_slope)
     sp.mar_fovea_deg = float(fc.mar_fovea_deg)
+    sp.fovea_deg = float(fc.fovea_deg)
     sp.xi = float(fc.effective_min_probability)
     sp.foveation = 1 if fc.enabled else 0
     sp.use_albedo = 1 if sc.use_albedo else 0
@@ -307,7 +308,7 @@ class SamplingStage:
             wp.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
         wp.launch(sampling_map_kernel, dim=(h, w),
                   inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity,
-                          g.position, g.reproj_uv, self.depth_prev, self.valid_prev],
+                          g.position, g.reproj_uv, g.prev_dist, self.depth_prev, self.valid_prev],
                   outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
                   device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,

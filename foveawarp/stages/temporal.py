@@ -1,22 +1,45 @@
-"""TemporalStage: the ping-pong history of shaded radiance (thesis A4)."""
+"""TemporalStage: the ping-pong history of shaded radiance (thesis A4) under a rule that never makes a traced
+pixel worse than tracing it alone."""
 
 from __future__ import annotations
 
 import warp as wp
 
 from ..config import TemporalConfig
-from ..kernels.temporal import refresh_thin_kernel, resolve_kernel
+from ..kernels.temporal import TemporalParams, refresh_thin_kernel, resolve_kernel
 
 __all__ = ["TemporalStage"]
 
 
 class TemporalStage:
-    """History buffers for one image size. Per frame: ``run(sample_map, cache_hit, prev_index, fresh)`` writes
-    ``color`` (H, W) vec3 (linear radiance; 0 where empty) and ``filled`` (H, W) uint8 (the seeds of the
-    reconstruction), then swaps the history.
+    """History buffers for one image size, and the per-frame resolve.
 
-    ``prev_index`` holds, per pixel, the flat index (y * W + x) of its reprojected pixel in the previous frame
-    (-1 when none); ``cache_hit`` says whether that reuse passed the cache test.
+    The rule (per pixel, ``run``):
+
+    * **Background** (the G-buffer's primary ray missed): the background radiance. Exact, nothing to trace.
+    * **Traced this frame, deterministic shading** (no AO rays, no area-light samples): the fresh value, as
+      is. History is never blended in, so a traced pixel equals full-resolution tracing (the fovea is then
+      identical to the reference) and history cannot accumulate error under motion.
+    * **Traced this frame, stochastic shading**: the fresh deterministic part (``fresh - fresh_stoch``) plus an
+      accumulated stochastic part: the reprojected stochastic history, clipped to the box mean +- ``clamp_gamma``
+      standard deviations of the fresh stochastic values traced in the 5 x 5 neighbourhood (variance
+      clipping; skipped when fewer than 3 were traced there), blended with the fresh stochastic value at weight
+      ``alpha = max(1 / (n + 1), motion_alpha_per_px * |velocity|, 1 - w)`` (``n`` frames of history, at most
+      ``max_history_frames - 1``; ``w`` the validated part of the bilinear footprint). So the weight of history
+      falls with screen motion and with disocclusion, and a static view converges to the mean of
+      ``max_history_frames`` frames.
+    * **Not traced, valid history**: the history colour, fetched with bilinear reprojection at the G-buffer's
+      ``reproj_uv``; each of the 4 taps counts only when it was filled last frame, its depth matches the depth
+      this surface point had in the previous frame (G-buffer ``prev_dist``; moving objects included) within
+      ``depth_eps_rel * depth``, and its normal is within ``normal_cos_min``; the weights are renormalised over
+      the valid taps. A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
+      so is the history of a surface point that moved since the last frame (object motion, G-buffer ``moved``):
+      its lighting changed with it (a spinning globe turns its day side), so the reconstruction from this
+      frame's samples is closer than any reprojected colour.
+    * **Otherwise**: empty (not a seed); the reconstruction fills it.
+
+    ``color`` (H, W) vec3 (linear radiance) and ``filled`` (H, W) uint8 (the reconstruction's seeds) are the
+    outputs of each ``run``, which then swaps the history.
     """
 
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
@@ -25,6 +48,8 @@ class TemporalStage:
         self.color = wp.zeros((height, width), dtype=wp.vec3, device=device)
         self.filled = wp.zeros((height, width), dtype=wp.uint8, device=device)
         self._hc = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._hst = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._hn = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
         self._ha = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
         self._hs = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
         self._cur = 0
@@ -39,14 +64,43 @@ class TemporalStage:
         """(H*W,) int32: frames accumulated in the current history (0 = empty)."""
         return self._ha[self._cur]
 
-    def run(self, sample_map, cache_hit, prev_index, fresh, *, use_history: bool = True) -> None:
+    def params(self, *, use_history: bool, stochastic: bool, background=(0.0, 0.0, 0.0)) -> TemporalParams:
+        c = self.config
+        tp = TemporalParams()
+        tp.max_frames = int(c.max_history_frames)
+        tp.use_history = 1 if (use_history and c.enabled) else 0
+        tp.stochastic = 1 if stochastic else 0
+        tp.depth_eps_rel = float(c.depth_eps_rel)
+        tp.normal_cos_min = float(c.normal_cos_min)
+        tp.clamp_gamma = float(c.clamp_gamma)
+        tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
+        tp.background = wp.vec3(*(float(v) for v in background))
+        return tp
+
+    def run(self, sample_map, gbuffer, fresh, fresh_stoch, depth_prev, valid_prev, *, use_history: bool = True,
+            stochastic: bool = False, background=(0.0, 0.0, 0.0)) -> None:
+        """Resolve one frame (the rule in the class docstring).
+
+        Args:
+            sample_map: (H, W) uint8, 1 where ``fresh`` was traced this frame.
+            gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, velocity).
+            fresh: (H, W) vec3 radiance at the traced pixels.
+            fresh_stoch: (H, W) vec3, the stochastic part of ``fresh`` (read only when ``stochastic``).
+            depth_prev, valid_prev: the previous frame's depth (metres) and filled mask, (H, W).
+            use_history: False on the first frame and after a cut.
+            stochastic: whether the shading has Monte Carlo terms.
+            background: radiance of rays that miss (linear RGB).
+        """
         prev, cur = self._cur, 1 - self._cur
+        g = gbuffer
         wp.launch(
             resolve_kernel,
             dim=(self.height, self.width),
-            inputs=[sample_map, cache_hit, prev_index, fresh, self._hc[prev], self._ha[prev], self._hs[prev],
-                    int(self.config.max_history_frames), 1 if (use_history and self.config.enabled) else 0],
-            outputs=[self.color, self.filled, self._hc[cur], self._ha[cur], self._hs[cur]],
+            inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
+                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch, depth_prev,
+                    valid_prev, self._hc[prev], self._hst[prev], self._hn[prev], self._ha[prev], self._hs[prev]],
+            outputs=[self.color, self.filled, self._hc[cur], self._hst[cur], self._hn[cur], self._ha[cur],
+                     self._hs[cur]],
             device=self.device,
         )
         self.swap()

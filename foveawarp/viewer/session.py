@@ -326,8 +326,10 @@ class ViewerSession:
         scene = self._scene_obj(snap["scene"])
         key = (snap["scene"], snap["config"], snap["knobs"]["timing"])
         if key != self._loop_key:
+            # policy "foveated": the page's foveated view always shows the foveated frame (the library's "auto"
+            # may trace every pixel where that is cheaper; the page's "reference" mode shows that side)
             self._loop = FrameLoop(scene, self.width, self.height, config=snap["config"], device=self.device,
-                                   timing=snap["knobs"]["timing"])
+                                   timing=snap["knobs"]["timing"], policy="foveated")
             self._ref_loop = None
             if self._loop_key is None or self._loop_key[0] != snap["scene"]:
                 self._camera = scene.camera

@@ -1,0 +1,272 @@
+"""The frame benchmark: foveated against full-resolution tracing, timed the same way in one run, and the
+foveated frame's error in motion.
+
+Per scene x resolution:
+* quality: along the scene's own camera path with a moving gaze, ``--frames`` frames; per-frame PSNR, SSIM and
+  foveal PSNR (eccentricity <= 5 deg) against ``render_reference`` of the same frame, with history on (the
+  configuration under test) and off (``TemporalConfig.enabled=False``), and the sampling rate per frame;
+* timing, per shading ("default"; "ao8" = 8 AO rays per pixel): the reference is ``FrameLoop(policy="full")``
+  (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
+  the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
+  after warm-up; per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
+  shading + indirect) stage times;
+* stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
+  reference (256 AO rays), and a moving path with history on and off against the converged reference.
+
+python benchmarks/frame.py --device cuda:0 [--scenes ...] [--sizes 1920x1080,3840x2160] [--frames 60]
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+import warp as wp  # noqa: E402
+
+from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+
+ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
+
+
+def gaze_path(i, n, w, h):
+    """A moving gaze: a Lissajous figure over the central 60 % x 40 % of the screen."""
+    t = i / max(n, 1)
+    return (w * (0.5 + 0.3 * math.sin(2 * math.pi * t)), h * (0.5 + 0.2 * math.sin(4 * math.pi * t + 0.5)))
+
+
+def _psnr_only(img, ref, g, fov):
+    """PSNR of the whole frame and of the fovea (<= 5 deg) on the host, SSIM left out (fast sweeps)."""
+    from foveawarp.metrics import psnr, region_masks
+
+    a, b = img.numpy(), ref.numpy()
+    h, w = a.shape[:2]
+    masks = region_masks(w, h, g, fov)
+    out = {"psnr": psnr(a, b), "ssim": float("nan")}
+    for k, mk in masks.items():
+        out[f"psnr_{k}"] = psnr(a, b, mask=mk) if mk.any() else float("nan")
+    return out
+
+
+def _metric_fn(fast=False):
+    import foveawarp.metrics as m
+
+    if fast:
+        return _psnr_only, "host-psnr-only"
+
+    dev_fn = getattr(m, "region_metrics_device", None)
+    if dev_fn is not None:
+        return dev_fn, "device"
+    return (lambda img, ref, g, fov: m.region_metrics(img.numpy(), ref.numpy(), g, fov)), "host"
+
+
+def _fovea_key(d):
+    for k in ("psnr_fovea", "fovea_psnr"):
+        if k in d:
+            return d[k]
+    return float("nan")
+
+
+def _summ(v):
+    a = np.asarray(v, float)
+    f = a[np.isfinite(a)]
+    cap = np.minimum(a, 100.0)  # identical frames (inf dB) count as 100 dB in means
+    return {"mean": float(np.mean(cap)), "min": float(np.min(a)) if a.size else float("nan"),
+            "finite_min": float(np.min(f)) if f.size else float("inf")}
+
+
+def quality(fw, scene, w, h, dev, cfg, frames, metrics):
+    fov = scene.camera.fov_y_deg
+    ref_loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
+    on = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
+    off = fw.FrameLoop(scene, w, h, config=cfg.with_(temporal={"enabled": False}), device=dev, timing=False,
+                       policy="foveated")
+    ref_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+    rec = {"psnr": [], "ssim": [], "fovea_psnr": [], "psnr_off": [], "ssim_off": [], "fovea_psnr_off": [],
+           "sampling_rate": [], "cache_hit_rate": []}
+    for i in range(frames):
+        t = i / 30.0
+        cam = scene.camera_at(t)
+        g = gaze_path(i, frames, w, h)
+        wp.copy(ref_img, ref_loop.render_reference(cam, time=t, gaze_px=g).image)
+        f = on.render(cam, gaze_px=g, time=t)
+        m = metrics(f.image, ref_img, g, fov)
+        rec["psnr"].append(m["psnr"])
+        rec["ssim"].append(m["ssim"])
+        rec["fovea_psnr"].append(_fovea_key(m))
+        rec["sampling_rate"].append(f.stats["sampling_rate"])
+        rec["cache_hit_rate"].append(f.stats["cache_hit_rate"])
+        f = off.render(cam, gaze_px=g, time=t)
+        m = metrics(f.image, ref_img, g, fov)
+        rec["psnr_off"].append(m["psnr"])
+        rec["ssim_off"].append(m["ssim"])
+        rec["fovea_psnr_off"].append(_fovea_key(m))
+    d = np.asarray(rec["psnr"]) - np.asarray(rec["psnr_off"])
+    rec["history_gain_db_min"] = float(np.nanmin(np.where(np.isfinite(d), d, 100.0)))
+    return rec
+
+
+def _timed(loop, scene, w, h, n, warm=8):
+    ms = []
+    for i in range(warm + n):
+        t = i / 30.0
+        cam = scene.camera_at(t)
+        g = gaze_path(i, warm + n, w, h)
+        wp.synchronize_device(loop.device)
+        t0 = time.perf_counter()
+        loop.render(cam, gaze_px=g, time=t)
+        wp.synchronize_device(loop.device)
+        if i >= warm:
+            ms.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(ms)), loop
+
+
+def timing(fw, scene, w, h, dev, cfg, n):
+    out = {}
+    ref_ms, _ = _timed(fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"), scene, w, h, n)
+    fov_ms, fl = _timed(fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated"), scene,
+                        w, h, n)
+    auto = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+    auto_ms, _ = _timed(auto, scene, w, h, n, warm=2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2)
+    tl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=True, policy="foveated")
+    stages = {}
+    rates = []
+    for i in range(16):
+        t = i / 30.0
+        f = tl.render(scene.camera_at(t), gaze_px=gaze_path(i, 16, w, h), time=t)
+        if i >= 6:
+            rates.append(f.stats["sampling_rate"])
+            for k, v in f.stats.items():
+                if k.startswith("ms_") and k != "ms_frame":
+                    stages.setdefault(k[3:], []).append(v)
+    stage_ms = {k: float(np.median(v)) for k, v in stages.items()}
+    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "shade", "indirect", "indirect_build"))
+    out.update(ref_ms=ref_ms, fov_ms=fov_ms, auto_ms=auto_ms, auto_path=auto._pol_choice,
+               auto_estimates=dict(auto._pol_est), stage_ms=stage_ms,
+               overhead_ms=float(max(fov_ms - traced, 0.0)),
+               overhead_stage_sum_ms=float(sum(v for k, v in stage_ms.items()
+                                               if k not in ("gbuffer", "shade", "indirect", "indirect_build", "scene"))),
+               timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms)
+    return out
+
+
+def stochastic(fw, scene, w, h, dev, cfg, frames, metrics):
+    """ao_samples=4: static view convergence and motion vs history off, against a 256-ray reference."""
+    fov = scene.camera.fov_y_deg
+    c4 = cfg.with_(shading={"ao_samples": 4})
+    conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": 256}), device=dev, timing=False,
+                        policy="foveated")
+    ref_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+    cam = scene.camera_at(0.0)
+    g = (w * 0.5, h * 0.5)
+    wp.copy(ref_img, conv.render_reference(cam, time=0.0).image)
+    loop = fw.FrameLoop(scene, w, h, config=c4, device=dev, timing=False, policy="foveated")
+    static = []
+    for i in range(30):
+        f = loop.render(cam, gaze_px=g, time=0.0)
+        if i in (0, 29):
+            static.append(metrics(f.image, ref_img, g, fov)["psnr"])
+    on = fw.FrameLoop(scene, w, h, config=c4, device=dev, timing=False, policy="foveated")
+    off = fw.FrameLoop(scene, w, h, config=c4.with_(temporal={"enabled": False}), device=dev, timing=False,
+                       policy="foveated")
+    mon, moff = [], []
+    for i in range(frames):
+        t = i / 30.0
+        cam = scene.camera_at(t)
+        g = gaze_path(i, frames, w, h)
+        wp.copy(ref_img, conv.render_reference(cam, time=t).image)
+        mon.append(metrics(on.render(cam, gaze_px=g, time=t).image, ref_img, g, fov)["psnr"])
+        moff.append(metrics(off.render(cam, gaze_px=g, time=t).image, ref_img, g, fov)["psnr"])
+    return {"static_psnr_frame0": static[0], "static_psnr_frame29": static[1],
+            "static_gain_db": static[1] - static[0], "motion_psnr_on": mon, "motion_psnr_off": moff,
+            "motion_min_gain_db": float(np.min(np.asarray(mon) - np.asarray(moff)))}
+
+
+def main(argv=None):
+    p = base_parser(__doc__)
+    p.add_argument("--scenes", default=ALL_SCENES)
+    p.add_argument("--sizes", default="1920x1080,3840x2160")
+    p.add_argument("--frames", type=int, default=60)
+    p.add_argument("--timing-frames", type=int, default=50)
+    p.add_argument("--configs", default="default={}",
+                   help="';'-separated name=python-dict Config.with_ overrides (quality part per config)")
+    p.add_argument("--parts", default="quality,timing", help="quality,timing,stochastic")
+    p.add_argument("--stochastic-scenes", default="cornell,city")
+    p.add_argument("--name", default="frame")
+    p.add_argument("--psnr-only", action="store_true", help="skip SSIM (host PSNR only: fast sweeps)")
+    args = p.parse_args(argv)
+    import foveawarp as fw
+
+    wp.config.quiet = True
+    dev = wp.get_device(args.device)
+    metrics, where = _metric_fn(args.psnr_only)
+    parts = set(args.parts.split(","))
+    configs = []
+    for item in args.configs.split(";"):
+        name, _, lit = item.partition("=")
+        configs.append((name.strip(), ast.literal_eval(lit) if lit.strip() else {}))
+    records, rows = [], []
+    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    if args.quick:
+        sizes, args.frames, args.timing_frames = [(96, 54)], 4, 3
+    for name in args.scenes.split(","):
+        try:
+            scene = fw.load_scene(name)
+        except ValueError as e:
+            print(f"skip {name}: {e}", flush=True)
+            continue
+        for w, h in sizes:
+            for cname, over in configs:
+                cfg = fw.Config().with_(**over) if over else fw.Config()
+                base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "config": cname,
+                        "overrides": over, "metrics_on": where}
+                t0 = time.perf_counter()
+                if "quality" in parts:
+                    q = quality(fw, scene, w, h, dev, cfg, args.frames, metrics)
+                    q["sampling_rate_series"] = q.pop("sampling_rate")
+                    rec = {**base, "kind": "quality", "sampling_rate": float(np.mean(q["sampling_rate_series"])), **q}
+                    records.append(rec)
+                    row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname,
+                           "rate": rec["sampling_rate"], "rate_max": float(np.max(q["sampling_rate_series"])),
+                           "psnr": _summ(q["psnr"])["mean"], "psnr_min": _summ(q["psnr"])["min"],
+                           "ssim": float(np.mean(q["ssim"])), "ssim_min": float(np.min(q["ssim"])),
+                           "fovea_min": _summ(q["fovea_psnr"])["min"],
+                           "psnr_off": _summ(q["psnr_off"])["mean"], "hist_gain_min": q["history_gain_db_min"]}
+                    rows.append(row)
+                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+                if "timing" in parts:
+                    for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
+                        c2 = cfg.with_(**sover) if sover else cfg
+                        tm = timing(fw, scene, w, h, dev, c2, args.timing_frames)
+                        rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": "full",
+                               "sampling_rate": tm["timing_sampling_rate"], **tm}
+                        records.append(rec)
+                        print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
+                               if k not in ("stage_ms", "overrides", "auto_estimates")}, flush=True)
+                        print("   stages", {k: round(v, 3) for k, v in tm["stage_ms"].items()}, flush=True)
+                if "stochastic" in parts and scene.name.split("+")[0] in args.stochastic_scenes.split(","):
+                    st = stochastic(fw, scene, w, h, dev, cfg, min(args.frames, 30), metrics)
+                    records.append({**base, "kind": "stochastic", **st})
+                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in st.items()
+                           if not isinstance(v, list)}, flush=True)
+                print(f"   ({time.perf_counter() - t0:.1f} s)", flush=True)
+    md = md_table(rows, list(rows[0])) if rows else ""
+    trows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "config": r["config"],
+              "shading": r["shading"], "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
+              "speedup": r["speedup"], "auto_ms": r["auto_ms"], "auto_path": r["auto_path"],
+              "overhead_ms": r["overhead_ms"]} for r in records if r["kind"] == "timing"]
+    if trows:
+        md += "\n\n" + md_table(trows, list(trows[0]))
+    write_results(args.name, dev, {"records": records, "frames": args.frames, "timing_frames": args.timing_frames},
+                  md, args.out)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
