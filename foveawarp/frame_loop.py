@@ -53,8 +53,8 @@ class FrameLoop:
     """
 
     POLICY_PERIOD = 600  # frames between two measurements of the policy
-    POLICY_WARM = 3  # untimed frames before each timed run of a path (compile, graph capture)
-    POLICY_TIMED = 4  # timed frames per path; the median counts
+    POLICY_WARM = 4  # untimed frames before each timed run of a path (compile, graph capture)
+    POLICY_TIMED = 8  # timed frames per path; the median counts
     POLICY_MARGIN = 0.05  # full resolution is chosen when at least this fraction cheaper
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
