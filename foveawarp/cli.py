@@ -1,4 +1,4 @@
-"""`foveawarp` console script: demo, render, warmup, bench."""
+"""`foveawarp` console script: demo, render, view, warmup, bench."""
 
 from __future__ import annotations
 
@@ -31,6 +31,16 @@ def _positive_int(s: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
     if v <= 0:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}")
+    return v
+
+
+def _positive_float(s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {s!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {s!r}")
     return v
 
 
@@ -94,7 +104,7 @@ def _panel(frame, ref_img=None) -> np.ndarray:
 
 
 def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: Path, debug=False, dof=False,
-                     panel=True, desc="frames"):
+                     panel=True, desc="frames", gaze_trace=None):
     from tqdm import tqdm
 
     import foveawarp as fw
@@ -108,7 +118,8 @@ def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: P
     for i in tqdm(range(frames), desc=desc, unit="frame"):
         t = i / fps
         cam = scene.camera_at(t)
-        g = gaze if gaze is not None else _gaze_path(i, frames, width, height)
+        g = gaze if gaze is not None else (gaze_trace.at(t) if gaze_trace is not None
+                                           else _gaze_path(i, frames, width, height))
         frame = loop.render(cam, gaze_px=g, time=t)
         ref = ref_loop.render_reference(cam, time=t).numpy() if panel else None
         img = _panel(frame, ref) if panel else frame.numpy()
@@ -176,7 +187,8 @@ def cmd_demo(args) -> int:
     h = args.height or (1080 if cuda else 90)
     n = args.frames or (60 if cuda else 8)
     t0 = time.perf_counter()
-    s = _render_sequence(args.scene, w, h, n, device, None, Path(args.out), debug=False, panel=True, desc="demo")
+    s = _render_sequence(args.scene, w, h, n, device, None, Path(args.out), debug=False, panel=True, desc="demo",
+                         gaze_trace=_load_trace(args.gaze_trace))
     ms = [f.get("ms_frame", float("nan")) for f in s["frames"]]
     print(f"demo: {n} frames of {s['scene']} at {w}x{h} on {s['device']} in {time.perf_counter() - t0:.1f} s "
           f"(median frame {np.median(ms):.1f} ms incl. timing syncs); output in {args.out}/")
@@ -185,11 +197,86 @@ def cmd_demo(args) -> int:
 
 def cmd_render(args) -> int:
     device = _default_device(args.device)
+    if args.gaze is not None and args.gaze_trace is not None:
+        raise ValueError("give --gaze or --gaze-trace, not both")
     s = _render_sequence(args.scene, args.width, args.height, args.frames, device, args.gaze, Path(args.out),
-                         debug=args.debug, dof=args.dof, panel=args.panel, desc="render")
+                         debug=args.debug, dof=args.dof, panel=args.panel, desc="render",
+                         gaze_trace=_load_trace(args.gaze_trace))
     print(f"render: {len(s['frames'])} frames of {s['scene']} at {args.width}x{args.height} on {s['device']}; "
           f"output in {args.out}/")
     return 0
+
+
+def _load_trace(path):
+    if path is None:
+        return None
+    from .gaze_trace import load_gaze_trace
+
+    return load_gaze_trace(path)
+
+
+def cmd_view(args) -> int:
+    """Serve the live viewer until interrupted (Ctrl-C)."""
+    import asyncio
+
+    device = _default_device(args.device)
+    import warp as wp
+
+    cuda = wp.get_device(device).is_cuda
+    w = args.width or (1280 if cuda else 320)
+    h = args.height or (720 if cuda else 180)
+    trace = _load_trace(args.gaze_trace)
+    scenes = args.scene or ["cornell"]
+    _check_scene_sources(scenes)
+    try:
+        from .viewer.server import ViewerServer
+    except ImportError as e:
+        print(f"foveawarp: error: {e}", file=sys.stderr)
+        return 2
+    from .viewer.session import ViewerSession
+
+    timing = None if args.timing is None else args.timing == "on"
+    session = ViewerSession(scenes, w, h, device=device, gaze_trace=trace, timing=timing, quality=args.quality)
+    server = ViewerServer(session, host=args.host, port=args.port)
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: the viewer listens on {args.host}, not only on this machine's loopback: anyone who can "
+              f"reach this address can watch and steer it (it has no authentication). Prefer the default "
+              f"127.0.0.1 with an SSH tunnel.", file=sys.stderr)
+
+    async def run():
+        await server.start()
+        print(f"foveawarp view: {', '.join(session.limits.scenes)} at {w}x{h} on {device}; open {server.url}"
+              f" (Ctrl-C stops)", flush=True)
+        try:
+            if args.serve_seconds is None:
+                await asyncio.Event().wait()
+            else:
+                await asyncio.sleep(args.serve_seconds)
+        finally:
+            await server.close()
+
+    try:
+        asyncio.run(run())
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def _check_scene_sources(scenes) -> None:
+    """Fail at launch (not in the page) for a scene that is neither a known name nor an existing file."""
+    from . import scenes as builtin
+    from .scene import NAMED_MESHES, find_named_mesh
+
+    for s in scenes:
+        if s in builtin.BUILTIN:
+            continue
+        if s in NAMED_MESHES:
+            if find_named_mesh(s) is None:
+                raise ValueError(f"scene {s!r} needs {NAMED_MESHES[s]!r}; set FOVEAWARP_SCENES to its folder")
+            continue
+        if not Path(s).is_file():
+            raise ValueError(f"scene {s!r} is neither a built-in name {sorted(builtin.BUILTIN) + sorted(NAMED_MESHES)} "
+                             "nor an existing file")
 
 
 def cmd_warmup(args) -> int:
@@ -238,6 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--height", type=_positive_int, default=None)
     d.add_argument("--frames", type=_positive_int, default=None)
     d.add_argument("--out", default="foveawarp-out/demo")
+    d.add_argument("--gaze-trace", default=None, metavar="FILE.csv",
+                   help="replay a recorded gaze (CSV columns t_s,x_px,y_px; frame i at t = i / 30 s)")
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser("render", help="render frames of a scene (built-in name or mesh file)")
@@ -252,7 +341,26 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--debug", action="store_true", help="also write the sampling-map debug views")
     r.add_argument("--dof", action="store_true", help="also write the depth-of-field comparison")
     r.add_argument("--no-panel", dest="panel", action="store_false", help="write only the foveated image")
+    r.add_argument("--gaze-trace", default=None, metavar="FILE.csv",
+                   help="replay a recorded gaze (CSV columns t_s,x_px,y_px; frame i at t = i / 30 s)")
     r.set_defaults(func=cmd_render)
+
+    v = sub.add_parser("view", help="serve the live viewer: a page whose foveated frames follow the mouse")
+    v.add_argument("--scene", action="extend", nargs="+", default=None, metavar="NAME|PATH",
+                   help="the scenes the page may offer (default cornell); the page names them, never sends paths")
+    v.add_argument("--device", default=None, help='"cpu", "cuda:0", ... (default: CUDA when present)')
+    v.add_argument("--width", type=_positive_int, default=None, help="render width (default 1280 CUDA, 320 CPU)")
+    v.add_argument("--height", type=_positive_int, default=None, help="render height (default 720 CUDA, 180 CPU)")
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    v.add_argument("--port", type=int, default=8765, help="port (0 picks a free one)")
+    v.add_argument("--gaze-trace", default=None, metavar="FILE.csv",
+                   help="replay a recorded gaze (CSV columns t_s,x_px,y_px, looped) instead of the mouse")
+    v.add_argument("--timing", choices=("on", "off"), default=None,
+                   help="per-stage timing (default: on for the CPU, off on CUDA, which then replays CUDA graphs)")
+    v.add_argument("--quality", type=int, default=80, help="JPEG quality in [10, 100] (default 80)")
+    v.add_argument("--serve-seconds", type=_positive_float, default=None,
+                   help="stop after this many seconds (scripted runs; default: until Ctrl-C)")
+    v.set_defaults(func=cmd_view)
 
     w = sub.add_parser("warmup", help="compile every kernel module for a device ahead of time")
     w.add_argument("--device", default=None)

@@ -44,3 +44,20 @@ def test_soak_quick(device, tmp_path):
     assert res["verdict"]["no_nan"] is True and res["verdict"]["memory_flat"] is True
     if tag == "cuda":
         assert "mempool_used" in res["memory"]
+
+
+def test_viewer_benchmark_quick(tmp_path):
+    """benchmarks/viewer.py on the CPU at 96x54 for one second: the viewer process starts, frames arrive and
+    decode at the right size, latencies are recorded (no speed assertion)."""
+    import pytest
+
+    pytest.importorskip("websockets", reason="the viewer extra (websockets) is not installed")
+    _run([str(REPO / "benchmarks" / "viewer.py"), "--quick", "--device", "cpu", "--seconds", "1", "--warmup-s",
+          "0.5"], tmp_path)
+    res = json.loads((tmp_path / "viewer-cpu.json").read_text())
+    assert res["benchmark"] == "viewer" and res["device"] == "cpu" and res["commit"]
+    (row,) = res["rows"]
+    assert row["resolution"] == "96x54" and row["decoded_sizes_ok"] is True
+    assert row["frames"] > 0 and row["fps_delivered"] > 0
+    assert row["latency_samples"] > 0 and 0 < row["latency_server_p50_ms"] <= row["latency_server_p95_ms"]
+    assert (tmp_path / "viewer-cpu.md").is_file()

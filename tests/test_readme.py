@@ -11,7 +11,8 @@ README rule (also stated in README.md, "Command line"):
   ``height=<int>`` set to 64 / 36 and ``device="..."`` set to ``"cpu"``;
 - every ``foveawarp ...`` command of the ```` ```bash ```` blocks runs (through ``foveawarp.cli.main``) with
   ``--device cpu``; ``demo`` / ``render`` with ``--width 48 --height 32 --frames 1`` and ``--out`` a fresh
-  temporary folder; ``bench`` with ``--quick``. Options are replaced where given and added where not;
+  temporary folder; ``bench`` with ``--quick``; ``view`` with ``--width 48 --height 32 --port 0
+  --serve-seconds 1``. Options are replaced where given and added where not;
 - ``pip install ...`` and ``python -m pytest ...`` are not run; any other command is reported as a warning;
   ```` ```text ```` blocks (synopses) are not run. A ``foveawarp`` line with a placeholder (``[``, ``|``, ``<``)
   in a bash block fails the test: bash blocks hold runnable commands.
@@ -146,6 +147,11 @@ def readme_commands(text: str, out_dir: Path):
                     _set_opt(argv, "--out", out_dir / f"cmd{len(runs)}")
                 if sub == "bench" and "--quick" not in argv:
                     argv.append("--quick")
+                if sub == "view":   # the live viewer: a free port, a tiny size, stop after a second
+                    _set_opt(argv, "--width", CLI_SIZE[0])
+                    _set_opt(argv, "--height", CLI_SIZE[1])
+                    _set_opt(argv, "--port", 0)
+                    _set_opt(argv, "--serve-seconds", 1)
                 runs.append((cmd, argv))
     return runs, others
 

@@ -1043,6 +1043,34 @@ arg("metrics", "region_metrics_device", metrics.region_metrics_device, _RMD, "de
 
 
 # ================================================================================================================
+# live viewer session and gaze traces (the server itself needs the optional extra and is tested in test_viewer.py)
+
+from foveawarp.gaze_trace import GazeTrace, load_gaze_trace  # noqa: E402
+from foveawarp.viewer.session import ViewerSession  # noqa: E402
+
+_VS = {"scenes": ["cornell"], "width": 8, "height": 6, "device": DEV}
+for n in ("width", "height"):
+    int_arg("viewer", "ViewerSession", ViewerSession, _VS, n, "[1, 16384]", [0, -1])
+arg("viewer", "ViewerSession", ViewerSession, _VS, "quality", "[10, 100]",
+    [(5, "5"), (101, "101"), (True, "True"), (80.5, "80.5")])
+arg("viewer", "ViewerSession", ViewerSession, _VS, "scenes", "a scene name or a file path",
+    [([5], "5"), ([""], "''")], param="scene")
+case("viewer", "ViewerSession:device", ViewerSession, {**_VS, "device": "cuda:99"}, "device", "'cuda:99'", "one of")
+_GT = {"t_s": [0.0, 1.0], "x_px": [1.0, 2.0], "y_px": [3.0, 4.0]}
+for n in ("t_s", "x_px", "y_px"):
+    for bad, shown in ((NAN, "nan"), (INF, "inf")):
+        case("viewer", f"GazeTrace:{n}={shown}", GazeTrace, {**_GT, n: [0.0, bad]}, n, shown, "finite numbers")
+case("viewer", "GazeTrace:t_s decreasing", GazeTrace, {**_GT, "t_s": [1.0, 0.5]}, "t_s", "0.5", "non-decreasing")
+case("viewer", "GazeTrace:empty", GazeTrace, {"t_s": [], "x_px": [], "y_px": []}, "t_s,x_px,y_px", "0 rows",
+     "at least one row")
+for bad, shown in ((NAN, "nan"), (INF, "inf"), ("1", "'1'")):
+    case("viewer", f"GazeTrace.at:t={shown}", GazeTrace(**_GT).at, {"t": bad}, "t", shown, "finite real number")
+case("viewer", "load_gaze_trace:missing", load_gaze_trace, {"path": "no-such-trace.csv"}, "gaze trace",
+     "no-such-trace.csv", "does not exist")
+case("viewer", "load_gaze_trace:type", load_gaze_trace, {"path": 5}, "gaze trace path", "5", "a file path")
+
+
+# ================================================================================================================
 
 
 def case_families() -> Counter:
