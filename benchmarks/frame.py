@@ -241,11 +241,16 @@ def main(argv=None):
                     rows.append(row)
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "timing" in parts:
+                    qrec = next((r for r in reversed(records) if r["kind"] == "quality" and r["scene"] == scene.name
+                                 and r["width"] == w and r["config"] == cname), None)
+                    qual = {} if qrec is None else {
+                        "psnr": _summ(qrec["psnr"])["mean"], "ssim": float(np.mean(qrec["ssim"])),
+                        "fovea_psnr": _summ(qrec["fovea_psnr"])["mean"], "quality_shading": "default"}
                     for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
                         c2 = cfg.with_(**sover) if sover else cfg
                         tm = timing(fw, scene, w, h, dev, c2, args.timing_frames)
                         rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": "full",
-                               "sampling_rate": tm["timing_sampling_rate"], **tm}
+                               "sampling_rate": tm["timing_sampling_rate"], **qual, **tm}
                         records.append(rec)
                         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
                                if k not in ("stage_ms", "overrides", "auto_estimates")}, flush=True)
@@ -265,7 +270,61 @@ def main(argv=None):
         md += "\n\n" + md_table(trows, list(trows[0]))
     write_results(args.name, dev, {"records": records, "frames": args.frames, "timing_frames": args.timing_frames},
                   md, args.out)
+    plot(records, Path(args.out) if args.out else Path(__file__).resolve().parent / "results", args.name, dev)
     print(md)
+
+
+def pareto(points):
+    """Indices of (ms, psnr) points that no other point beats in both (less time and more PSNR)."""
+    return [i for i, (t, q) in enumerate(points)
+            if not any(t2 <= t and q2 >= q and (t2 < t or q2 > q) for j, (t2, q2) in enumerate(points) if j != i)]
+
+
+def plot(records, folder, name, dev):
+    """Time against error per scene and resolution: foveated points per configuration and shading, the
+    full-resolution reference's time as a vertical line, the Pareto front of the foveated points."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except Exception:
+        print("matplotlib not installed: no plot")
+        return
+    tim = [r for r in records if r["kind"] == "timing" and "psnr" in r]
+    if not tim:
+        return
+    keys = sorted({(r["scene"], r["width"], r["height"]) for r in tim}, key=lambda k: (k[1], k[0]))
+    n = len(keys)
+    cols = min(n, 6)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False)
+    for ax, key in zip(axes.flat, keys):
+        rs = [r for r in tim if (r["scene"], r["width"], r["height"]) == key]
+        for shading, mk in (("default", "o"), ("ao8", "s")):
+            pts = [(r["fov_ms"], r["psnr"], r["config"]) for r in rs if r["shading"] == shading]
+            if not pts:
+                continue
+            ref = [r["ref_ms"] for r in rs if r["shading"] == shading][0]
+            line = ax.axvline(ref, ls="--", lw=1, color="C0" if shading == "default" else "C3")
+            ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
+                       label=f"{shading} (ref {ref:.2f} ms)")
+            front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
+            ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
+            for p in pts:
+                ax.annotate(p[2], (p[0], p[1]), fontsize=6)
+        ax.set_title(f"{key[0]} {key[1]}x{key[2]}", fontsize=8)
+        ax.set_xlabel("frame ms", fontsize=7)
+        ax.set_ylabel("PSNR dB (60-frame mean)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({wp.get_device(dev).alias})",
+                 fontsize=9)
+    fig.tight_layout()
+    tag = "cuda" if wp.get_device(dev).is_cuda else "cpu"
+    fig.savefig(folder / f"{name}-{tag}.png", dpi=110)
 
 
 if __name__ == "__main__":

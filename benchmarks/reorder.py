@@ -164,9 +164,8 @@ def main():
                                 sp = loop.upload_shade_params(cam)
 
                                 def trace():
-                                    wp.launch(shade_rows_kernel, dim=(h, w),
-                                              inputs=[sp, stage.coords, stage.counts, *loop._shade_inputs()],
-                                              outputs=[loop.radiance, loop.radiance_stoch], device=dev)
+                                    loop.shade.rows(loop.gbuffer, stage.coords, stage.counts, loop.radiance,
+                                                    loop.radiance_stoch)
                             else:
                                 def trace():
                                     loop.shade_list(cam, stage.work, stage.count)

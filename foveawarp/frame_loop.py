@@ -1,5 +1,5 @@
-"""FrameLoop: owns every buffer of one (scene, width, height, device), runs the stages, decides what to skip,
-and times them."""
+"""FrameLoop: owns every buffer of one (scene, width, height, device), sequences the stages (``stages/``),
+decides what to skip, and collects stats; every launch lives in a stage."""
 
 from __future__ import annotations
 
@@ -15,17 +15,11 @@ from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
 from .config import Config, check_bool, check_choice, check_int_range, show
-from .kernels.gbuffer import gbuffer_kernel
-from .kernels.shade import (
-    ShadeParams,
-    set_shade_params_kernel,
-    shade_full_kernel,
-    shade_list_kernel,
-    shade_masked_kernel,
-    shade_rows_kernel,
-)
-from .kernels.tonemap import tonemap_kernel
+from .kernels.shade import ShadeParams
 from .scene import DeviceScene, Scene, load_scene
+from .stages.gbuffer import GBufferStage
+from .stages.shade import ShadeStage
+from .stages.tonemap import TonemapStage
 
 __all__ = ["FrameLoop"]
 
@@ -89,7 +83,10 @@ class FrameLoop:
         self.prev_camera: Optional[Camera] = None
         self._ref_prev_camera: Optional[Camera] = None
         self._stats: dict = {}
-        self._sp_dev = wp.zeros(1, dtype=ShadeParams, device=dev)
+        self.gbuffer_stage = GBufferStage(self.dscene, w, h, dev)
+        self.shade = ShadeStage(self.dscene, cfg.shading, w, h, dev)
+        self.tonemap = TonemapStage(cfg.shading, w, h, dev)
+        self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
             raise ValueError(f"graph must be True, False or None, got {graph!r}")
         self._graphs_on = bool(dev.is_cuda and not self.timing and graph is not False)
@@ -136,9 +133,7 @@ class FrameLoop:
         self._stats[f"ms_{name}"] = self._stats.get(f"ms_{name}", 0.0) + (time.perf_counter() - t0) * 1e3
 
     def _max_t(self, camera: Camera) -> float:
-        lo, hi = self.scene.bounds
-        far = float(np.linalg.norm(np.asarray(camera.eye) - (lo + hi) * 0.5)) + self.scene.extent
-        return float(min(max(2.0 * far, 1.0), 1.0e30))
+        return self.gbuffer_stage.max_t(camera)
 
     def shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> ShadeParams:
         """The shading kernels' parameters for ``camera`` (required) and this frame; ``ao_samples`` in [0, 256]
@@ -146,34 +141,12 @@ class FrameLoop:
         camera = self._require_camera(camera)
         if ao_samples is not None:
             ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
-        sc = self.config.shading
-        ds = self.dscene
-        sp = ShadeParams()
-        sp.mesh = ds.mesh.id
-        sp.num_lights = ds.num_lights
-        sp.num_area_lights = ds.num_area_lights
-        sp.shadows = 1 if sc.shadows else 0
-        sp.ambient = wp.vec3(*sc.ambient)
-        sp.specular = float(sc.specular)
-        sp.shininess = float(sc.shininess)
-        sp.ao_samples = int(sc.ao_samples if ao_samples is None else ao_samples)
-        sp.ao_radius = float(sc.ao_radius_rel * ds.extent)
-        sp.area_samples = int(sc.area_light_samples)
-        sp.background = wp.vec3(*sc.background)
-        sp.ray_eps = float(ds.ray_eps)
-        sp.seed = int(sc.seed)
-        sp.frame = int(self.frame_index)
-        sp.width = self.width
-        sp.eye = wp.vec3(*camera.eye)
-        sp.split_stochastic = 1 if self._stochastic_shading(sp.ao_samples) else 0
-        return sp
+        return self.shade.params(camera, self.frame_index, ao_samples)
 
     def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
         samples): the temporal resolve then accumulates them (``TemporalStage``)."""
-        sc = self.config.shading
-        ao = sc.ao_samples if ao_samples is None else ao_samples
-        return bool(ao > 0 or (self.dscene.num_area_lights > 0 and sc.area_light_samples > 0))
+        return self.shade.stochastic(ao_samples)
 
     @staticmethod
     def _require_camera(camera) -> Camera:
@@ -203,36 +176,19 @@ class FrameLoop:
         return self.dscene.set_time(t)
 
     def _gbuffer(self, camera: Camera, prev_camera: Camera) -> None:
-        g, ds = self.gbuffer, self.dscene
-        wp.launch(
-            gbuffer_kernel,
-            dim=(self.height, self.width),
-            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
-                    camera.params(self.width, self.height), prev_camera.params(self.width, self.height),
-                    self._max_t(camera)],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved],
-            device=self.device,
-        )
-
-    def _shade_inputs(self):
-        g, ds = self.gbuffer, self.dscene
-        return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
+        self.gbuffer_stage.run(self.gbuffer, camera, prev_camera)
 
     def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
         """Write ``shade_params(camera)`` to the (1,) device array the shading kernels read, and return it."""
-        wp.launch(set_shade_params_kernel, dim=1, inputs=[self.shade_params(camera, ao_samples=ao_samples)],
-                  outputs=[self._sp_dev], device=self.device)
-        return self._sp_dev
+        return self.shade.upload(self.shade_params(camera, ao_samples=ao_samples))
 
     def shade_full(self, camera: Camera, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade every pixel of the current G-buffer into ``out`` ((H, W) vec3 wp.array; default
         ``self.radiance``)."""
         if out is not None:
             self._check_image_array("out", out, wp.vec3)
-        wp.launch(shade_full_kernel, dim=(self.height, self.width),
-                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
+        self.upload_shade_params(camera, ao_samples=ao_samples)
+        self.shade.full(self.gbuffer, out if out is not None else self.radiance, self.radiance_stoch)
 
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device): ``work`` a 1-D int32
@@ -246,24 +202,19 @@ class FrameLoop:
         if not (isinstance(count, wp.array) and count.dtype == wp.int32 and tuple(count.shape) == (1,)
                 and count.device == self.device):
             raise ValueError(f"count must be a (1,) int32 wp.array on {self.device}, got {_describe(count)}")
-        wp.launch(shade_list_kernel, dim=work.shape[0],
-                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), work, count,
-                          *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
+        self.upload_shade_params(camera, ao_samples=ao_samples)
+        self.shade.list(self.gbuffer, work, count, out if out is not None else self.radiance, self.radiance_stoch)
 
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the pixels where ``mask`` ((H, W) uint8 wp.array) is nonzero, launching every pixel."""
         self._check_image_array("mask", mask, wp.uint8)
         if out is not None:
             self._check_image_array("out", out, wp.vec3)
-        wp.launch(shade_masked_kernel, dim=(self.height, self.width),
-                  inputs=[self.upload_shade_params(camera, ao_samples=ao_samples), mask, *self._shade_inputs()],
-                  outputs=[out if out is not None else self.radiance, self.radiance_stoch], device=self.device)
+        self.upload_shade_params(camera, ao_samples=ao_samples)
+        self.shade.masked(self.gbuffer, mask, out if out is not None else self.radiance, self.radiance_stoch)
 
     def _tonemap(self, hdr, out) -> None:
-        sc = self.config.shading
-        wp.launch(tonemap_kernel, dim=(self.height, self.width), inputs=[hdr, float(sc.exposure),
-                  float(sc.white_point)], outputs=[out], device=self.device)
+        self.tonemap.run(hdr, out)
 
     # -- public ------------------------------------------------------------------------------------------
     def render_reference(self, camera: Optional[Camera] = None, *, time: Optional[float] = None,
@@ -537,21 +488,15 @@ class FrameLoop:
 
     def _trace(self, smap, strategy: str) -> None:
         """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``."""
-        sp, dev = self._sp_dev, self.device
+        g, out, st = self.gbuffer, self.radiance, self.radiance_stoch
         if strategy == "full":
-            wp.launch(shade_full_kernel, dim=(self.height, self.width), inputs=[sp, *self._shade_inputs()],
-                      outputs=[self.radiance, self.radiance_stoch], device=dev)
+            self.shade.full(g, out, st)
         elif strategy == "none":
-            wp.launch(shade_masked_kernel, dim=(self.height, self.width), inputs=[sp, smap, *self._shade_inputs()],
-                      outputs=[self.radiance, self.radiance_stoch], device=dev)
+            self.shade.masked(g, smap, out, st)
         elif strategy in ("rows", "rows+balance"):
-            wp.launch(shade_rows_kernel, dim=(self.height, self.width),
-                      inputs=[sp, self.reorder.coords, self.reorder.counts, *self._shade_inputs()],
-                      outputs=[self.radiance, self.radiance_stoch], device=dev)
+            self.shade.rows(g, self.reorder.coords, self.reorder.counts, out, st)
         else:
-            wp.launch(shade_list_kernel, dim=self.reorder.work.shape[0],
-                      inputs=[sp, self.reorder.work, self.reorder.count, *self._shade_inputs()],
-                      outputs=[self.radiance, self.radiance_stoch], device=dev)
+            self.shade.list(g, self.reorder.work, self.reorder.count, out, st)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

@@ -1,0 +1,41 @@
+"""G-buffer stage (ALGORITHMS.md A1): one primary ray per pixel against the scene BVH."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..camera import Camera
+from ..kernels.gbuffer import gbuffer_kernel
+
+__all__ = ["GBufferStage"]
+
+
+class GBufferStage:
+    """Traces the primary rays of ``width`` x ``height`` pixels of a :class:`DeviceScene` into a
+    :class:`GBuffer` (owned by the caller). ``run`` only launches; nothing is allocated per frame."""
+
+    def __init__(self, dscene, width: int, height: int, device):
+        self.dscene, self.width, self.height, self.device = dscene, width, height, device
+
+    def max_t(self, camera: Camera) -> float:
+        """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
+        sc = self.dscene.scene
+        lo, hi = sc.bounds
+        far = float(np.linalg.norm(np.asarray(camera.eye) - (lo + hi) * 0.5)) + sc.extent
+        return float(min(max(2.0 * far, 1.0), 1.0e30))
+
+    def run(self, gbuffer, camera: Camera, prev_camera: Camera) -> None:
+        """Fill every field of ``gbuffer`` for ``camera``; reprojection fields refer to ``prev_camera`` and the
+        scene's previous vertex positions."""
+        g, ds = gbuffer, self.dscene
+        w, h = self.width, self.height
+        wp.launch(
+            gbuffer_kernel,
+            dim=(h, w),
+            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+                    camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                     g.moved],
+            device=self.device,
+        )

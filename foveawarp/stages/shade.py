@@ -1,0 +1,94 @@
+"""Shading stage (ALGORITHMS.md A4): direct light with shadow rays, ambient or AO, emission, at G-buffer points;
+launched over the full frame, a compacted work list, row CSR coordinates or a mask."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import warp as wp
+
+from ..camera import Camera
+from ..kernels.shade import (
+    ShadeParams,
+    set_shade_params_kernel,
+    shade_full_kernel,
+    shade_list_kernel,
+    shade_masked_kernel,
+    shade_rows_kernel,
+)
+
+__all__ = ["ShadeStage"]
+
+
+class ShadeStage:
+    """Shading of one :class:`DeviceScene` with a :class:`ShadingConfig` at ``width`` x ``height``.
+
+    The per-frame parameters (eye, frame index for the Monte Carlo seeds, ...) live in a (1,) device array that
+    ``upload`` writes with a one-thread kernel, so the launches read them on the device and a captured CUDA
+    graph of the launches picks up each frame's values. Every launch writes the radiance to ``out`` and, when
+    the shading has Monte Carlo terms (``stochastic``), their part to ``out_stoch``.
+    """
+
+    def __init__(self, dscene, config, width: int, height: int, device):
+        self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
+        self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
+
+    def stochastic(self, ao_samples: Optional[int] = None) -> bool:
+        """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
+        samples)."""
+        sc = self.config
+        ao = sc.ao_samples if ao_samples is None else ao_samples
+        return bool(ao > 0 or (self.dscene.num_area_lights > 0 and sc.area_light_samples > 0))
+
+    def params(self, camera: Camera, frame_index: int, ao_samples: Optional[int] = None) -> ShadeParams:
+        sc, ds = self.config, self.dscene
+        sp = ShadeParams()
+        sp.mesh = ds.mesh.id
+        sp.num_lights = ds.num_lights
+        sp.num_area_lights = ds.num_area_lights
+        sp.shadows = 1 if sc.shadows else 0
+        sp.ambient = wp.vec3(*sc.ambient)
+        sp.specular = float(sc.specular)
+        sp.shininess = float(sc.shininess)
+        sp.ao_samples = int(sc.ao_samples if ao_samples is None else ao_samples)
+        sp.ao_radius = float(sc.ao_radius_rel * ds.extent)
+        sp.area_samples = int(sc.area_light_samples)
+        sp.background = wp.vec3(*sc.background)
+        sp.ray_eps = float(ds.ray_eps)
+        sp.seed = int(sc.seed)
+        sp.frame = int(frame_index)
+        sp.width = self.width
+        sp.eye = wp.vec3(*camera.eye)
+        sp.split_stochastic = 1 if self.stochastic(sp.ao_samples) else 0
+        return sp
+
+    def upload(self, sp: ShadeParams) -> wp.array:
+        """Write ``sp`` to the device array the launches read; returns that array."""
+        wp.launch(set_shade_params_kernel, dim=1, inputs=[sp], outputs=[self.params_dev], device=self.device)
+        return self.params_dev
+
+    def _inputs(self, gbuffer):
+        g, ds = gbuffer, self.dscene
+        return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
+
+    def full(self, gbuffer, out, out_stoch) -> None:
+        wp.launch(shade_full_kernel, dim=(self.height, self.width),
+                  inputs=[self.params_dev, *self._inputs(gbuffer)], outputs=[out, out_stoch], device=self.device)
+
+    def masked(self, gbuffer, mask, out, out_stoch) -> None:
+        """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
+        wp.launch(shade_masked_kernel, dim=(self.height, self.width),
+                  inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                  device=self.device)
+
+    def rows(self, gbuffer, coords, counts, out, out_stoch) -> None:
+        """Row-CSR launch (thesis strategies 1/2)."""
+        wp.launch(shade_rows_kernel, dim=(self.height, self.width),
+                  inputs=[self.params_dev, coords, counts, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                  device=self.device)
+
+    def list(self, gbuffer, work, count, out, out_stoch) -> None:
+        """The flat pixel indices ``work[0:count[0]]`` (count read on the device)."""
+        wp.launch(shade_list_kernel, dim=work.shape[0],
+                  inputs=[self.params_dev, work, count, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                  device=self.device)
