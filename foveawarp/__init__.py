@@ -1,6 +1,6 @@
 """foveawarp: gaze-contingent (foveated) real-time ray tracing with NVIDIA Warp kernels, on CUDA and CPU."""
 
-from . import ops, scenes  # importing scenes registers the built-in scenes with load_scene
+from . import ops, parallel, scenes  # importing scenes registers the built-in scenes with load_scene
 from .buffers import Frame, GBuffer
 from .camera import Camera
 from .config import (

@@ -29,6 +29,7 @@ from typing import Optional
 import numpy as np
 import warp as wp
 
+from . import parallel
 from .camera import Camera
 from .config import Config, DofConfig, check_int_range
 from .kernels.dof import FOCUS_FAR_M, FOCUS_MIN_REL, thin_lens_kernel
@@ -189,8 +190,8 @@ def render_dof_comparison(loop_or_scene, camera: Camera, width: int, height: int
     for name, (fg, bg) in COMPARISON_VARIANTS.items():
         stage = DofStage(w, h, replace(cfg, foreground_fix=fg, background_fix=bg), dev, method=method)
         stage.run(loop.radiance, g.depth, g.hit, None, out_hdr, fov_y_deg=camera.fov_y_deg)
-        wp.launch(tonemap_kernel, dim=(h, w), inputs=[out_hdr, float(sc.exposure), float(sc.white_point)],
-                  outputs=[out_disp], device=dev)
+        parallel.launch(tonemap_kernel, dim=(h, w), inputs=[out_hdr, float(sc.exposure), float(sc.white_point)],
+                        outputs=[out_disp], device=dev)
         images[name] = out_disp.numpy().reshape(h, w, 3).copy()
     images["thin_lens"] = render_thin_lens(loop, camera, w, h, cfg, samples)
     return images

@@ -4,6 +4,7 @@ decides what to skip, and collects stats; every launch lives in a stage."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import time
 from typing import Optional
@@ -11,6 +12,7 @@ from typing import Optional
 import numpy as np
 import warp as wp
 
+from . import parallel
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
@@ -22,6 +24,17 @@ from .stages.shade import ShadeStage
 from .stages.tonemap import TonemapStage
 
 __all__ = ["FrameLoop"]
+
+
+def _cpu_threads(fn):
+    """Run a launching method with this loop's ``cpu_threads`` for the band-parallel CPU launches."""
+
+    @functools.wraps(fn)
+    def wrapper(self, *args, **kwargs):
+        with parallel.cpu_threads(self.cpu_threads):
+            return fn(self, *args, **kwargs)
+
+    return wrapper
 
 
 class FrameLoop:
@@ -44,6 +57,9 @@ class FrameLoop:
             both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
             on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison, and on the
             CPU device the choice is left to the user until the CPU frame path is multi-threaded).
+        cpu_threads: threads of the band-parallel CPU launches (``foveawarp.parallel``), in [1, 1024]; None
+            (default): the environment variable ``FOVEAWARP_CPU_THREADS``, else the usable cores. 1 = one
+            thread per launch. The output does not depend on it (bit-identical). Ignored on CUDA.
     """
 
     POLICY_PERIOD = 600  # frames between two measurements of the policy
@@ -52,8 +68,10 @@ class FrameLoop:
     POLICY_MARGIN = 0.05  # full resolution is chosen when at least this fraction cheaper
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
-                 timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None):
+                 timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None,
+                 cpu_threads: Optional[int] = None):
         self.width, self.height = check_image_size(width, height)
+        self.cpu_threads = parallel.resolve_cpu_threads(cpu_threads)
         if config is None:
             config = Config()
         if not isinstance(config, Config):
@@ -178,10 +196,12 @@ class FrameLoop:
     def _gbuffer(self, camera: Camera, prev_camera: Camera) -> None:
         self.gbuffer_stage.run(self.gbuffer, camera, prev_camera)
 
+    @_cpu_threads
     def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
         """Write ``shade_params(camera)`` to the (1,) device array the shading kernels read, and return it."""
         return self.shade.upload(self.shade_params(camera, ao_samples=ao_samples))
 
+    @_cpu_threads
     def shade_full(self, camera: Camera, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade every pixel of the current G-buffer into ``out`` ((H, W) vec3 wp.array; default
         ``self.radiance``)."""
@@ -190,6 +210,7 @@ class FrameLoop:
         self.upload_shade_params(camera, ao_samples=ao_samples)
         self.shade.full(self.gbuffer, out if out is not None else self.radiance, self.radiance_stoch)
 
+    @_cpu_threads
     def shade_list(self, camera: Camera, work, count, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the flat pixel indices ``work[0:count[0]]`` (count stays on the device): ``work`` a 1-D int32
         wp.array of at most H * W indices in [0, H * W), ``count`` a (1,) int32 wp.array, both on this device."""
@@ -205,6 +226,7 @@ class FrameLoop:
         self.upload_shade_params(camera, ao_samples=ao_samples)
         self.shade.list(self.gbuffer, work, count, out if out is not None else self.radiance, self.radiance_stoch)
 
+    @_cpu_threads
     def shade_masked(self, camera: Camera, mask, out=None, *, ao_samples: Optional[int] = None) -> None:
         """Shade the pixels where ``mask`` ((H, W) uint8 wp.array) is nonzero, launching every pixel."""
         self._check_image_array("mask", mask, wp.uint8)
@@ -217,6 +239,7 @@ class FrameLoop:
         self.tonemap.run(hdr, out)
 
     # -- public ------------------------------------------------------------------------------------------
+    @_cpu_threads
     def render_reference(self, camera: Optional[Camera] = None, *, time: Optional[float] = None,
                          gaze_px=None, dof: bool = True) -> Frame:
         """G-buffer + shading (+ indirect, + depth of field when configured, focused at ``gaze_px``) at every
@@ -257,6 +280,7 @@ class FrameLoop:
         self._ref_prev_camera = camera
         return Frame(self.image, self.full_map, self.gbuffer, stats)
 
+    @_cpu_threads
     def render(self, camera: Optional[Camera] = None, gaze_px=None, *, time: Optional[float] = None,
                cut: bool = False) -> Frame:
         """Render one foveated frame for ``camera`` with the gaze at ``gaze_px`` (pixels; None = screen centre;

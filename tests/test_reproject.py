@@ -87,13 +87,13 @@ def test_cache_test_degenerate_inputs(u, v, d, dp, px, valid):
     dev = "cpu"
     out_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
     out_idx = wp.zeros((h, w), dtype=wp.int32, device=dev)
-    wp.launch(cache_test_kernel, dim=(h, w),
-              inputs=[wp.array(uv, dtype=wp.vec2, device=dev), wp.array(pos, dtype=wp.vec3, device=dev),
-                      wp.array(np.ones((h, w), np.uint8), dtype=wp.uint8, device=dev),
-                      wp.array(np.full((h, w), d, np.float32), dtype=float, device=dev),
-                      wp.array(np.full((h, w), dp, np.float32), dtype=float, device=dev),
-                      wp.array(np.full((h, w), valid, np.uint8), dtype=wp.uint8, device=dev),
-                      wp.vec3(0.0, 0.0, 0.0), EPS], outputs=[out_hit, out_idx], device=dev)
+    fw.parallel.launch(cache_test_kernel, dim=(h, w),
+                       inputs=[wp.array(uv, dtype=wp.vec2, device=dev), wp.array(pos, dtype=wp.vec3, device=dev),
+                               wp.array(np.ones((h, w), np.uint8), dtype=wp.uint8, device=dev),
+                               wp.array(np.full((h, w), d, np.float32), dtype=float, device=dev),
+                               wp.array(np.full((h, w), dp, np.float32), dtype=float, device=dev),
+                               wp.array(np.full((h, w), valid, np.uint8), dtype=wp.uint8, device=dev),
+                               wp.vec3(0.0, 0.0, 0.0), EPS], outputs=[out_hit, out_idx], device=dev)
     got, idx = out_hit.numpy(), out_idx.numpy()
     assert set(np.unique(got)) <= {0, 1}
     assert ((idx >= 0) == (got == 1)).all()

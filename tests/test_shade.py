@@ -137,6 +137,6 @@ def test_tonemap_against_numpy_hable(device):
     x = np.linspace(0, 50, 64 * 3).reshape(8, 8, 3).astype(np.float32)
     hdr = wp.array(x, dtype=wp.vec3, device=device)
     out = wp.zeros((8, 8), dtype=wp.vec3, device=device)
-    wp.launch(tonemap_kernel, dim=(8, 8), inputs=[hdr, 2.0, 11.2], outputs=[out], device=device)
+    fw.parallel.launch(tonemap_kernel, dim=(8, 8), inputs=[hdr, 2.0, 11.2], outputs=[out], device=device)
     expect = np.clip(hable(2.0 * x.astype(np.float64)) / hable(11.2), 0, 1) ** (1 / 2.2)
     np.testing.assert_allclose(out.numpy(), expect, atol=2e-5)

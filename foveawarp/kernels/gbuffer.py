@@ -48,8 +48,10 @@ def gbuffer_kernel(
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     px = float(x) + 0.5
     py = float(y) + 0.5
     d = camera_ray_dir(cam, px, py)

@@ -106,11 +106,13 @@ def jfa_pass_kernel(
     max_r2: wp.array(dtype=wp.int32),
     max_radius: wp.array(dtype=wp.float32),
     unreached: wp.array(dtype=wp.int32),
+    row0: int,
 ):
     """One pass that is not the last. With ``from_mask`` != 0 (the first pass) it also writes every seed's
     entry of ``final`` (the buffer the last pass writes) and zeroes the statistics the last pass reduces
     into (a later launch on the same stream, so no race)."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if from_mask != 0 and x == 0 and y == 0:
         max_r2[0] = 0
         max_radius[0] = 0.0
@@ -256,9 +258,11 @@ def voronoi_fill_kernel(
     nearest: wp.array2d(dtype=wp.vec2i),
     color_in: wp.array2d(dtype=wp.vec3),
     color_out: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Voronoi (nearest-seed) color of every pixel; seeds keep their own (finite) color."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] != wp.uint8(0):
         color_out[y, x] = finite_or_zero(color_in[y, x])
     else:
@@ -271,9 +275,11 @@ def voronoi_color_kernel(
     nearest: wp.array2d(dtype=wp.vec2i),
     color_in: wp.array2d(dtype=wp.vec3),
     vor: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Voronoi color (color mode 1 of :func:`jfa_last_pass_kernel`) of the non-seed pixels, for a
     ``run_interpolate`` whose colors the last pass did not see."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] == wp.uint8(0):
         vor[y, x] = voronoi_color(color_in, nearest[y, x])

@@ -56,8 +56,10 @@ def cache_test_kernel(
     eps_rel: float,
     out_hit: wp.array2d(dtype=wp.uint8),
     out_prev_index: wp.array2d(dtype=wp.int32),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     idx = cache_lookup(reproj_uv[y, x], wp.length(position[y, x] - eye_prev), hit[y, x], depth[y, x], depth_prev,
                        valid_prev, eps_rel)
     out_prev_index[y, x] = wp.int32(idx)

@@ -79,19 +79,24 @@ def dof_factor(depth: float, focus: float, sigma1: float, sigma2: float, dof_flo
 
 
 @wp.kernel(enable_backward=False)
-def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3)):
+def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3), row0: int):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     out[y, x] = linear_rgb_to_lab(albedo[y, x])
 
 
 @wp.kernel(enable_backward=False)
-def gradient_kernel(a: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=float)):
+def gradient_kernel(a: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=float), row0: int):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     out[y, x] = sobel_vec3(a, x, y)
 
 
 @wp.kernel(enable_backward=False)
 def dof_factor_kernel(depth: wp.array2d(dtype=float), focus: float, sigma1: float, sigma2: float, dof_floor: float,
-                      out: wp.array2d(dtype=float)):
+                      out: wp.array2d(dtype=float),
+                      row0: int,
+):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     out[y, x] = dof_factor(depth[y, x], focus, sigma1, sigma2, dof_floor)

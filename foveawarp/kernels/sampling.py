@@ -250,8 +250,9 @@ def frame_setup_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def eccentricity_kernel(frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float)):
+def eccentricity_kernel(frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float), row0: int):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     fp = frame[0]
     fw = float(out.shape[1])
     fh = float(out.shape[0])
@@ -259,8 +260,9 @@ def eccentricity_kernel(frame: wp.array(dtype=FrameParams), out: wp.array2d(dtyp
 
 
 @wp.kernel(enable_backward=False)
-def probability_kernel(sp: SamplingParams, frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float)):
+def probability_kernel(sp: SamplingParams, frame: wp.array(dtype=FrameParams), out: wp.array2d(dtype=float), row0: int):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     fp = frame[0]
     fw = float(out.shape[1])
     fh = float(out.shape[0])
@@ -275,8 +277,10 @@ def threshold_kernel(
     sp: SamplingParams,
     frame: wp.array(dtype=FrameParams),
     out_sample: wp.array2d(dtype=wp.uint8),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     fp = frame[0]
     out_sample[y, x] = dither_sample(probability[y, x], x, y, probability.shape[1], probability.shape[0], ranks, sp,
                                      fp.rot, fp.phase)
@@ -356,6 +360,7 @@ def sampling_map_kernel(
     out_sample: wp.array2d(dtype=wp.uint8),
     out_cache_hit: wp.array2d(dtype=wp.uint8),
     out_prev_index: wp.array2d(dtype=wp.int32),
+    row0: int,
 ):
     """Fused per-pixel pass: eq. 2 probability, eq. 3 saliency, stratified threshold, eq. 4 cache test.
 
@@ -365,6 +370,7 @@ def sampling_map_kernel(
     miss has no surface depth or motion).
     """
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     fp = frame[0]
     w = depth.shape[1]
     h = depth.shape[0]

@@ -203,8 +203,10 @@ def shade_full_kernel(
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     sp = spa[0]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
@@ -224,9 +226,11 @@ def shade_list_kernel(
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
     i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     sp = spa[0]
@@ -250,9 +254,11 @@ def shade_masked_kernel(
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] == wp.uint8(0):
         return
     sp = spa[0]
@@ -274,9 +280,11 @@ def shade_rows_kernel(
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Row-CSR launch (thesis strategies 1/2): thread (v, u) shades coords[v, u] when u < counts[v]."""
     v, u = wp.tid()
+    v += row0  # band offset (foveawarp.parallel)
     if u >= counts[v]:
         return
     sp = spa[0]

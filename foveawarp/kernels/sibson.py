@@ -97,9 +97,11 @@ def sibson_gather_kernel(
     window: int,
     max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] != wp.uint8(0):  # a seed keeps its color
         color_out[y, x] = finite_or_zero(color_in[y, x])
         return
@@ -158,11 +160,13 @@ def sibson_resolve_kernel(
     accum: wp.array2d(dtype=wp.vec4),
     max_r2: wp.array(dtype=wp.int32),
     color_out: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Average of the scattered colors; seeds keep their color; nothing received -> Voronoi color. Where the
     scattered float32 sum overflowed (colors near float max), the pixel gathers the same terms itself with
     the overflow-safe :func:`disc_mean` (window = the largest radius, so the same set of senders)."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] != wp.uint8(0):
         color_out[y, x] = finite_or_zero(color_in[y, x])
         return

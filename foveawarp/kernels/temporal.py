@@ -138,8 +138,10 @@ def resolve_kernel(
     hist_normal: wp.array(dtype=wp.vec3),
     hist_age: wp.array(dtype=wp.int32),
     hist_stale: wp.array(dtype=wp.int32),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     w = out_color.shape[1]
     h = out_color.shape[0]
     i = y * w + x

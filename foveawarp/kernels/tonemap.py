@@ -26,8 +26,9 @@ def tonemap_value(x: float, exposure: float, white: float) -> float:
 
 
 @wp.kernel(enable_backward=False)
-def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3)):
+def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3), row0: int):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     c = hdr[y, x]
     out[y, x] = wp.vec3(tonemap_value(c[0], exposure, white), tonemap_value(c[1], exposure, white),
                         tonemap_value(c[2], exposure, white))

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import as_wp, check_image_size, get_device
 from ..camera import _check_gaze
 from ..config import Config, FoveationConfig, check_array, check_int_range, check_range, check_vec
@@ -68,7 +69,7 @@ def eccentricity_deg(width, height, gaze_px, fov_y_deg, device=None) -> np.ndarr
     dev = get_device(device)
     frame, w, h = _frame(width, height, gaze_px, fov_y_deg, dev)
     out = wp.zeros((h, w), dtype=float, device=dev)
-    wp.launch(eccentricity_kernel, dim=(h, w), inputs=[frame], outputs=[out], device=dev)
+    parallel.launch(eccentricity_kernel, dim=(h, w), inputs=[frame], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -97,7 +98,7 @@ def foveation_probability(width, height, gaze_px, fov_y_deg, *, mar_slope, mar_f
     sp.xi = xi  # exactly as given (block 1 would raise it to 1)
     sp.fovea_deg = fd
     out = wp.zeros((h, w), dtype=float, device=dev)
-    wp.launch(probability_kernel, dim=(h, w), inputs=[sp, frame], outputs=[out], device=dev)
+    parallel.launch(probability_kernel, dim=(h, w), inputs=[sp, frame], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -128,7 +129,7 @@ def sample_map(probability, *, block, frame_index=0, seed=0, device=None) -> np.
     no_cache = wp.zeros((h, w), dtype=wp.uint8, device=dev)
     counts = wp.zeros(1, dtype=wp.int32, device=dev)
     counts_c = wp.zeros(1, dtype=wp.int32, device=dev)
-    wp.launch(threshold_kernel, dim=(h, w), inputs=[prob, ranks, sp, frame], outputs=[out], device=dev)
+    parallel.launch(threshold_kernel, dim=(h, w), inputs=[prob, ranks, sp, frame], outputs=[out], device=dev)
     launch_tile_pass(ranks, sp, frame, ((h + k - 1) // k, (w + k - 1) // k), out, no_cache, counts, counts_c, dev)
     return out.numpy()
 
@@ -160,7 +161,7 @@ def albedo_to_lab(albedo, device=None) -> np.ndarray:
     dev = get_device(device)
     a, (h, w) = _image3(albedo, "albedo", dev)
     out = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    wp.launch(lab_kernel, dim=(h, w), inputs=[a], outputs=[out], device=dev)
+    parallel.launch(lab_kernel, dim=(h, w), inputs=[a], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -171,8 +172,8 @@ def albedo_gradient(albedo, device=None) -> np.ndarray:
     a, (h, w) = _image3(albedo, "albedo", dev)
     lab = wp.zeros((h, w), dtype=wp.vec3, device=dev)
     out = wp.zeros((h, w), dtype=float, device=dev)
-    wp.launch(lab_kernel, dim=(h, w), inputs=[a], outputs=[lab], device=dev)
-    wp.launch(gradient_kernel, dim=(h, w), inputs=[lab], outputs=[out], device=dev)
+    parallel.launch(lab_kernel, dim=(h, w), inputs=[a], outputs=[lab], device=dev)
+    parallel.launch(gradient_kernel, dim=(h, w), inputs=[lab], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -181,7 +182,7 @@ def normal_gradient(normal, device=None) -> np.ndarray:
     dev = get_device(device)
     n, (h, w) = _image3(normal, "normal", dev)
     out = wp.zeros((h, w), dtype=float, device=dev)
-    wp.launch(gradient_kernel, dim=(h, w), inputs=[n], outputs=[out], device=dev)
+    parallel.launch(gradient_kernel, dim=(h, w), inputs=[n], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -195,7 +196,7 @@ def dof_sampling_factor(depth_m, *, focus_depth_m, sigma1_m, sigma2_m, dof_floor
     dev = get_device(device)
     dw = _image2(depth_m, "depth_m", dev)
     out = wp.zeros(dw.shape, dtype=float, device=dev)
-    wp.launch(dof_factor_kernel, dim=dw.shape, inputs=[dw, f, s1, s2, fl], outputs=[out], device=dev)
+    parallel.launch(dof_factor_kernel, dim=dw.shape, inputs=[dw, f, s1, s2, fl], outputs=[out], device=dev)
     return out.numpy()
 
 
@@ -221,6 +222,6 @@ def cache_test(reproj_uv, position, hit, depth, depth_prev, valid_prev, eye_prev
     e = check_vec("eye_prev", eye_prev, 3)
     out_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
     out_idx = wp.zeros((h, w), dtype=wp.int32, device=dev)
-    wp.launch(cache_test_kernel, dim=(h, w), inputs=[uv, pos, ht, dc, dp, vp, wp.vec3(*e), eps],
-              outputs=[out_hit, out_idx], device=dev)
+    parallel.launch(cache_test_kernel, dim=(h, w), inputs=[uv, pos, ht, dc, dp, vp, wp.vec3(*e), eps],
+                    outputs=[out_hit, out_idx], device=dev)
     return out_hit.numpy(), out_idx.numpy()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from ..camera import Camera
 from ..kernels.gbuffer import gbuffer_kernel
 
@@ -30,7 +31,7 @@ class GBufferStage:
         scene's previous vertex positions."""
         g, ds = gbuffer, self.dscene
         w, h = self.width, self.height
-        wp.launch(
+        parallel.launch(
             gbuffer_kernel,
             dim=(h, w),
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,

@@ -17,6 +17,7 @@ from typing import Optional
 
 import warp as wp
 
+from .. import parallel
 from .._util import check_image_size, get_device
 from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
 from ..kernels.jfa import (
@@ -220,9 +221,9 @@ class ReconstructStage:
         settled = [2 if 1 in steps[:i] else 1 for i in range(n)]
         for i in range(n - 1):
             dst = bufs[(n - 1 - i) % 2]
-            wp.launch(jfa_pass_kernel, dim=dim,
-                      inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
-                      outputs=[self.nearest, dst, *self._stats_args()], device=dev)
+            parallel.launch(jfa_pass_kernel, dim=dim,
+                            inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
+                            outputs=[self.nearest, dst, *self._stats_args()], device=dev)
             src = dst
         wp.launch_tiled(
             jfa_last_pass_kernel, dim=[self._num_tiles],
@@ -264,22 +265,22 @@ class ReconstructStage:
             mask = self._mask
         sibson = self.config.sibson or self.exact_sibson
         if not sibson:
-            wp.launch(voronoi_fill_kernel, dim=dim, inputs=[mask, self.nearest, color_in], outputs=[color_out],
-                      device=dev)
+            parallel.launch(voronoi_fill_kernel, dim=dim, inputs=[mask, self.nearest, color_in], outputs=[color_out],
+                            device=dev)
             return
         if not vor_ready:
-            wp.launch(voronoi_color_kernel, dim=dim, inputs=[mask, self.nearest, color_in],
-                      outputs=[self.voronoi_color], device=dev)
+            parallel.launch(voronoi_color_kernel, dim=dim, inputs=[mask, self.nearest, color_in],
+                            outputs=[self.voronoi_color], device=dev)
         near = [mask, self.voronoi_color, self.radius_sq]
         if self.exact_sibson:
             self._accum.zero_()
             wp.launch(sibson_scatter_kernel, dim=dim, inputs=near, outputs=[self._accum], device=dev)
-            wp.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
-                      outputs=[color_out], device=dev)
+            parallel.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
+                            outputs=[color_out], device=dev)
         else:
-            wp.launch(sibson_gather_kernel, dim=dim,
-                      inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq],
-                      outputs=[color_out], device=dev)
+            parallel.launch(sibson_gather_kernel, dim=dim,
+                            inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq],
+                            outputs=[color_out], device=dev)
 
     def run(self, color_in, seed_mask, color_out) -> None:
         """One frame: JFA over ``seed_mask`` ((H, W) uint8), then interpolation of ``color_in`` ((H, W) vec3,

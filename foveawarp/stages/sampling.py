@@ -10,6 +10,7 @@ from typing import Optional
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
 from ..config import Config, check_bool, check_int_range, check_vec, show
@@ -305,12 +306,12 @@ class SamplingStage:
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
         if self._lab_on:
-            wp.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
-        wp.launch(sampling_map_kernel, dim=(h, w),
-                  inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity,
+            parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+        parallel.launch(sampling_map_kernel, dim=(h, w),
+                        inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity,
                           g.position, g.reproj_uv, g.prev_dist, self.depth_prev, self.valid_prev],
-                  outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
-                  device=dev)
+                        outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
+                        device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev)
 

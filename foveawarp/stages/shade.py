@@ -7,6 +7,7 @@ from typing import Optional
 
 import warp as wp
 
+from .. import parallel
 from ..camera import Camera
 from ..kernels.shade import (
     ShadeParams,
@@ -72,23 +73,23 @@ class ShadeStage:
         return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
     def full(self, gbuffer, out, out_stoch) -> None:
-        wp.launch(shade_full_kernel, dim=(self.height, self.width),
-                  inputs=[self.params_dev, *self._inputs(gbuffer)], outputs=[out, out_stoch], device=self.device)
+        parallel.launch(shade_full_kernel, dim=(self.height, self.width),
+                        inputs=[self.params_dev, *self._inputs(gbuffer)], outputs=[out, out_stoch], device=self.device)
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
-        wp.launch(shade_masked_kernel, dim=(self.height, self.width),
-                  inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
-                  device=self.device)
+        parallel.launch(shade_masked_kernel, dim=(self.height, self.width),
+                        inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                        device=self.device)
 
     def rows(self, gbuffer, coords, counts, out, out_stoch) -> None:
         """Row-CSR launch (thesis strategies 1/2)."""
-        wp.launch(shade_rows_kernel, dim=(self.height, self.width),
-                  inputs=[self.params_dev, coords, counts, *self._inputs(gbuffer)], outputs=[out, out_stoch],
-                  device=self.device)
+        parallel.launch(shade_rows_kernel, dim=(self.height, self.width),
+                        inputs=[self.params_dev, coords, counts, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                        device=self.device)
 
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
         """The flat pixel indices ``work[0:count[0]]`` (count read on the device)."""
-        wp.launch(shade_list_kernel, dim=work.shape[0],
-                  inputs=[self.params_dev, work, count, *self._inputs(gbuffer)], outputs=[out, out_stoch],
-                  device=self.device)
+        parallel.launch(shade_list_kernel, dim=work.shape[0],
+                        inputs=[self.params_dev, work, count, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                        device=self.device, count=count)

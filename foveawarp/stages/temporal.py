@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .. import parallel
 from ..config import TemporalConfig
 from ..kernels.temporal import TemporalParams, refresh_thin_kernel, resolve_kernel
 
@@ -102,7 +103,7 @@ class TemporalStage:
         """
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
-        wp.launch(
+        parallel.launch(
             resolve_kernel,
             dim=(self.height, self.width),
             inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,

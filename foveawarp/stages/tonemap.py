@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .. import parallel
 from ..kernels.tonemap import tonemap_kernel
 
 __all__ = ["TonemapStage"]
@@ -18,5 +19,5 @@ class TonemapStage:
 
     def run(self, hdr, out) -> None:
         sc = self.config
-        wp.launch(tonemap_kernel, dim=(self.height, self.width), inputs=[hdr, float(sc.exposure),
-                  float(sc.white_point)], outputs=[out], device=self.device)
+        parallel.launch(tonemap_kernel, dim=(self.height, self.width), inputs=[hdr, float(sc.exposure),
+                        float(sc.white_point)], outputs=[out], device=self.device)

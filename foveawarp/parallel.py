@@ -1,0 +1,169 @@
+"""Band-parallel launches on the CPU device: the one place that splits a launch over threads.
+
+Warp runs a CPU launch in the calling thread. :func:`launch` runs a kernel whose last argument is
+``row0: int`` (its first launch index is ``wp.tid()[0] + row0``) as bands of its first dimension (image rows or
+ranges of a work list), one Warp launch per band from a thread pool; the Warp CPU launch releases the GIL, so
+the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with ``row0 = 0``.
+
+Which kernels may be split: each thread of the kernel writes only its own element(s) of its band (reads may
+be anywhere: JFA, Sibson and Sobel neighbourhoods read the whole arrays, which no band writes in the same
+launch). Warp's CPU atomics are plain read-modify-writes (the CPU device was single-threaded), so kernels that
+accumulate with atomics into shared locations (counters, scatter sums) and tile kernels (``launch_tiled``: on
+x86-64 Warp keeps the CPU tile storage in a per-module static) are not split: their stages call
+``wp.launch`` / ``wp.launch_tiled`` directly. A band's results do not depend on the band bounds, so the output
+is bit-identical for every thread count (tests/test_parallel.py).
+
+Thread-safety of concurrent CPU launches (Warp 1.19): the generated CPU entry point receives the launch index
+as an argument (no static thread index; the old "Using Warp with python threading" crash came from one), and
+its only static is the tile-storage pointer that non-tile kernels store but never read. The module is loaded
+on the calling thread before the bands start.
+
+Thread count: ``threads=`` of :func:`launch`; else the innermost :func:`cpu_threads` context (FrameLoop's
+``cpu_threads``); else the environment variable ``FOVEAWARP_CPU_THREADS``; else the usable cores.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Optional, Sequence
+
+import warp as wp
+
+__all__ = ["launch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
+           "ENV_VAR"]
+
+ENV_VAR = "FOVEAWARP_CPU_THREADS"
+MAX_THREADS = 1024
+# launches with fewer work items than this per band run in fewer bands (a band's Python launch costs ~20 us)
+MIN_ITEMS_PER_BAND = 2048
+
+_context: contextvars.ContextVar[Optional[int]] = contextvars.ContextVar("foveawarp_cpu_threads", default=None)
+_pools: dict = {}
+_pool_lock = threading.Lock()
+_checked: dict = {}
+
+
+def usable_cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def resolve_cpu_threads(value, name: str = "cpu_threads") -> int:
+    """``value`` as a thread count in [1, MAX_THREADS]; None = the default (env var, else usable cores)."""
+    from .config import check_int_range
+
+    if value is None:
+        return default_cpu_threads()
+    return check_int_range(name, value, 1, MAX_THREADS)
+
+
+def default_cpu_threads() -> int:
+    """``FOVEAWARP_CPU_THREADS`` (an integer in [1, MAX_THREADS]) when set and not empty, else the usable
+    cores. A bad value raises ValueError naming the variable."""
+    raw = os.environ.get(ENV_VAR, "").strip()
+    if not raw:
+        return usable_cores()
+    try:
+        v = int(raw)
+    except ValueError:
+        v = None
+    if v is None or not 1 <= v <= MAX_THREADS:
+        raise ValueError(f"{ENV_VAR} must be an integer in [1, {MAX_THREADS}], got {raw!r}")
+    return v
+
+
+@contextlib.contextmanager
+def cpu_threads(n: Optional[int]):
+    """Within the block, :func:`launch` calls without ``threads=`` use ``n`` threads (None: the default)."""
+    token = _context.set(None if n is None else resolve_cpu_threads(n))
+    try:
+        yield
+    finally:
+        _context.reset(token)
+
+
+def current_cpu_threads() -> int:
+    n = _context.get()
+    return default_cpu_threads() if n is None else n
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    with _pool_lock:
+        p = _pools.get(n)
+        if p is None:
+            p = _pools[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="foveawarp-cpu")
+        return p
+
+
+def bands(n_rows: int, n_threads: int, row_items: int = 1, min_items: int = 0) -> list:
+    """Split ``n_rows`` into at most ``n_threads`` contiguous (start, stop) bands of near-equal size, fewer when
+    a band would hold under ``min_items`` work items (``row_items`` per row); never an empty band."""
+    n = max(1, min(int(n_threads), int(n_rows)))
+    if min_items > 0:
+        n = max(1, min(n, (int(n_rows) * int(row_items)) // int(min_items)))
+    base, extra = divmod(int(n_rows), n)
+    out, r = [], 0
+    for i in range(n):
+        k = base + (1 if i < extra else 0)
+        out.append((r, r + k))
+        r += k
+    return out
+
+
+def _check_kernel(kernel) -> None:
+    ok = _checked.get(kernel.key)
+    if ok is None:
+        args = kernel.adj.args
+        ok = _checked[kernel.key] = bool(args) and args[-1].label == "row0"
+    if not ok:
+        raise TypeError(f"kernel {kernel.key!r} has no trailing 'row0: int' argument; parallel.launch needs one")
+
+
+def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
+           threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None) -> None:
+    """Launch ``kernel`` (last argument ``row0: int``) over ``dim``; on the CPU split ``dim[0]`` into bands
+    run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
+
+    ``count``: for a work list whose live entries are ``[0, count[0])`` (a (1,) int32 array the kernel also
+    reads, exiting past it): on the CPU only those rows are split into bands (the count is read from host
+    memory: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim`` is launched."""
+    _check_kernel(kernel)
+    dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
+    dev = wp.get_device(device)
+    inputs, outputs = list(inputs), list(outputs)
+    if dims[0] <= 0 or any(d <= 0 for d in dims):
+        return
+    n = 1
+    if dev.is_cpu:
+        n = current_cpu_threads() if threads is None else resolve_cpu_threads(threads, "threads")
+        if count is not None and n > 1:
+            live = int(count.numpy()[0])
+            if live <= 0:
+                return
+            dims = (min(dims[0], live), *dims[1:])
+    row_items = 1
+    for d in dims[1:]:
+        row_items *= d
+    min_items = MIN_ITEMS_PER_BAND if min_band_items is None else int(min_band_items)
+    parts = bands(dims[0], n, row_items, min_items) if n > 1 else [(0, dims[0])]
+    if len(parts) == 1:
+        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
+        return
+    kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
+
+    def run(band):
+        r0, r1 = band
+        d = (r1 - r0, *dims[1:])
+        wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
+
+    pool = _pool(n)
+    futures = [pool.submit(run, b) for b in parts[1:]]
+    run(parts[0])  # the calling thread takes the first band
+    for f in futures:
+        f.result()
