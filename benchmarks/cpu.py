@@ -1,0 +1,227 @@
+"""CPU device benchmark (issue 16): band-parallel CPU launches (``foveawarp.parallel``).
+
+* thread scaling: median foveated and reference frame time at 1, 2, 4, ..., cores threads (cornell);
+* foveated vs the full-resolution reference per scene, default shading and ``ao_samples=8``, all threads;
+* primary rays of the scene camera: Warp's BVH (``wp.mesh_query_ray``, one thread and all threads) against
+  Embree (``embreex``, optional: ``pip install embreex``; one thread) on the same rays: Mrays/s per core and
+  hit agreement.
+
+Frames follow the scene's camera path (1/30 s per frame) with the gaze at the screen centre, after warm-up
+frames; the policy is fixed ("foveated" / ``render_reference``), ``timing=False``. Writes
+``results/cpu-<device>.json`` and ``.md`` and a scaling plot ``cpu-scaling-<device>.png`` (matplotlib).
+
+    python benchmarks/cpu.py --device cpu                 # 640x360, cornell + bunny, 1..cores threads
+    python benchmarks/cpu.py --device cpu --quick         # 96x54 smoke run
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+import warp as wp  # noqa: E402
+
+from benchmarks._common import RESULTS, base_parser, md_table, write_results  # noqa: E402
+import foveawarp as fw  # noqa: E402
+from foveawarp import parallel  # noqa: E402
+from foveawarp._util import get_device  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def primary_ray_kernel(mesh: wp.uint64, origin: wp.vec3, dirs: wp.array(dtype=wp.vec3), max_t: float,
+                       out_t: wp.array(dtype=float), out_face: wp.array(dtype=wp.int32), row0: int):
+    i = wp.tid()
+    i += row0
+    q = wp.mesh_query_ray(mesh, origin, dirs[i], max_t)
+    if q.result:
+        out_t[i] = q.t
+        out_face[i] = q.face
+    else:
+        out_t[i] = -1.0
+        out_face[i] = -1
+
+
+def thread_counts(cores: int) -> list:
+    out, n = [], 1
+    while n < cores:
+        out.append(n)
+        n *= 2
+    out.append(cores)
+    return out
+
+
+def median_frame_ms(fl, frames: int, warmup: int, reference: bool) -> float:
+    sc = fl.scene
+    ts = []
+    for i in range(warmup + frames):
+        t = i / 30.0
+        cam = sc.camera_at(t)
+        t0 = time.perf_counter()
+        if reference:
+            fl.render_reference(cam, time=t)
+        else:
+            fl.render(cam, time=t)
+        wp.synchronize_device(fl.device)
+        if i >= warmup:
+            ts.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(ts)
+
+
+def rays_bench(scene_name, w, h, dev, threads_all, repeats):
+    sc = fw.load_scene(scene_name)
+    ds = fw.scene.DeviceScene(sc, dev)
+    cam = sc.camera_at(0.0)
+    xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    dirs_np = np.ascontiguousarray(cam.ray_dirs(xs.ravel(), ys.ravel(), w, h), dtype=np.float32)
+    n = dirs_np.shape[0]
+    dirs = wp.array(dirs_np, dtype=wp.vec3, device=dev)
+    out_t = wp.zeros(n, dtype=float, device=dev)
+    out_f = wp.zeros(n, dtype=wp.int32, device=dev)
+    origin = wp.vec3(*[float(v) for v in cam.eye])
+    row = {"scene": scene_name, "rays": n}
+    for label, nt in (("warp_1t", 1), (f"warp_{threads_all}t", threads_all)):
+        def run(nt=nt):
+            parallel.launch(primary_ray_kernel, n, [ds.mesh.id, origin, dirs, 1.0e6], [out_t, out_f], dev,
+                            threads=nt)
+            wp.synchronize_device(dev)
+        run()
+        ts = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            run()
+            ts.append(time.perf_counter() - t0)
+        row[f"{label}_mrays_s"] = n / statistics.median(ts) / 1e6
+    row["warp_threads"] = threads_all
+    warp_t, warp_f = out_t.numpy(), out_f.numpy()
+    row["hit_fraction"] = float((warp_f >= 0).mean())
+    try:
+        from embreex import rtcore_scene as rtcs
+        from embreex.mesh_construction import TriangleMesh
+    except ImportError:
+        row["embree"] = "embreex not installed (pip install embreex): comparison skipped"
+        return row
+    es = rtcs.EmbreeScene()
+    TriangleMesh(es, sc.vertices[sc.faces].astype(np.float32))
+    origins = np.broadcast_to(np.asarray(cam.eye, np.float32), dirs_np.shape).copy()
+    res = es.run(origins, dirs_np, output=1)
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = es.run(origins, dirs_np, output=1)
+        ts.append(time.perf_counter() - t0)
+    row["embree_1t_mrays_s"] = n / statistics.median(ts) / 1e6
+    ef, et = np.asarray(res["primID"]), np.asarray(res["tfar"])
+    both = (ef >= 0) & (warp_f >= 0)
+    row["same_hit_miss"] = float(((ef >= 0) == (warp_f >= 0)).mean())
+    row["same_face"] = float((ef[both] == warp_f[both]).mean()) if both.any() else 1.0
+    row["max_rel_t_diff"] = float(np.max(np.abs(et[both] - warp_t[both]) / np.maximum(et[both], 1e-6))) if (
+        both.any()) else 0.0
+    row["warp_per_core_vs_embree"] = row["warp_1t_mrays_s"] / row["embree_1t_mrays_s"]
+    return row
+
+
+def main(argv=None):
+    p = base_parser(__doc__.split("\n")[0])
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=360)
+    p.add_argument("--scenes", default="cornell,bunny")
+    p.add_argument("--threads", default=None, help="comma list of thread counts (default 1, 2, 4, ..., cores)")
+    p.add_argument("--frames", type=int, default=None, help="timed frames per point (median)")
+    p.add_argument("--scaling-scene", default="cornell")
+    args = p.parse_args(argv)
+    dev = get_device(args.device or "cpu")
+    if args.quick:
+        args.width, args.height = 96, 54
+    frames = args.frames or (4 if args.quick else 12)
+    warmup = 2 if args.quick else args.warmup
+    repeats = args.repeats or (3 if args.quick else 7)
+    cores = parallel.usable_cores()
+    threads = [int(t) for t in args.threads.split(",")] if args.threads else thread_counts(cores)
+    tmax = max(threads)
+    w, h = args.width, args.height
+    scenes = [s for s in args.scenes.split(",") if s]
+    payload = {"resolution": f"{w}x{h}", "usable_cores": cores, "threads": threads, "frames": frames,
+               "warmup": warmup, "camera": "scene camera path, 1/30 s per frame; gaze at the centre"}
+
+    scaling = []
+    if dev.is_cpu:
+        for t in threads:
+            fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy="foveated", cpu_threads=t)
+            fov = median_frame_ms(fl, frames, warmup, False)
+            ref = median_frame_ms(fl, frames, warmup, True)
+            scaling.append({"threads": t, "foveated_ms": fov, "reference_ms": ref})
+            print(f"threads {t}: foveated {fov:.1f} ms, reference {ref:.1f} ms", flush=True)
+        for r in scaling:
+            r["foveated_speedup"] = scaling[0]["foveated_ms"] / r["foveated_ms"]
+            r["reference_speedup"] = scaling[0]["reference_ms"] / r["reference_ms"]
+    payload["scaling_scene"] = args.scaling_scene
+    payload["scaling"] = scaling
+
+    versus = []
+    for sc in scenes:
+        for label, cfg in (("default", fw.Config()), ("ao_samples=8", fw.Config().with_(shading={"ao_samples": 8}))):
+            fl = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
+            fov = median_frame_ms(fl, frames, warmup, False)
+            frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
+            ref = median_frame_ms(fl, frames, warmup, True)
+            row = {"scene": sc, "shading": label, "threads": tmax, "foveated_ms": fov, "reference_ms": ref,
+                   "reference_over_foveated": ref / fov, "sampled_fraction": frac}
+            versus.append(row)
+            print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x)", flush=True)
+    payload["foveated_vs_reference"] = versus
+
+    rays = []
+    if dev.is_cpu:
+        for sc in scenes:
+            r = rays_bench(sc, w, h, dev, tmax, repeats)
+            rays.append(r)
+            print("rays", r, flush=True)
+    payload["primary_rays"] = rays
+
+    md = f"## CPU device, {w}x{h}, {cores} usable cores, commit-tagged JSON alongside\n\n"
+    if scaling:
+        md += f"### Thread scaling ({args.scaling_scene}, median of {frames} frames)\n\n"
+        md += md_table(scaling, ["threads", "foveated_ms", "foveated_speedup", "reference_ms", "reference_speedup"])
+    md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
+    md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
+                            "sampled_fraction"])
+    if rays:
+        md += "\n### Primary rays (scene camera, one ray per pixel)\n\n"
+        cols = ["scene", "rays", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s", "embree_1t_mrays_s",
+                "warp_per_core_vs_embree", "same_hit_miss", "same_face", "max_rel_t_diff", "embree"]
+        md += md_table(rays, [c for c in cols if any(c in r for r in rays)])
+    path = write_results("cpu", dev, payload, md, args.out)
+    print(md)
+    print("wrote", path)
+    if scaling:
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            print("matplotlib not installed: no plot")
+            return
+        fig, ax = plt.subplots(figsize=(5, 4))
+        ts = [r["threads"] for r in scaling]
+        ax.plot(ts, ts, "k:", label="ideal")
+        ax.plot(ts, [r["foveated_speedup"] for r in scaling], "o-", label="foveated frame")
+        ax.plot(ts, [r["reference_speedup"] for r in scaling], "s-", label="reference frame")
+        ax.set_xlabel("threads")
+        ax.set_ylabel("speed-up over 1 thread")
+        ax.set_title(f"CPU scaling, {args.scaling_scene} {w}x{h}")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        folder = Path(args.out) if args.out else RESULTS
+        fig.tight_layout()
+        fig.savefig(folder / f"cpu-scaling-{'cuda' if dev.is_cuda else 'cpu'}.png", dpi=100)
+
+
+if __name__ == "__main__":
+    main()
