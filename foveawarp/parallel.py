@@ -33,6 +33,12 @@ from typing import Optional, Sequence
 
 import warp as wp
 
+try:  # Warp internals for cheap band launches (argument packing once per launch, not once per band)
+    from warp._src.context import _build_launch_bounds_from_tuple as _bounds_of
+    from warp._src.context import invoke as _invoke
+except ImportError:  # another Warp layout: every band is a full wp.launch (slower, same results)
+    _bounds_of = _invoke = None
+
 __all__ = ["launch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
            "ENV_VAR"]
 
@@ -40,6 +46,8 @@ ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
 # launches with fewer work items than this per band run in fewer bands (a band's Python launch costs ~20 us)
 MIN_ITEMS_PER_BAND = 2048
+# pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
+FAST_BANDS = True
 
 _context: contextvars.ContextVar[Optional[int]] = contextvars.ContextVar("foveawarp_cpu_threads", default=None)
 _pools: dict = {}
@@ -156,11 +164,23 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
+    cmd = None
+    if _invoke is not None and FAST_BANDS:
+        # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing); each band
+        # then only replaces the launch bounds and row0 and calls the CPU entry point (which releases the GIL)
+        cmd = wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
+                        device=dev, record_cmd=True)
 
     def run(band):
         r0, r1 = band
         d = (r1 - r0, *dims[1:])
-        wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
+        if cmd is not None:
+            params = list(cmd.params)
+            params[0] = _bounds_of(d, cmd.kernel.adj.kernel_dim)
+            params[-1] = type(params[-1])(r0)
+            _invoke(cmd.kernel, cmd.hooks, params, False)
+        else:
+            wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
     pool = _pool(n)
     futures = [pool.submit(run, b) for b in parts[1:]]
