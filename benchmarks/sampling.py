@@ -50,7 +50,8 @@ def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
     stats = stage.stats()
     # the split, launched exactly as run() does
     split = {
-        "lab prepass": lambda: fw.parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[stage.lab], device=dev),
+        "lab prepass": lambda: fw.parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[stage.lab],
+                                                  device=dev),
         "fused pass": lambda: fw.parallel.launch(
             sampling_map_kernel, dim=(h, w),
             inputs=[stage.params, stage.frame_params, stage.ranks, stage.lab, g.normal, g.depth, g.hit, g.velocity,

@@ -141,12 +141,12 @@ def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int,
     ds, sc, dev = loop.dscene, loop.config.shading, loop.device
     hdr = wp.zeros((h, w), dtype=wp.vec3, device=dev)
     disp = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    wp.launch(thin_lens_kernel, dim=(h, w),
-              inputs=[loop.shade_params(camera), camera.params(w, h), float(lens_radius), float(focus), samples,
-                      _max_t(loop, camera), ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth,
-                      ds.face_albedo, ds.lights, ds.area_lights, ds.face_emission, float(sc.exposure),
-                      float(sc.white_point)],
-              outputs=[hdr, disp], device=dev)
+    parallel.launch(thin_lens_kernel, dim=(h, w),
+                    inputs=[loop.shade_params(camera), camera.params(w, h), float(lens_radius), float(focus), samples,
+                            _max_t(loop, camera), ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth,
+                            ds.face_albedo, ds.lights, ds.area_lights, ds.face_emission, float(sc.exposure),
+                            float(sc.white_point)],
+                    outputs=[hdr, disp], device=dev)
     img = disp.numpy().reshape(h, w, 3)
     if return_hdr:
         return img, hdr.numpy().reshape(h, w, 3)

@@ -12,6 +12,7 @@ import warp as wp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from foveawarp import parallel
 from foveawarp.config import DofConfig
 from foveawarp.kernels.dof import FOCUS_FAR_M, DofParams, coc_kernel, dof_normalize_kernel
 from foveawarp.ops.dof import circle_of_confusion_px, dof_scatter
@@ -88,8 +89,8 @@ def coc_unchecked(depth, *, focal_length_m, focus_depth_m, aperture_m, px_per_m,
     d = wp.array(np.asarray(depth, np.float32).reshape(1, -1), dtype=float, device=device)
     p.width, p.height = int(d.shape[1]), 1
     out = wp.zeros(d.shape, dtype=float, device=device)
-    wp.launch(coc_kernel, dim=d.shape, inputs=[p, wp.full(1, value=float(focus_depth_m), dtype=float, device=device),
-              d], outputs=[out], device=device)
+    focus = wp.full(1, value=float(focus_depth_m), dtype=float, device=device)
+    parallel.launch(coc_kernel, dim=d.shape, inputs=[p, focus, d], outputs=[out], device=device)
     return out.numpy().reshape(-1)
 
 
@@ -333,8 +334,8 @@ def test_zero_weight_keeps_the_source_color(device):
     src = np.arange(18, dtype=np.float32).reshape(2, 3, 3)
     src[1, 0] = np.nan  # zero weight and a non-finite source -> 0
     out = wp.zeros((2, 3), dtype=wp.vec3, device=device)
-    wp.launch(dof_normalize_kernel, dim=(2, 3), inputs=[wp.array(acc, dtype=wp.vec4, device=device),
-              wp.array(src, dtype=wp.vec3, device=device)], outputs=[out], device=device)
+    parallel.launch(dof_normalize_kernel, dim=(2, 3), inputs=[wp.array(acc, dtype=wp.vec4, device=device),
+                    wp.array(src, dtype=wp.vec3, device=device)], outputs=[out], device=device)
     o = out.numpy()
     expect = src.copy()
     expect[0, 1] = (1.0, 2.0, 3.0)

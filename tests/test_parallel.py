@@ -115,11 +115,15 @@ def _frames(n, config, size=(40, 24), frames=4, scene="cornell"):
     return out
 
 
-@pytest.mark.parametrize("config", [fw.Config(), fw.Config().with_(shading={"ao_samples": 2})],
-                         ids=["default", "ao2"])
+@pytest.mark.parametrize("config", [
+    fw.Config(), fw.Config().with_(shading={"ao_samples": 2}),
+    fw.Config(dof=fw.DofConfig(aperture_m=0.01, focus_depth_m=None)),
+    fw.Config().with_(shading={"indirect": "lighttree"}),
+], ids=["default", "ao2", "dof", "indirect"])
 def test_frames_bit_identical(every_band, config):
     """Foveated and reference frames (image and sampling map) with N in {2, 3, 7, rows + 5} threads equal
-    one thread byte for byte, over a moving camera and gaze (temporal reuse, reconstruction, shading lists)."""
+    one thread byte for byte, over a moving camera and gaze (temporal reuse, reconstruction, shading lists),
+    with Monte Carlo AO, depth of field (gather) and light-tree indirect light."""
     base = _frames(1, config)
     for n in (2, 3, 7, 24 + 5):
         got = _frames(n, config)

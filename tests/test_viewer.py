@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from foveawarp import parallel
 import foveawarp as fw
 from foveawarp.gaze_trace import GazeTrace, load_gaze_trace
 from foveawarp.kernels.display import FLAG_ERROR, FLAG_RINGS, FLAG_SAMPLING, compose_display_kernel
@@ -200,10 +201,10 @@ def _compose_np(img, ref, smap, flags, err_gain=8.0):
 def _compose(img, ref, smap, gaze, fov, flags):
     h, w = smap.shape
     out = wp.zeros((h, w, 3), dtype=wp.uint8, device="cpu")
-    wp.launch(compose_display_kernel, dim=(h, w),
-              inputs=[wp.array(img, dtype=wp.vec3, device="cpu"), wp.array(ref, dtype=wp.vec3, device="cpu"),
-                      wp.array(smap, dtype=wp.uint8, device="cpu"), wp.vec2(*gaze), math.tan(math.radians(fov) / 2),
-                      5.0, 8.0, flags, 0], outputs=[out], device="cpu")
+    parallel.launch(compose_display_kernel, dim=(h, w),
+                    inputs=[wp.array(img, dtype=wp.vec3, device="cpu"), wp.array(ref, dtype=wp.vec3, device="cpu"),
+                            wp.array(smap, dtype=wp.uint8, device="cpu"), wp.vec2(*gaze),
+                            math.tan(math.radians(fov) / 2), 5.0, 8.0, flags, 0], outputs=[out], device="cpu")
     return out.numpy().astype(np.int32)
 
 

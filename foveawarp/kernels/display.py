@@ -55,8 +55,10 @@ def compose_display_kernel(
     flags: int,
     x0: int,
     out: wp.array3d(dtype=wp.uint8),
+    row0: int,
 ):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     h = img.shape[0]
     w = img.shape[1]
     fw = float(w)

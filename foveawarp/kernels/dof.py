@@ -131,9 +131,12 @@ def resolve(acc: wp.vec4, fallback: wp.vec3) -> wp.vec3:
 
 @wp.kernel(enable_backward=False)
 def coc_kernel(p: DofParams, focus: wp.array(dtype=float), depth: wp.array2d(dtype=float),
-               out: wp.array2d(dtype=float)):
+               out: wp.array2d(dtype=float),
+               row0: int,
+):
     """C for every pixel of a view-depth image (no hit mask)."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     zf = effective_focus(focus[0], p.focal_m)
     out[y, x] = coc_px(view_depth(p, depth[y, x], x, y), zf, p.coc_scale, p.focal_m, p.max_coc_px)
 
@@ -148,9 +151,11 @@ def dof_prepare_kernel(
     out_coc: wp.array2d(dtype=float),
     out_pm: wp.array2d(dtype=wp.vec4),
     out_geo: wp.array2d(dtype=wp.vec2),
+    row0: int,
 ):
     """Per source pixel: C_p, the premultiplied weighted color and the disc geometry (module docstring)."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     zf = effective_focus(focus[0], p.focal_m)
     z = view_depth(p, depth[y, x], x, y)
     if wp.isnan(z) or z < 0.0:
@@ -253,12 +258,14 @@ def dof_gather_kernel(
     tile: int,
     color: wp.array2d(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Each receiver q sums the sources p whose disc covers it (the scatter, computed as a gather), visiting
     the offsets with ``dx^2 + dy^2 <= m``, m = its tile's dilated bound of floor(R^2).
 
     ``out`` may be ``color``: a thread reads ``color`` only at its own pixel."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     m = window[y // tile, x // tile]
     acc = gather_disc(p, coc, pm, geo, x, y, m, 1.0)
     if not wp.isfinite(acc):  # a sum overflowed (colors near float max): again with scaled terms
@@ -292,8 +299,11 @@ def dof_scatter_kernel(
 
 @wp.kernel(enable_backward=False)
 def dof_normalize_kernel(accum: wp.array2d(dtype=wp.vec4), color: wp.array2d(dtype=wp.vec3),
-                         out: wp.array2d(dtype=wp.vec3)):
+                         out: wp.array2d(dtype=wp.vec3),
+                         row0: int,
+):
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     out[y, x] = resolve(accum[y, x], color[y, x])
 
 
@@ -354,6 +364,7 @@ def thin_lens_kernel(
     white: float,
     out_hdr: wp.array2d(dtype=wp.vec3),
     out_display: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """Average linear radiance over ``samples`` points of a lens disc of radius ``lens_radius_m`` (world units)
     centred on the eye in the (right, up) plane, every ray aimed at the point of the focal plane (view depth
@@ -363,6 +374,7 @@ def thin_lens_kernel(
     Sample s of pixel i is shaded with random-stream index ``i + s * W * H`` (sample 0 matches the pinhole
     shading of the same pixel). With a zero offset the ray is the pinhole ray itself."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     npix = cam.width * cam.height
     pixel = y * cam.width + x
     d0 = camera_ray_dir(cam, float(x) + 0.5, float(y) + 0.5)

@@ -143,9 +143,11 @@ def rsm_kernel(
     out_normal: wp.array(dtype=wp.vec3),
     out_depth: wp.array(dtype=float),
     out_valid: wp.array(dtype=wp.uint8),
+    row0: int,
 ):
     """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
     i, j = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
     cos_outer = float(-1.0)  # point light: the whole sphere
     if l.kind == 1:
         cos_outer = wp.clamp(l.cos_outer, -1.0, 1.0)
@@ -401,9 +403,11 @@ def indirect_points_kernel(
     normal: wp.array(dtype=wp.vec3),
     albedo: wp.array(dtype=wp.vec3),
     out: wp.array(dtype=wp.vec3),
+    row0: int,
 ):
     """out[i] = indirect radiance at receiver i (overwrites)."""
     i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
     out[i] = indirect_radiance(ip, pos[i], normal[i], albedo[i])
 
 
@@ -415,9 +419,11 @@ def indirect_full_kernel(
     albedo: wp.array2d(dtype=wp.vec3),
     hit: wp.array2d(dtype=wp.uint8),
     radiance: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """radiance[y, x] += indirect radiance at every hit pixel."""
     y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])
@@ -434,9 +440,11 @@ def indirect_list_kernel(
     albedo: wp.array2d(dtype=wp.vec3),
     hit: wp.array2d(dtype=wp.uint8),
     radiance: wp.array2d(dtype=wp.vec3),
+    row0: int,
 ):
     """radiance at the flat pixel indices work[0:count[0]] (y * width + x) += indirect radiance."""
     i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     idx = work[i]

@@ -26,7 +26,8 @@ def tonemap_value(x: float, exposure: float, white: float) -> float:
 
 
 @wp.kernel(enable_backward=False)
-def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3), row0: int):
+def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3),
+                   row0: int):
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     c = hdr[y, x]

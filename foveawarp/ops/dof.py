@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import check_image_size, get_device
 from ..config import DofConfig, check_array, check_bool, check_range
 from ..kernels.dof import DofParams, coc_kernel
@@ -68,7 +69,7 @@ def circle_of_confusion_px(depth_m, *, focal_length_m: float, focus_depth_m: flo
     p.height = int(dw.shape[0])
     focus = wp.full(1, value=z, dtype=float, device=dev)
     out = wp.zeros(dw.shape, dtype=float, device=dev)
-    wp.launch(coc_kernel, dim=dw.shape, inputs=[p, focus, dw], outputs=[out], device=dev)
+    parallel.launch(coc_kernel, dim=dw.shape, inputs=[p, focus, dw], outputs=[out], device=dev)
     return out.numpy().reshape(shape)
 
 

@@ -14,6 +14,7 @@ from typing import Optional
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import check_image_size, get_device
 from ..config import DofConfig, check_choice, check_int_range, check_range
 from ..kernels.dof import (
@@ -198,20 +199,20 @@ class DofStage:
             focus = self.focus_m
         p = self.params(fov_y_deg=fov_y_deg, use_hit=hit is not None)
         dev, dim = self.device, (self.height, self.width)
-        wp.launch(dof_prepare_kernel, dim=dim,
-                  inputs=[p, focus, color_in, depth, hit if hit is not None else self._no_hit],
-                  outputs=[self.coc, self.pm, self.geo], device=dev)
+        parallel.launch(dof_prepare_kernel, dim=dim,
+                        inputs=[p, focus, color_in, depth, hit if hit is not None else self._no_hit],
+                        outputs=[self.coc, self.pm, self.geo], device=dev)
         if self.method == "scatter":
             self.accum.zero_()
             wp.launch(dof_scatter_kernel, dim=dim, inputs=[p, self.coc, self.pm, self.geo],
                       outputs=[self.accum], device=dev)
-            wp.launch(dof_normalize_kernel, dim=dim, inputs=[self.accum, color_in], outputs=[color_out],
-                      device=dev)
+            parallel.launch(dof_normalize_kernel, dim=dim, inputs=[self.accum, color_in], outputs=[color_out],
+                            device=dev)
             return
         wp.launch(dof_tile_r2_kernel, dim=self.tiles, inputs=[self.geo, self.tile_px],
                   outputs=[self.tile_r2], device=dev)
         wp.launch(dof_tile_dilate_kernel, dim=self.tiles, inputs=[self.tile_r2, self.dilate_tiles],
                   outputs=[self.tile_window], device=dev)
-        wp.launch(dof_gather_kernel, dim=dim,
-                  inputs=[p, self.coc, self.pm, self.geo, self.tile_window, self.tile_px, color_in],
-                  outputs=[color_out], device=dev)
+        parallel.launch(dof_gather_kernel, dim=dim,
+                        inputs=[p, self.coc, self.pm, self.geo, self.tile_window, self.tile_px, color_in],
+                        outputs=[color_out], device=dev)

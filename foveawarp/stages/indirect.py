@@ -27,6 +27,7 @@ from typing import Optional
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import get_device
 from ..config import IndirectConfig, check_array, check_choice, check_int_range, show
 from ..kernels.lighttree import (
@@ -319,10 +320,10 @@ class IndirectStage:
     def trace_rsm(self) -> None:
         """Trace the RSM of the light into the leaf level."""
         ds, n = self.dscene, self.rsm_size
-        wp.launch(rsm_kernel, dim=(n, n),
-                  inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
-                          self._light_params(), n, self._max_t],
-                  outputs=list(self._levels[self.leaf_level]), device=self.device)
+        parallel.launch(rsm_kernel, dim=(n, n),
+                        inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+                                self._light_params(), n, self._max_t],
+                        outputs=list(self._levels[self.leaf_level]), device=self.device)
 
     def load_rsm(self, flux, position, normal, depth) -> None:
         """Replace the leaf level by a given RSM ((N, N, 3) flux, position, normal; (N, N) depth, row-major
@@ -395,9 +396,9 @@ class IndirectStage:
         self._check("radiance", radiance, wp.vec3, shape=tuple(g.position.shape))
         if not self.enabled:
             return
-        wp.launch(indirect_full_kernel, dim=(g.position.shape[0], g.position.shape[1]),
-                  inputs=[self.params, g.position, g.normal, g.albedo, g.hit], outputs=[radiance],
-                  device=self.device)
+        parallel.launch(indirect_full_kernel, dim=(g.position.shape[0], g.position.shape[1]),
+                        inputs=[self.params, g.position, g.normal, g.albedo, g.hit], outputs=[radiance],
+                        device=self.device)
 
     def run_list(self, gbuffer, work, count, radiance, width: int) -> None:
         """``radiance += indirect`` at the flat pixel indices ``work[0:count[0]]`` (y * width + x; count stays
@@ -411,9 +412,9 @@ class IndirectStage:
             raise ValueError(f"width must be the G-buffer width {g.position.shape[1]}, got {width}")
         if not self.enabled:
             return
-        wp.launch(indirect_list_kernel, dim=work.shape[0],
-                  inputs=[self.params, work, count, int(width), g.position, g.normal, g.albedo, g.hit],
-                  outputs=[radiance], device=self.device)
+        parallel.launch(indirect_list_kernel, dim=work.shape[0],
+                        inputs=[self.params, work, count, int(width), g.position, g.normal, g.albedo, g.hit],
+                        outputs=[radiance], device=self.device, count=count)
 
     def run_points(self, pos=None, normal=None, albedo=None, out=None) -> None:
         """``out[i] = indirect`` radiance at receivers (1-D vec3 arrays; default: the stage's receiver
@@ -431,8 +432,8 @@ class IndirectStage:
         if not self.enabled:
             out.zero_()
             return
-        wp.launch(indirect_points_kernel, dim=pos.shape[0], inputs=[self.params, pos, normal, albedo],
-                  outputs=[out], device=self.device)
+        parallel.launch(indirect_points_kernel, dim=pos.shape[0], inputs=[self.params, pos, normal, albedo],
+                        outputs=[out], device=self.device)
 
     # -- inspection (host reads; not for per-frame use) -----------------------------------------------------
     def cluster_count(self) -> int:

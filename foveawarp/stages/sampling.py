@@ -308,8 +308,8 @@ class SamplingStage:
         if self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
         parallel.launch(sampling_map_kernel, dim=(h, w),
-                        inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity,
-                          g.position, g.reproj_uv, g.prev_dist, self.depth_prev, self.valid_prev],
+                        inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
+                                g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev, self.valid_prev],
                         outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
                         device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,

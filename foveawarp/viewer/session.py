@@ -20,6 +20,7 @@ from typing import Callable, Optional
 import numpy as np
 import warp as wp
 
+from .. import parallel
 from .._util import check_image_size, get_device
 from ..camera import Camera
 from ..config import Config
@@ -392,13 +393,14 @@ class ViewerSession:
         flags = ring_flags
         if fov is not None:
             flags |= (FLAG_SAMPLING if ov["sampling"] else 0) | (FLAG_ERROR if ov["error"] and ref is not None else 0)
-        wp.launch(compose_display_kernel, dim=(h, w),
-                  inputs=[main.image, ref.image if ref is not None else main.image, main.sampling_map, g, tan_half,
-                          RING_DEG, ERROR_GAIN, flags, 0], outputs=[out], device=self.device)
+        parallel.launch(compose_display_kernel, dim=(h, w),
+                        inputs=[main.image, ref.image if ref is not None else main.image, main.sampling_map, g,
+                                tan_half, RING_DEG, ERROR_GAIN, flags, 0], outputs=[out], device=self.device)
         if mode == "side_by_side":
-            wp.launch(compose_display_kernel, dim=(h, w),
-                      inputs=[ref.image, ref.image, ref.sampling_map, g, tan_half, RING_DEG, ERROR_GAIN, ring_flags, w],
-                      outputs=[out], device=self.device)
+            parallel.launch(compose_display_kernel, dim=(h, w),
+                            inputs=[ref.image, ref.image, ref.sampling_map, g, tan_half, RING_DEG, ERROR_GAIN,
+                                    ring_flags, w],
+                            outputs=[out], device=self.device)
         if host is not out:
             wp.copy(host, out)
         wp.synchronize_device(self.device)
