@@ -38,6 +38,7 @@ try:  # Warp internals for cheap band launches (argument packing once per launch
     from warp._src.context import invoke as _invoke
 except ImportError:  # another Warp layout: every band is a full wp.launch (slower, same results)
     _bounds_of = _invoke = None
+import ctypes
 
 __all__ = ["launch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
            "ENV_VAR"]
@@ -48,6 +49,9 @@ MAX_THREADS = 1024
 MIN_ITEMS_PER_BAND = 2048
 # pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
 FAST_BANDS = True
+# bands per thread: the threads take bands from a shared queue, so rows of unequal cost (sky above, geometry
+# below) even out; more bands cost more Python per launch
+OVERSPLIT = 4
 
 _context: contextvars.ContextVar[Optional[int]] = contextvars.ContextVar("foveawarp_cpu_threads", default=None)
 _pools: dict = {}
@@ -102,10 +106,11 @@ def current_cpu_threads() -> int:
 
 
 def _pool(n: int) -> ThreadPoolExecutor:
+    """The pool of ``n - 1`` threads that work beside the calling thread at ``n`` threads."""
     with _pool_lock:
         p = _pools.get(n)
         if p is None:
-            p = _pools[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="foveawarp-cpu")
+            p = _pools[n] = ThreadPoolExecutor(max_workers=max(1, n - 1), thread_name_prefix="foveawarp-cpu")
         return p
 
 
@@ -122,6 +127,25 @@ def bands(n_rows: int, n_threads: int, row_items: int = 1, min_items: int = 0) -
         out.append((r, r + k))
         r += k
     return out
+
+
+_structs: dict = {}
+
+
+def _pack(cmd):
+    """(entry point, argument struct type, packed arguments, kernel dims) of a recorded CPU launch: the struct
+    Warp's ``invoke`` builds, one field per kernel argument in order (row0 last)."""
+    k = cmd.kernel
+    params = cmd.params
+    key = (k.key, id(k), tuple(type(p) for p in params[1:]))
+    st = _structs.get(key)
+    if st is None:
+        fields = [(a.label, type(params[1 + i])) for i, a in enumerate(k.adj.args)]
+        st = _structs[key] = type("BandArgs", (ctypes.Structure,), {"_fields_": fields})
+    args = st()
+    for i, (name, _) in enumerate(st._fields_):
+        setattr(args, name, params[1 + i])
+    return cmd.hooks.forward, st, args, k.adj.kernel_dim
 
 
 def _check_kernel(kernel) -> None:
@@ -159,31 +183,48 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     for d in dims[1:]:
         row_items *= d
     min_items = MIN_ITEMS_PER_BAND if min_band_items is None else int(min_band_items)
-    parts = bands(dims[0], n, row_items, min_items) if n > 1 else [(0, dims[0])]
+    parts = bands(dims[0], n * OVERSPLIT, row_items, min_items) if n > 1 else [(0, dims[0])]
     if len(parts) == 1:
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
-    cmd = None
+    packed = None
     if _invoke is not None and FAST_BANDS:
-        # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing); each band
-        # then only replaces the launch bounds and row0 and calls the CPU entry point (which releases the GIL)
+        # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing) into the
+        # CPU entry point's argument struct; each band copies it with its own row0 and launch bounds and calls
+        # the entry point (a ctypes call: it releases the GIL)
         cmd = wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
                         device=dev, record_cmd=True)
+        packed = _pack(cmd)
 
     def run(band):
         r0, r1 = band
         d = (r1 - r0, *dims[1:])
-        if cmd is not None:
-            params = list(cmd.params)
-            params[0] = _bounds_of(d, cmd.kernel.adj.kernel_dim)
-            params[-1] = type(params[-1])(r0)
-            _invoke(cmd.kernel, cmd.hooks, params, False)
+        if packed is not None:
+            forward, struct_type, args, kernel_dim = packed
+            a = struct_type.from_buffer_copy(args)
+            a.row0 = r0
+            bounds = _bounds_of(d, kernel_dim)
+            forward(ctypes.byref(bounds), ctypes.byref(a))
         else:
             wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
-    pool = _pool(n)
-    futures = [pool.submit(run, b) for b in parts[1:]]
-    run(parts[0])  # the calling thread takes the first band
-    for f in futures:
-        f.result()
+    # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
+    workers = min(n, len(parts))
+    queue = iter(parts)
+    lock = threading.Lock()
+
+    def worker():
+        while True:
+            with lock:
+                band = next(queue, None)
+            if band is None:
+                return
+            run(band)
+
+    futures = [_pool(n).submit(worker) for _ in range(workers - 1)] if workers > 1 else []
+    try:
+        worker()
+    finally:
+        for f in futures:
+            f.result()
