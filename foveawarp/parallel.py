@@ -46,7 +46,7 @@ __all__ = ["launch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads"
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
 # launches with fewer work items than this per band run in fewer bands (a band's Python launch costs ~20 us)
-MIN_ITEMS_PER_BAND = 2048
+MIN_ITEMS_PER_BAND = int(os.environ.get("FOVEAWARP_CPU_MIN_BAND_ITEMS", "2048") or 2048)  # 0: split every launch
 # pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
 FAST_BANDS = True
 # bands per thread: the threads take bands from a shared queue, so rows of unequal cost (sky above, geometry
