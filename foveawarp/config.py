@@ -441,6 +441,13 @@ class IndirectConfig:
             5 and 6 (32^2, 64^2 nodes) are finer and slower (benchmarks/indirect.py).
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
+        cluster_radius_scale: a cluster of the tree methods is an extended emitter of radius
+            ``a = cluster_radius_scale x`` its flux-weighted RMS extent (``kernels.lighttree.cluster_term``); 0
+            gives the point form of the paper, in [0, 16]. A uniform disk has ``a^2 = 2 rms^2``.
+        refine_threshold: per-receiver refinement (Lightcuts-style): a cut cluster is split when the bound of
+            its contribution's error exceeds this fraction of the receiver's estimate, in (0, 1e6].
+        refine_budget: the most splits per receiver (each replaces a cluster by its four children); 0 turns
+            refinement off, in [0, 65536].
     """
 
     rsm_size: int = 256
@@ -450,6 +457,9 @@ class IndirectConfig:
     limit_level: int = 4
     d_min_rel: float = 0.02
     strength: float = 1.0
+    cluster_radius_scale: float = 1.5
+    refine_threshold: float = 0.05
+    refine_budget: int = 32
 
     def __post_init__(self):
         check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
@@ -462,6 +472,9 @@ class IndirectConfig:
         check_int_range("IndirectConfig.limit_level", self.limit_level, self.start_level, max_level)
         check_range("IndirectConfig.d_min_rel", self.d_min_rel, 0.0, 1.0, lo_open=True)
         check_range("IndirectConfig.strength", self.strength, 0.0, None)
+        check_range("IndirectConfig.cluster_radius_scale", self.cluster_radius_scale, 0.0, 16.0)
+        check_range("IndirectConfig.refine_threshold", self.refine_threshold, 0.0, 1.0e6, lo_open=True)
+        check_int_range("IndirectConfig.refine_budget", self.refine_budget, 0, 65536)
 
 
 @dataclass(frozen=True)
