@@ -53,14 +53,19 @@ from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_re
 # (label, IndirectConfig overrides); the first is the default config
 VARIANTS = {
     "default": {},
-    "point L4 (paper)": dict(cluster_radius_scale=0.0, refine_budget=0),
-    "extended L4": dict(refine_budget=0),
-    "L4 refine t0.02 b32": dict(refine_threshold=0.02),
-    "L4 refine t0.1 b32": dict(refine_threshold=0.1),
-    "L4 refine t0.05 b128": dict(refine_budget=128),
-    "L4 refine t0.02 b128": dict(refine_threshold=0.02, refine_budget=128),
-    "L5 refine t0.05 b32": dict(limit_level=5),
-    "L6 extended": dict(limit_level=6, refine_budget=0),
+    "point L4 (paper)": dict(limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
+    "point L6": dict(limit_level=6, cluster_radius_scale=0.0, refine_budget=0),
+    "extended L4": dict(limit_level=4, refine_budget=0),
+    "extended L5": dict(limit_level=5, refine_budget=0),
+    "extended L6": dict(limit_level=6, refine_budget=0),
+    "L4 refine t0.05 b32": dict(limit_level=4, refine_threshold=0.05, refine_budget=32),
+    "L5 refine t0.05 b16": dict(limit_level=5, refine_threshold=0.05, refine_budget=16),
+    "L5 refine t0.02 b32": dict(limit_level=5, refine_threshold=0.02, refine_budget=32),
+    "L6 refine t0.05 b16": dict(limit_level=6, refine_threshold=0.05, refine_budget=16),
+    "L6 refine t0.02 b16": dict(limit_level=6, refine_threshold=0.02, refine_budget=16),
+    "extended L6 s1.0": dict(limit_level=6, cluster_radius_scale=1.0, refine_budget=0),
+    "extended L6 s2.0": dict(limit_level=6, cluster_radius_scale=2.0, refine_budget=0),
+    "L5 refine t0.05 b16 s1.0": dict(limit_level=5, cluster_radius_scale=1.0, refine_threshold=0.05, refine_budget=16),
 }
 QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L4")
 
@@ -257,10 +262,11 @@ def bench(name, n, args, dev, pool, sizes):
         st.update(force=True)
         gather, gg = _graph_or_plain(lambda: st.run_full(tl.gbuffer, scratch), dev, not args.no_graphs)
         build, _ = _graph_or_plain(st.build, dev, not args.no_graphs)
-        tg = time_ms(gather, dev, reps, min(args.warmup, reps))["median_ms"]
+        tgd = time_ms(gather, dev, reps, min(args.warmup, reps))
+        tg = tgd["median_ms"]
         tb = time_ms(build, dev, reps, min(args.warmup, reps))["median_ms"]
-        timings[label] = {"ms_gather": tg, "ms_rebuild": tb, "ms_frame": tg + tb, "clusters": st.cluster_count(),
-                          "graphs": gg, "timed": True}
+        timings[label] = {"ms_gather": tg, "ms_gather_p10": tgd["p10_ms"], "ms_rebuild": tb, "ms_frame": tg + tb,
+                          "clusters": st.cluster_count(), "graphs": gg, "timed": True}
 
     for v in variants:
         time_stage(v, cfgs[v], "lighttree", repeats)
@@ -441,7 +447,8 @@ def main(argv=None):
                 results.append(r)
                 if i == 0:
                     panels.append(last)
-    cols = ["scene", "rsm", "method", "clusters", "flip", "flicker", "dssim", "rel_l2", "ms_gather", "ms_rebuild",
+    cols = ["scene", "rsm", "method", "clusters", "flip", "flicker", "dssim", "rel_l2", "ms_gather", "ms_gather_p10",
+            "ms_rebuild",
             "ms_frame", "timed"]
     ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
              "speedup_eq_flip", "tree_flicker", "eq_flicker_samples", "eq_flicker_bound", "speedup_eq_flicker",

@@ -407,25 +407,28 @@ def cluster_term(x: wp.vec3, n: wp.vec3, flux: wp.vec3, xp: wp.vec3, np_: wp.vec
 @wp.func
 def cluster_bound(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d_min2: float) -> float:
     """Upper bound (in flux-weight units, the sum of the colour channels) of both a cluster's exact VPL sum
-    and its ``cluster_term`` at the receiver (x, n): ``w cos_max / max(dist_min^2, d_min^2)`` with
-    ``dist_min = max(|c - x| - radius, 0)`` the nearest the cluster's bounding sphere comes and ``cos_max`` the
-    largest receiver cosine towards that sphere (0 when the sphere lies behind the receiver's plane). Both
-    sums lie in [0, bound], so it also bounds the error of using the cluster (Lightcuts' rule)."""
+    and its ``cluster_term`` at the receiver (x, n): ``w / max(gap^2, d_min^2)``, ``gap = max(|c - x| - radius,
+    0)`` the nearest the cluster's bounding sphere comes, and 0 when the sphere lies behind the receiver's plane
+    (every term is at most ``Phi cos / max(d^2, d_min^2)``). Both sums lie in [0, bound], so it also bounds the
+    error of using the cluster (Lightcuts' rule)."""
     d = c - x
-    h = wp.dot(n, d)
-    if h + radius <= 0.0:
+    if wp.dot(n, d) + radius <= 0.0:
         return 0.0
-    dist = wp.length(d)
-    cosb = float(1.0)
-    if dist > radius and dist > 0.0:
-        sin_a = radius / dist
-        cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
-        cos_t = wp.clamp(h / dist, -1.0, 1.0)
-        if cos_t < cos_a:  # the normal points outside the sphere's cone: the nearest direction on its rim
-            sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
-            cosb = wp.clamp(cos_t * cos_a + sin_t * sin_a, 0.0, 1.0)
-    g = wp.max(dist - radius, 0.0)
-    return w * cosb / wp.max(g * g, d_min2)
+    g = wp.max(wp.length(d) - radius, 0.0)
+    return w / wp.max(g * g, d_min2)
+
+
+@wp.func
+def cluster_error(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d_min2: float) -> float:
+    """First-order estimate of the error of using the cluster at (x, n): ``cluster_bound`` times
+    ``min(1, radius / gap)``, ``gap = max(|c - x| - radius, d_min)``. Over the cluster's sphere ``1/r^2`` and
+    the cosines change by a relative ``O(radius / gap)``, so a far cluster is split only when it is both bright
+    and wide; a receiver inside the sphere gets the full bound (the refinement's split rule)."""
+    d = c - x
+    if wp.dot(n, d) + radius <= 0.0:
+        return 0.0
+    gap = wp.max(wp.length(d) - radius, wp.sqrt(d_min2))
+    return w / (gap * gap) * wp.min(1.0, radius / gap)
 
 
 @wp.func
@@ -447,7 +450,7 @@ def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m:
             budget: int) -> wp.vec4:
     """Sum of the subtree of node ``root_m`` of ``root_level`` as a stackless depth-first descent in Morton
     order. A node is opened when it is not a cluster of the view-independent cut (invalid above the limit
-    level) or, with ``budget`` left and above the leaves, when its error bound exceeds ``thr`` (each such
+    level) or, with ``budget`` left and above the leaves, when its ``cluster_error`` exceeds ``thr`` (each such
     split spends 1 of ``budget``); otherwise it is added as an extended emitter. Returns (sum, budget left)."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     level = root_level
@@ -462,7 +465,7 @@ def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m:
             if level < ip.limit_level and ip.tree_valid[node] == wp.uint8(0):
                 open_ = 1
             elif budget > 0 and level < ip.leaf_level:
-                if cluster_bound(x, n, w, ip.tree_pos[node], ip.tree_radius[node], ip.d_min2) > thr:
+                if cluster_error(x, n, w, ip.tree_pos[node], ip.tree_radius[node], ip.d_min2) > thr:
                     open_ = 1
                     budget -= 1
             if open_ == 0:
@@ -482,67 +485,69 @@ def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m:
 
 
 @wp.func
-def split_threshold(ip: IndirectParams, e0: wp.vec3) -> float:
-    est = wp.max(flux_weight(e0), ip.floor_per_flux * flux_weight(ip.tree_flux[0]))
+def split_threshold(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> float:
+    """``refine_threshold x`` the receiver's coarse estimate: the nodes of level ``min(start_level, 2)`` (at
+    most 16) as extended emitters, floored at ``floor_per_flux x`` the total flux."""
+    lv = wp.min(ip.start_level, 2)
+    e = wp.vec3(0.0, 0.0, 0.0)
+    base = level_offset(lv)
+    for m in range(1 << (2 * lv)):
+        if flux_weight(ip.tree_flux[base + m]) > 0.0:
+            e += node_term(ip, x, n, base + m)
+    est = wp.max(flux_weight(e), ip.floor_per_flux * flux_weight(ip.tree_flux[0]))
     return ip.refine_threshold * est
 
 
 @wp.func
 def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     """Sum of the list: point VPLs (exact, sampled), or the cut's clusters as extended emitters, refined per
-    receiver (Lightcuts-style) when ``refine_budget > 0``: a second pass over the cut replaces each cluster
-    whose error bound exceeds ``refine_threshold x`` the first pass's estimate by its refined subtree, in
-    list order, until the budget is spent."""
+    receiver (Lightcuts-style) when ``refine_budget > 0``: in list order (coarse levels first), a cluster
+    whose estimated error (``cluster_error``) exceeds the split threshold (``split_threshold``) is replaced by
+    its subtree, itself refined by the same rule, until the receiver's budget of splits is spent."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     count = ip.list_count[0]
     if ip.extended == 0:
         for k in range(count):
             acc += vpl_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k], ip.d_min2)
         return acc
-    for k in range(count):
-        acc += cluster_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k],
-                            ip.radius_scale2 * ip.list_spread2[k], ip.d_min2)
     budget = ip.refine_budget
-    if budget <= 0:
-        return acc
-    thr = split_threshold(ip, acc)
+    thr = float(0.0)
+    if budget > 0:
+        thr = split_threshold(ip, x, n)
     for k in range(count):
+        opened = int(0)
         if budget > 0:
             node = ip.list_node[k]
             level = node_level(node)
             if level < ip.leaf_level:
                 w = flux_weight(ip.list_flux[k])
-                if cluster_bound(x, n, w, ip.list_pos[k], ip.tree_radius[node], ip.d_min2) > thr:
+                if cluster_error(x, n, w, ip.list_pos[k], ip.tree_radius[node], ip.d_min2) > thr:
                     r = descend(ip, x, n, level, node - level_offset(level), thr, budget)
                     budget = int(r[3])
-                    acc += wp.vec3(r[0], r[1], r[2]) - cluster_term(
-                        x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k],
-                        ip.radius_scale2 * ip.list_spread2[k], ip.d_min2)
-    return wp.max(acc, wp.vec3(0.0, 0.0, 0.0))  # float cancellation of the swap only
+                    acc += wp.vec3(r[0], r[1], r[2])
+                    opened = 1
+        if opened == 0:
+            acc += cluster_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k],
+                                ip.radius_scale2 * ip.list_spread2[k], ip.d_min2)
+    return acc
 
 
 @wp.func
 def gather_tree(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     """The paper's per-receiver traversal: a stackless Morton-order descent from every start-level node,
     stopping at valid or limit-level nodes (the paper's breadth-first passes select the same clusters); with
-    ``refine_budget > 0`` a second descent also opens clusters whose error bound exceeds
-    ``refine_threshold x`` the first descent's estimate (the same rule as ``gather_list``)."""
+    ``refine_budget > 0`` the descent also opens clusters by the rule of ``gather_list`` (depth first, so a
+    spent budget may leave different clusters unopened than the list order does)."""
     acc = wp.vec3(0.0, 0.0, 0.0)
-    end = 1 << (2 * ip.start_level)
-    big = float(3.0e38)
-    for m in range(end):
-        r = descend(ip, x, n, ip.start_level, m, big, 0)
-        acc += wp.vec3(r[0], r[1], r[2])
     budget = ip.refine_budget
-    if budget <= 0:
-        return acc
-    thr = split_threshold(ip, acc)
-    acc2 = wp.vec3(0.0, 0.0, 0.0)
-    for m in range(end):
+    thr = float(3.0e38)
+    if budget > 0:
+        thr = split_threshold(ip, x, n)
+    for m in range(1 << (2 * ip.start_level)):
         r = descend(ip, x, n, ip.start_level, m, thr, budget)
         budget = int(r[3])
-        acc2 += wp.vec3(r[0], r[1], r[2])
-    return acc2
+        acc += wp.vec3(r[0], r[1], r[2])
+    return acc
 
 
 @wp.func
