@@ -52,22 +52,16 @@ from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_re
 
 # (label, IndirectConfig overrides); the first is the default config
 VARIANTS = {
-    "default": {},
-    "point L4 (paper)": dict(limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
-    "point L6": dict(limit_level=6, cluster_radius_scale=0.0, refine_budget=0),
-    "extended L4": dict(limit_level=4, refine_budget=0),
-    "extended L5": dict(limit_level=5, refine_budget=0),
-    "extended L6": dict(limit_level=6, refine_budget=0),
-    "L4 refine t0.05 b32": dict(limit_level=4, refine_threshold=0.05, refine_budget=32),
-    "L5 refine t0.05 b16": dict(limit_level=5, refine_threshold=0.05, refine_budget=16),
-    "L5 refine t0.02 b32": dict(limit_level=5, refine_threshold=0.02, refine_budget=32),
-    "L6 refine t0.05 b16": dict(limit_level=6, refine_threshold=0.05, refine_budget=16),
-    "L6 refine t0.02 b16": dict(limit_level=6, refine_threshold=0.02, refine_budget=16),
-    "extended L6 s1.0": dict(limit_level=6, cluster_radius_scale=1.0, refine_budget=0),
-    "extended L6 s2.0": dict(limit_level=6, cluster_radius_scale=2.0, refine_budget=0),
-    "L5 refine t0.05 b16 s1.0": dict(limit_level=5, cluster_radius_scale=1.0, refine_threshold=0.05, refine_budget=16),
+    "default": {},  # start 4, limit 6, extended emitters (scale 1.0), refinement t0.02 b256
+    "point L4 (paper)": dict(start_level=3, limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
+    "extended L4": dict(start_level=3, limit_level=4, refine_budget=0),
+    "extended L6": dict(refine_budget=0),
+    "L5 refine t0.02 b256": dict(limit_level=5),
+    "L6 refine t0.02 b64": dict(refine_budget=64),
+    "L6 refine t0.01 b1024": dict(refine_threshold=0.01, refine_budget=1024),
+    "extended L6 s1.5": dict(cluster_radius_scale=1.5, refine_budget=0),
 }
-QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L4")
+QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L6")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -244,12 +238,14 @@ def bench(name, n, args, dev, pool, sizes):
         ladder.append(s)
         s *= 2
     repeats = args.repeats or (3 if args.quick else 10)
-    cfgs = {v: IndirectConfig(rsm_size=n, **VARIANTS[v]) for v in variants}
-    for v, c in cfgs.items():  # clamp limit levels to small RSMs
-        leaf = int(round(math.log2(n)))
-        if c.limit_level > leaf:
-            cfgs[v] = IndirectConfig(**{**c.__dict__, "limit_level": leaf})
-    base = IndirectConfig(rsm_size=n)
+    leaf = int(round(math.log2(n)))
+    cfgs = {}
+    for v in variants:  # levels clamped to the leaves of small RSMs
+        kw = {**IndirectConfig().__dict__, **VARIANTS[v], "rsm_size": n}
+        kw["limit_level"] = min(kw["limit_level"], leaf)
+        kw["start_level"] = min(kw["start_level"], kw["limit_level"])
+        cfgs[v] = IndirectConfig(**kw)
+    base = IndirectConfig(rsm_size=n, start_level=0, limit_level=0)  # exact and sampled: levels unused
 
     # --- timing at the timing size (static camera; build() is the moving light's per-frame rebuild) ----
     tl = fw.FrameLoop(scene, tw, th, device=dev, timing=False)

@@ -25,9 +25,21 @@ itself valid; single VPLs (leaves) and all-zero nodes are valid. The second cond
 it is valid (or on the limit level) and its parent is not" selects exactly the nodes a top-down descent stops
 at: a partition of the VPLs.
 
-Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4):
+Extent. Every node also stores ``spread2``, the flux-weighted mean squared distance of its VPLs from its
+centre, and ``radius``, a sphere about the centre holding all of them (0 for a single VPL).
+
+Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4), for point VPLs ("exact", "sampled"):
 ``E(x) = 1/pi * sum_c Phi_c max(0, n_c.(x - x_c)) max(0, n.(x_c - x)) / max(|x - x_c|^2, d_min^2)^2`` and
-``L = albedo / pi * E * strength``. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
+``L = albedo / pi * E * strength``. The tree methods evaluate a cluster as an EXTENDED emitter
+(``cluster_term``): the second ``max(|d|^2, d_min^2)`` of the denominator becomes ``max(|d|^2 + a^2, d_min^2)``
+with ``a^2 = cluster_radius_scale^2 * spread2`` (a Lambertian disk's on-axis form, in the spirit of virtual
+spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it far away, and at most
+``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
+Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
+cluster seen under ``radius / distance > 1/4`` whose estimated error at the receiver (``cluster_error``: the strict bound ``cluster_bound`` times
+``min(1, radius / gap)``) exceeds ``refine_threshold`` times the receiver's coarse estimate
+(``split_threshold``) is replaced by its four children, recursively, until the receiver's budget of splits is
+spent. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
 ``Phi cos / pi`` (Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the
 physical unoccluded one-bounce radiance, on the same scale as the direct term of ``shade.py``.
 """
@@ -431,6 +443,19 @@ def cluster_error(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d
     return w / (gap * gap) * wp.min(1.0, radius / gap)
 
 
+# clusters seen under radius / distance below this (squared) are never split: their estimated error is at
+# most a third of their bound, and the test costs no square root
+OPEN_RATIO2 = wp.constant(1.0 / 16.0)
+
+
+@wp.func
+def may_split(x: wp.vec3, c: wp.vec3, radius: float) -> int:
+    d = c - x
+    if radius * radius > OPEN_RATIO2 * wp.dot(d, d):
+        return 1
+    return 0
+
+
 @wp.func
 def node_level(node: int) -> int:
     level = int(0)
@@ -465,9 +490,12 @@ def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m:
             if level < ip.limit_level and ip.tree_valid[node] == wp.uint8(0):
                 open_ = 1
             elif budget > 0 and level < ip.leaf_level:
-                if cluster_error(x, n, w, ip.tree_pos[node], ip.tree_radius[node], ip.d_min2) > thr:
-                    open_ = 1
-                    budget -= 1
+                c = ip.tree_pos[node]
+                rad = ip.tree_radius[node]
+                if may_split(x, c, rad) != 0:
+                    if cluster_error(x, n, w, c, rad, ip.d_min2) > thr:
+                        open_ = 1
+                        budget -= 1
             if open_ == 0:
                 acc += node_term(ip, x, n, node)
         if open_ != 0:
@@ -502,8 +530,9 @@ def split_threshold(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> float:
 def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     """Sum of the list: point VPLs (exact, sampled), or the cut's clusters as extended emitters, refined per
     receiver (Lightcuts-style) when ``refine_budget > 0``: in list order (coarse levels first), a cluster
-    whose estimated error (``cluster_error``) exceeds the split threshold (``split_threshold``) is replaced by
-    its subtree, itself refined by the same rule, until the receiver's budget of splits is spent."""
+    seen under ``radius / distance > 1/4`` (``may_split``) whose estimated error (``cluster_error``) exceeds
+    the split threshold (``split_threshold``) is replaced by its subtree, itself refined by the same rule,
+    until the receiver's budget of splits is spent."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     count = ip.list_count[0]
     if ip.extended == 0:
@@ -518,10 +547,11 @@ def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
         opened = int(0)
         if budget > 0:
             node = ip.list_node[k]
-            level = node_level(node)
-            if level < ip.leaf_level:
+            rad = ip.tree_radius[node]
+            if may_split(x, ip.list_pos[k], rad) != 0:  # (a single VPL has radius 0: never)
                 w = flux_weight(ip.list_flux[k])
-                if cluster_error(x, n, w, ip.list_pos[k], ip.tree_radius[node], ip.d_min2) > thr:
+                if cluster_error(x, n, w, ip.list_pos[k], rad, ip.d_min2) > thr:
+                    level = node_level(node)
                     r = descend(ip, x, n, level, node - level_offset(level), thr, budget)
                     budget = int(r[3])
                     acc += wp.vec3(r[0], r[1], r[2])

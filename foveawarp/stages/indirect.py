@@ -9,10 +9,15 @@ frame but the gather.
 Methods (``method=``):
     "lighttree": the light cut. Validity is view independent, so the clusters a top-down descent selects
         are the same for every receiver: they are extracted ONCE per build (flags per node of the levels
-        start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list.
-    "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel). Same
-        clusters and the same result as "lighttree" up to float summation order; kept to measure the cost
-        of traversing per pixel.
+        start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list,
+        each cluster an extended emitter (``IndirectConfig.cluster_radius_scale``); with
+        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters whose
+        estimated error exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's
+        subtree), up to ``refine_budget`` splits (``kernels/lighttree.py``).
+    "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel), with the same
+        emitters and split rule. Without refinement it gives the same clusters and result as "lighttree" up
+        to float summation order; with it, a receiver whose budget runs out may have split other clusters
+        (depth-first order instead of list order).
     "exact": the sum over all N^2 VPLs (the reference).
     "sampled": RSM sampling with a fixed Poisson-disk pattern of ``samples`` texels, each standing for
         N^2 / samples VPLs.
