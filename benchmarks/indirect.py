@@ -29,7 +29,9 @@ Comparisons per tree variant: the sample count at which the sampled RSM's FLIP (
 (piecewise linear in log samples vs log metric, at the first ladder step that reaches it; a tree better than
 every ladder point is reported as a lower bound ``>=``), the sampled ``ms_frame`` there, and the time ratio
 ``speedup = sampled ms_frame / tree ms_frame`` (rebuild counted: the light moves every frame);
-``gather_speedup`` is the same ratio of ``ms_gather`` alone (a static light).
+``gather_speedup`` is the same ratio of ``ms_gather`` alone (a static light); ``count_speedup`` is the equal-quality
+sample count over the tree's ``sample_equiv`` (its gather time in sampled VPLs, timed interleaved with a
+1024-sample gather: robust to a shared machine's load, and the figure to read on the CPU).
 Side-by-side image (``indirect-side-by-side-{cpu,cuda}.png``): per scene at the first RSM size, the last frame:
 exact | tree (default) | sampled RSM at the tree's ``ms_frame`` (equal time), and below it |difference| x 8.
 
@@ -42,6 +44,7 @@ import math
 import multiprocessing
 import os
 import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -255,6 +258,27 @@ def bench(name, n, args, dev, pool, sizes):
     tl.render_reference(scene.camera)
     scratch = wp.zeros((th, tw), dtype=wp.vec3, device=dev)
     timings = {}
+    n_ref = min(1024, (n * n) // 2)
+    ref_st = IndirectStage(tl.dscene, base, dev, method="sampled", samples=n_ref, seed=args.seed)
+    ref_st.update(force=True)
+    ref_gather, _ = _graph_or_plain(lambda: ref_st.run_full(tl.gbuffer, scratch), dev, not args.no_graphs)
+
+    def once(fn):
+        wp.synchronize_device(dev)
+        t0 = time.perf_counter()
+        fn()
+        wp.synchronize_device(dev)
+        return time.perf_counter() - t0
+
+    def sample_equivalents(gather, reps):
+        """The tree gather's cost in sampled VPLs: median over interleaved pairs of (tree gather time / time of
+        the ``n_ref``-sample gather) x n_ref; interleaving cancels slow drifts of a shared machine's load."""
+        ratios = []
+        for _ in range(max(reps, 5)):
+            a = once(gather)
+            b = once(ref_gather)
+            ratios.append(a / max(b, 1e-12))
+        return float(np.median(ratios)) * n_ref
 
     def time_stage(label, cfg, method, reps, **kw):
         st = IndirectStage(tl.dscene, cfg, dev, method=method, **kw)
@@ -266,6 +290,8 @@ def bench(name, n, args, dev, pool, sizes):
         tb = time_ms(build, dev, reps, min(args.warmup, reps))["median_ms"]
         timings[label] = {"ms_gather": tg, "ms_gather_p10": tgd["p10_ms"], "ms_rebuild": tb, "ms_frame": tg + tb,
                           "clusters": st.cluster_count(), "graphs": gg, "timed": True}
+        if method == "lighttree":
+            timings[label]["sample_equiv"] = sample_equivalents(gather, reps)
 
     for v in variants:
         time_stage(v, cfgs[v], "lighttree", repeats)
@@ -344,8 +370,8 @@ def bench(name, n, args, dev, pool, sizes):
         if m == "sampled":
             row["samples"] = kw["samples"]
         else:
-            row["config"] = {k: getattr(cfg, k) for k in ("limit_level", "cluster_radius_scale", "refine_threshold",
-                                                          "refine_budget")}
+            row["config"] = {k: getattr(cfg, k) for k in ("start_level", "limit_level", "cluster_radius_scale",
+                                                          "refine_threshold", "refine_budget", "refine_min_ratio")}
         rows.append(row)
 
     samp = [r for r in rows if r["kind"] == "sampled"]
@@ -369,6 +395,7 @@ def bench(name, n, args, dev, pool, sizes):
             c[f"eq_{key}_sampled_ms"] = ms_eq
             c[f"speedup_eq_{key}"] = ms_eq / max(r["ms_frame"], 1e-9)
             c[f"gather_speedup_eq_{key}"] = ms_at(ns, msg, n_eq) / max(r["ms_gather"], 1e-9)
+            c[f"count_speedup_eq_{key}"] = n_eq / max(r["sample_equiv"], 1e-9)
         comps.append(c)
 
     # the side-by-side: sampled RSM at the default tree's ms_frame, last frame
@@ -450,12 +477,13 @@ def main(argv=None):
                 results.append(r)
                 if i == 0:
                     panels.append(last)
-    cols = ["scene", "rsm", "method", "clusters", "flip", "flicker", "dssim", "rel_l2", "ms_gather", "ms_gather_p10",
-            "ms_rebuild",
+    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
+            "ms_gather_p10", "ms_rebuild",
             "ms_frame", "timed"]
     ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
-             "speedup_eq_flip", "gather_speedup_eq_flip", "tree_flicker", "eq_flicker_samples", "eq_flicker_bound",
-             "speedup_eq_flicker", "gather_speedup_eq_flicker", "eq_dssim_samples", "speedup_eq_dssim"]
+             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
+             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
+             "eq_dssim_samples", "speedup_eq_dssim"]
     md = (f"Indirect light, moving spot light: quality at {esize[0]}x{esize[1]} against the exact all-VPL sum "
           f"(FLIP {'flip-evaluator' if have_flip else 'UNAVAILABLE'}), timing at {size[0]}x{size[1]} "
           f"(ms_frame = gather + rebuild).\n\n")

@@ -446,10 +446,13 @@ class IndirectConfig:
             ``a = cluster_radius_scale x`` its flux-weighted RMS extent (``kernels.lighttree.cluster_term``); 0
             gives the point form of the paper, in [0, 16]. A uniform disk has ``a^2 = 2 rms^2``.
         refine_threshold: per-receiver refinement (Lightcuts-style): a cut cluster seen under radius / distance
-            above 1/4 is split when its estimated error exceeds this fraction of the receiver's coarse estimate
+            above ``refine_min_ratio`` is split when its estimated error exceeds this fraction of the receiver's coarse estimate
             (``kernels.lighttree.gather_list``), in (0, 1e6].
         refine_budget: the most splits per receiver (each replaces a cluster by its four children); 0 turns
             refinement off, in [0, 65536].
+        refine_min_ratio: clusters seen under radius / distance at or below this are never split (their
+            estimated error is at most ``ratio / (1 - ratio)`` of their bound; the test needs no square root),
+            in [0, 1]; 0 lets every cluster be tested.
     """
 
     rsm_size: int = 256
@@ -462,6 +465,7 @@ class IndirectConfig:
     cluster_radius_scale: float = 1.0
     refine_threshold: float = 0.02
     refine_budget: int = 256
+    refine_min_ratio: float = 0.25
 
     def __post_init__(self):
         check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
@@ -477,6 +481,7 @@ class IndirectConfig:
         check_range("IndirectConfig.cluster_radius_scale", self.cluster_radius_scale, 0.0, 16.0)
         check_range("IndirectConfig.refine_threshold", self.refine_threshold, 0.0, 1.0e6, lo_open=True)
         check_int_range("IndirectConfig.refine_budget", self.refine_budget, 0, 65536)
+        check_range("IndirectConfig.refine_min_ratio", self.refine_min_ratio, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

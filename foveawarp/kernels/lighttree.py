@@ -36,7 +36,7 @@ with ``a^2 = cluster_radius_scale^2 * spread2`` (a Lambertian disk's on-axis for
 spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it far away, and at most
 ``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
 Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
-cluster seen under ``radius / distance > 1/4`` whose estimated error at the receiver (``cluster_error``: the strict bound ``cluster_bound`` times
+cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver (``cluster_error``: the strict bound ``cluster_bound`` times
 ``min(1, radius / gap)``) exceeds ``refine_threshold`` times the receiver's coarse estimate
 (``split_threshold``) is replaced by its four children, recursively, until the receiver's budget of splits is
 spent. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
@@ -76,6 +76,7 @@ class IndirectParams:
     radius_scale2: float  # a^2 = radius_scale2 * spread2: the emitter's softening radius
     refine_threshold: float  # split a cluster when its error bound exceeds this fraction of the estimate
     refine_budget: int  # splits per receiver; 0: no refinement
+    refine_ratio2: float  # only clusters seen under (radius / distance)^2 above this are tested for a split
     floor_per_flux: float  # estimates below floor_per_flux * (total flux) count as that in the split threshold
     d_min2: float  # squared distance clamp, > 0
     scale: float  # strength / pi^2 (albedo / pi times the VPL's 1 / pi)
@@ -443,15 +444,12 @@ def cluster_error(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d
     return w / (gap * gap) * wp.min(1.0, radius / gap)
 
 
-# clusters seen under radius / distance below this (squared) are never split: their estimated error is at
-# most a third of their bound, and the test costs no square root
-OPEN_RATIO2 = wp.constant(1.0 / 16.0)
-
-
 @wp.func
-def may_split(x: wp.vec3, c: wp.vec3, radius: float) -> int:
+def may_split(x: wp.vec3, c: wp.vec3, radius: float, ratio2: float) -> int:
+    """1 when the cluster's bounding sphere is seen under ``radius / distance > sqrt(ratio2)`` (no square
+    root): only such clusters are tested for a split."""
     d = c - x
-    if radius * radius > OPEN_RATIO2 * wp.dot(d, d):
+    if radius * radius > ratio2 * wp.dot(d, d):
         return 1
     return 0
 
@@ -492,7 +490,7 @@ def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m:
             elif budget > 0 and level < ip.leaf_level:
                 c = ip.tree_pos[node]
                 rad = ip.tree_radius[node]
-                if may_split(x, c, rad) != 0:
+                if may_split(x, c, rad, ip.refine_ratio2) != 0:
                     if cluster_error(x, n, w, c, rad, ip.d_min2) > thr:
                         open_ = 1
                         budget -= 1
@@ -530,7 +528,7 @@ def split_threshold(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> float:
 def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     """Sum of the list: point VPLs (exact, sampled), or the cut's clusters as extended emitters, refined per
     receiver (Lightcuts-style) when ``refine_budget > 0``: in list order (coarse levels first), a cluster
-    seen under ``radius / distance > 1/4`` (``may_split``) whose estimated error (``cluster_error``) exceeds
+    seen under ``radius / distance > refine_min_ratio`` (``may_split``) whose estimated error (``cluster_error``) exceeds
     the split threshold (``split_threshold``) is replaced by its subtree, itself refined by the same rule,
     until the receiver's budget of splits is spent."""
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -548,7 +546,7 @@ def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
         if budget > 0:
             node = ip.list_node[k]
             rad = ip.tree_radius[node]
-            if may_split(x, ip.list_pos[k], rad) != 0:  # (a single VPL has radius 0: never)
+            if may_split(x, ip.list_pos[k], rad, ip.refine_ratio2) != 0:  # (a single VPL has radius 0: never)
                 w = flux_weight(ip.list_flux[k])
                 if cluster_error(x, n, w, ip.list_pos[k], rad, ip.d_min2) > thr:
                     level = node_level(node)

@@ -256,6 +256,7 @@ class IndirectStage:
         ip.radius_scale2 = float(config.cluster_radius_scale) ** 2 if tree else 0.0
         ip.refine_threshold = float(config.refine_threshold)
         ip.refine_budget = int(config.refine_budget) if tree else 0
+        ip.refine_ratio2 = float(config.refine_min_ratio) ** 2
         # a receiver whose estimate is below 1e-6 of the total flux per extent^2 splits as if it were that
         ip.floor_per_flux = 1.0e-6 / max(ext * ext, 1.0e-30)
         ip.d_min2 = max(d_min * d_min, 1.0e-30)

@@ -46,7 +46,7 @@ def test_vpls_at_the_receiver(device, cases, scale, light_kind, light_inside, co
     scene = _room(scale, light_kind, light_inside, cone)
     lvl = int(round(math.log2(rsm)))
     cfg = IndirectConfig(rsm_size=rsm, start_level=min(1, lvl), limit_level=min(2, lvl), d_min_rel=d_min_rel,
-                         refine_threshold=1e-6, refine_budget=32)
+                         refine_threshold=1e-6, refine_budget=32, refine_min_ratio=0.0)
     ds = fw.DeviceScene(scene, device)
     r = ops.reflective_shadow_map(ds, config=cfg)
     flux = assert_finite("rsm flux", r["flux"]).reshape(-1, 3)
