@@ -464,12 +464,48 @@ def main(argv=None):
               "comparison; dssim (1 - SSIM) is reported as a separate, labelled comparison")
     workers = args.workers or max(1, min(8, (os.cpu_count() or 2)))
     results, panels = [], []
+
+    def save(final):
+        """Write the JSON / markdown / side-by-side so far (after every scene and RSM size, so that a run cut
+        short by a time limit still leaves its finished parts)."""
+        md = (f"Indirect light, moving spot light: quality at {esize[0]}x{esize[1]} against the exact all-VPL sum "
+              f"(FLIP {'flip-evaluator' if have_flip else 'UNAVAILABLE'}), timing at {size[0]}x{size[1]} "
+              f"(ms_frame = gather + rebuild).{'' if final else ' PARTIAL: the run did not finish.'}\n\n")
+        for r in results:
+            md += (f"### {r['scene']}, RSM {r['rsm']}^2, {r['frames']} frames, {r['hit_pixels_eval']} hit pixels at "
+                   f"eval size, FLIP ppd {r['flip_ppd']:.2f}, sampled at equal time: {r['equal_time_samples']}\n\n")
+            md += md_table(r["rows"], cols) + "\n"
+            md += ("Equal FLIP / equal flicker / equal 1-SSIM against the sampled RSM (speedup = sampled ms_frame / "
+                   "tree ms_frame; bound '>=': the tree beats every ladder count, the ratio is a lower bound):\n\n")
+            md += md_table(r["comparisons"], ccols) + "\n"
+        payload = {"quick": bool(args.quick), "flip_available": have_flip, "size": list(size),
+                   "eval_size": list(esize), "complete": bool(final), "results": results}
+        path = write_results("indirect", dev, payload, md, out=args.out)
+        if panels:
+            import imageio.v3 as iio
+
+            folder = Path(args.out) if args.out else RESULTS
+            png = folder / f"indirect-side-by-side-{'cuda' if cuda else 'cpu'}.png"
+            iio.imwrite(png, side_by_side(panels))
+            if final:
+                print(f"wrote {png}")
+        if final:
+            print(md)
+            print(f"wrote {path}")
+
+    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
+            "ms_gather_p10", "ms_rebuild", "ms_frame", "timed"]
+    ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
+             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
+             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
+             "eq_dssim_samples", "speedup_eq_dssim"]
+    t_start = time.perf_counter()
     # spawned (not forked) workers: the parent holds a CUDA context; the workers only run NumPy / FLIP / SSIM
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
             for i, n in enumerate(rsms):
                 print(f"{name}: RSM {n}^2, timing {size[0]}x{size[1]}, quality {esize[0]}x{esize[1]}, "
-                      f"{args.frames} frames", flush=True)
+                      f"{args.frames} frames ({time.perf_counter() - t_start:.0f} s in)", flush=True)
                 out = bench(name, n, args, dev, pool, (size, esize))
                 if out is None:
                     break
@@ -477,35 +513,8 @@ def main(argv=None):
                 results.append(r)
                 if i == 0:
                     panels.append(last)
-    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
-            "ms_gather_p10", "ms_rebuild",
-            "ms_frame", "timed"]
-    ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
-             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
-             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
-             "eq_dssim_samples", "speedup_eq_dssim"]
-    md = (f"Indirect light, moving spot light: quality at {esize[0]}x{esize[1]} against the exact all-VPL sum "
-          f"(FLIP {'flip-evaluator' if have_flip else 'UNAVAILABLE'}), timing at {size[0]}x{size[1]} "
-          f"(ms_frame = gather + rebuild).\n\n")
-    for r in results:
-        md += (f"### {r['scene']}, RSM {r['rsm']}^2, {r['frames']} frames, {r['hit_pixels_eval']} hit pixels at "
-               f"eval size, FLIP ppd {r['flip_ppd']:.2f}, sampled at equal time: {r['equal_time_samples']}\n\n")
-        md += md_table(r["rows"], cols) + "\n"
-        md += ("Equal FLIP / equal flicker / equal 1-SSIM against the sampled RSM (speedup = sampled ms_frame / tree "
-               "ms_frame; bound '>=': the tree beats every ladder count, the ratio is a lower bound):\n\n")
-        md += md_table(r["comparisons"], ccols) + "\n"
-    print(md)
-    payload = {"quick": bool(args.quick), "flip_available": have_flip, "size": list(size), "eval_size": list(esize),
-               "results": results}
-    path = write_results("indirect", dev, payload, md, out=args.out)
-    if panels:
-        import imageio.v3 as iio
-
-        folder = Path(args.out) if args.out else RESULTS
-        png = folder / f"indirect-side-by-side-{'cuda' if cuda else 'cpu'}.png"
-        iio.imwrite(png, side_by_side(panels))
-        print(f"wrote {png}")
-    print(f"wrote {path}")
+                save(False)
+    save(True)
 
 
 if __name__ == "__main__":
