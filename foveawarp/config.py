@@ -446,8 +446,8 @@ class IndirectConfig:
             ``a = cluster_radius_scale x`` its flux-weighted RMS extent (``kernels.lighttree.cluster_term``); 0
             gives the point form of the paper, in [0, 16]. A uniform disk has ``a^2 = 2 rms^2``.
         refine_threshold: per-receiver refinement (Lightcuts-style): a cut cluster seen under radius / distance
-            above ``refine_min_ratio`` is split when its estimated error exceeds this fraction of the receiver's coarse estimate
-            (``kernels.lighttree.gather_list``), in (0, 1e6].
+            above ``refine_min_ratio`` is split when its estimated error exceeds this fraction of the receiver's
+            coarse estimate (``kernels.lighttree.gather_list``), in (0, 1e6].
         refine_budget: the most splits per receiver (each replaces a cluster by its four children); 0 turns
             refinement off, in [0, 65536].
         refine_min_ratio: clusters seen under radius / distance at or below this are never split (their

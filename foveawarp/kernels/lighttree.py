@@ -30,18 +30,19 @@ centre, and ``radius``, a sphere about the centre holding all of them (0 for a s
 
 Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4), for point VPLs ("exact", "sampled"):
 ``E(x) = 1/pi * sum_c Phi_c max(0, n_c.(x - x_c)) max(0, n.(x_c - x)) / max(|x - x_c|^2, d_min^2)^2`` and
-``L = albedo / pi * E * strength``. The tree methods evaluate a cluster as an EXTENDED emitter
-(``cluster_term``): the second ``max(|d|^2, d_min^2)`` of the denominator becomes ``max(|d|^2 + a^2, d_min^2)``
-with ``a^2 = cluster_radius_scale^2 * spread2`` (a Lambertian disk's on-axis form, in the spirit of virtual
+``L = albedo / pi * E * strength``. The extra ``1/pi`` is the Lambertian VPL's radiant intensity ``Phi cos / pi``
+(Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the physical unoccluded
+one-bounce radiance, on the same scale as the direct term of ``shade.py``.
+The tree methods evaluate a cluster as an EXTENDED emitter (``cluster_term``): the second
+``max(|d|^2, d_min^2)`` of the denominator becomes ``max(|d|^2 + a^2, d_min^2)`` with
+``a^2 = cluster_radius_scale^2 * spread2`` (a Lambertian disk's on-axis form, in the spirit of virtual
 spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it far away, and at most
 ``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
 Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
-cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver (``cluster_error``: the strict bound ``cluster_bound`` times
-``min(1, radius / gap)``) exceeds ``refine_threshold`` times the receiver's coarse estimate
-(``split_threshold``) is replaced by its four children, recursively, until the receiver's budget of splits is
-spent. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
-``Phi cos / pi`` (Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the
-physical unoccluded one-bounce radiance, on the same scale as the direct term of ``shade.py``.
+cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver
+(``cluster_error``: the strict bound ``cluster_bound`` times ``min(1, radius / gap)``) exceeds
+``refine_threshold`` times the receiver's coarse estimate (``split_threshold``) is replaced by its four
+children, recursively, until the receiver's budget of splits is spent.
 """
 
 import warp as wp
@@ -528,9 +529,9 @@ def split_threshold(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> float:
 def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     """Sum of the list: point VPLs (exact, sampled), or the cut's clusters as extended emitters, refined per
     receiver (Lightcuts-style) when ``refine_budget > 0``: in list order (coarse levels first), a cluster
-    seen under ``radius / distance > refine_min_ratio`` (``may_split``) whose estimated error (``cluster_error``) exceeds
-    the split threshold (``split_threshold``) is replaced by its subtree, itself refined by the same rule,
-    until the receiver's budget of splits is spent."""
+    seen under ``radius / distance > refine_min_ratio`` (``may_split``) whose estimated error
+    (``cluster_error``) exceeds the split threshold (``split_threshold``) is replaced by its subtree, itself
+    refined by the same rule, until the receiver's budget of splits is spent."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     count = ip.list_count[0]
     if ip.extended == 0:
