@@ -439,7 +439,7 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=8, help="frames of the moving light (>= 2)")
     p.add_argument("--variants", default=None, help=f"tree variants, comma separated, of: {', '.join(VARIANTS)}")
     p.add_argument("--max-samples", type=int, default=1 << 16, help="largest sampled-RSM count of the ladder")
-    p.add_argument("--max-timed", type=int, default=1 << 14,
+    p.add_argument("--max-timed", type=int, default=1 << 13,
                    help="ladder counts above this are timed by linear extrapolation in the sample count")
     p.add_argument("--workers", type=int, default=None, help="metric worker processes (default: cores, <= 8)")
     p.add_argument("--seed", type=int, default=0, help="Poisson-disk pattern seed")
