@@ -66,7 +66,13 @@ VARIANTS = {
     "L6 refine t0.01 b1024": dict(refine_threshold=0.01, refine_budget=1024),
     "extended L6 s1.5": dict(cluster_radius_scale=1.5, refine_budget=0),
     "L7 refine t0.02 b256": dict(limit_level=7),
+    # calibration only (not in the default set)
+    "default n0.97": dict(normal_threshold=0.97),
+    "default r0.15": dict(refine_min_ratio=0.15),
+    "default s0.7": dict(cluster_radius_scale=0.7),
 }
+DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "L5 refine t0.02 b256",
+                    "L6 refine t0.02 b64", "L6 refine t0.01 b1024", "extended L6 s1.5", "L7 refine t0.02 b256")
 QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L6")
 
 
@@ -234,7 +240,7 @@ def bench(name, n, args, dev, pool, sizes):
     (tw, th), (ew, eh) = sizes
     frames = args.frames
     variants = [v for v in (args.variants.split(",") if args.variants else
-                            (QUICK_VARIANTS if args.quick else VARIANTS)) if v]
+                            (QUICK_VARIANTS if args.quick else DEFAULT_VARIANTS)) if v]
     for v in variants:
         if v not in VARIANTS:
             raise SystemExit(f"unknown variant {v!r}; known: {', '.join(VARIANTS)}")
