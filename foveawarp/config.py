@@ -510,6 +510,10 @@ class TemporalConfig:
             accumulated stochastic history of a traced pixel (5 x 5 neighbourhood of fresh values), in [0, 100].
         motion_alpha_per_px: weight of a traced pixel's fresh stochastic value per pixel of screen motion
             (the history weight falls with motion), per pixel, in [0, 1]; 0.05 gives fresh-only at 20 px/frame.
+        still_min_probability: with stochastic shading (AO rays, area-light samples), while the camera and scene
+            stand still and the accumulation is not yet full (fewer than ``max_history_frames`` still frames),
+            the sampling map's minimum probability is raised to this, in [0, 1], so that the periphery
+            converges too (progressive refinement); then the refresh budget takes over. 0 disables it.
     """
 
     enabled: bool = True
@@ -520,6 +524,7 @@ class TemporalConfig:
     normal_cos_min: float = 0.9
     clamp_gamma: float = 1.25
     motion_alpha_per_px: float = 0.05
+    still_min_probability: float = 0.25
 
     def __post_init__(self):
         check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)
@@ -529,6 +534,7 @@ class TemporalConfig:
         check_range("TemporalConfig.normal_cos_min", self.normal_cos_min, -1.0, 1.0)
         check_range("TemporalConfig.clamp_gamma", self.clamp_gamma, 0.0, 100.0)
         check_range("TemporalConfig.motion_alpha_per_px", self.motion_alpha_per_px, 0.0, 1.0)
+        check_range("TemporalConfig.still_min_probability", self.still_min_probability, 0.0, 1.0)
         check_bool("TemporalConfig.enabled", self.enabled)
 
 

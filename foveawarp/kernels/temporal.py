@@ -226,8 +226,12 @@ def resolve_kernel(
         hist_age[i] = age
         hist_stale[i] = 0
         return
-    young_ok = age_h >= tp.min_age_reuse or wp.length(velocity[y, x]) <= 0.5
-    if have and stale_h + 1 < tp.max_frames and moved[y, x] == wp.uint8(0) and young_ok:
+    still = wp.length(velocity[y, x]) <= 0.5
+    young_ok = age_h >= tp.min_age_reuse or still
+    stale_max = tp.max_frames
+    if tp.stochastic != 0 and not still:
+        stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
+    if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
         out_color[y, x] = hc
         out_filled[y, x] = wp.uint8(1)
         hist_color[i] = hc

@@ -14,7 +14,8 @@ __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 # once it has accumulated this many frames: a younger history is a noisy sample or two, blurred by resampling,
 # and the reconstruction from this frame's neighbouring samples (a spatial average) is closer (H100, cornell
 # with 4 AO rays in motion: history of 1-3 frames lost up to 1.5 dB). On a still view any age is kept: there
-# each pixel's own past samples beat an interpolation of this frame's sparse ones.
+# each pixel's own past samples beat an interpolation of this frame's sparse ones. Moving stochastic history
+# is also dropped after max_history_frames / 2 reprojections (its repeated bilinear resampling blurs it).
 STOCHASTIC_MIN_AGE = 4
 
 
