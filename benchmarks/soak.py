@@ -240,7 +240,7 @@ def main() -> int:
         "nan_checks": checks, "nan_frames": nan_frames, "sampling_rate_mean": float(np.mean(rates)),
         "verdict": verdict, "row": row,
         "method": "frame ms = host perf_counter between wp.synchronize_device calls around FrameLoop.render "
-                  "(timing=False, policy="foveated"); statistics over the frames after warm-up; memory sampled every check_every "
+                  "(timing=False, policy='foveated'); statistics over the frames after warm-up; memory sampled every check_every "
                   "frames after warm-up with the device idle and after gc.collect()",
     }
     mem_cols = "memory_growth_bytes"
