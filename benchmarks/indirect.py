@@ -1,28 +1,39 @@
-"""Indirect light (ALGORITHMS.md C): the light quad-tree against the exact all-VPL sum and Poisson-sampled RSM.
+"""Indirect light (ALGORITHMS.md C): the light tree against the sampled RSM at equal PERCEIVED quality, moving light.
 
-For ``cornell`` and ``bunny-in-box`` (skipped when the bunny mesh is absent) at 1920x1080 with a 256^2 RSM
-(``--quick``: 96x54, RSM 64), the receivers are the G-buffer hit pixels of the scene's default camera.
-Per method:
-  * ``ms_gather``: median ms of ``IndirectStage.run_full`` (the gather at every hit pixel);
-  * ``ms_static``: an indirect frame with the light and geometry static (``update()`` skips the build);
-  * ``ms_dynamic``: an indirect frame that rebuilds the RSM, pyramid and cut (or sample list) every frame;
-  * ``ms_frame_static`` / ``ms_frame_dynamic``: the same plus the reference frame (G-buffer, direct shading
-    with shadow rays, tone map) of ``FrameLoop.render_reference``;
-  * ``rel_err``: relative L2 error of the indirect radiance against the exact sum over the receivers. The
-    exact sum (N^2 VPLs per receiver) is computed on every ``--exact-stride``-th hit pixel (default: every
-    pixel with ``--quick`` or on CUDA, every 16th on the CPU at full size); the errors of all methods are
-    measured on that same subset.
-Methods: the light tree with limit levels 6, 5, 4 (level L has 2^L x 2^L nodes) and threshold sets
-(depth 0.05, normal 0.9) [the paper's] and (0.25, 0.6) [looser], start level 3; the paper's per-receiver
-traversal for the first set; RSM sampling with 256, 1024, 2040 samples (+ 4096, 8192 at full size, so that
-the equal-error comparison interpolates rather than extrapolates).
-Comparisons: for each tree row, the sampled RSM at EQUAL ERROR (samples from log error vs log samples,
-piecewise linear; ms piecewise linear in samples, proportional to samples outside the measured range) and
-at EQUAL TIME (samples at the tree's ms_static, then the error there); "extrapolated" marks targets
-outside the measured sample counts. Paper claims to check on the GPU: tree >= 7x faster than sampling at equal error; static frames
->= 1.5x faster than rebuilt ones.
-
-On CUDA the frames are replayed as CUDA graphs (``--no-graphs`` to launch kernels one by one).
+What a viewer sees. For each scene (``cornell``, ``bunny-in-box``, ``teapot-in-box``: the Cornell box with the
+teapot mesh in place of the bunny; mesh scenes are skipped when the mesh is absent) and each RSM size
+(``--rsm``, default 256,512 on CUDA), the scene's spot light moves along an arc over ``--frames`` frames (default
+8): its position turns about the vertical through its rest position (radius 15% of the scene extent, -60 to +60
+degrees), aimed at a fixed point 1.5 m along its rest axis, so the RSM and every VPL move every frame. Per
+frame, every method renders the full frame, direct (``FrameLoop.render_reference``, shadow rays) + indirect,
+tone-mapped (the frame loop's Hable operator), and is compared with the same frame with the EXACT all-VPL
+indirect sum:
+  * ``flip``: mean FLIP (NVIDIA ``flip-evaluator``, LDR, sRGB inputs, pixels per degree 67 x eval_width / 1920:
+    the eval frame seen at the size of a 1080p frame at FLIP's default 67 ppd); absent: ``null`` and the
+    equal-FLIP columns are skipped (no other metric stands in for it);
+  * ``ssim`` (scikit-image, channel-wise, data range 1; 1 - SSIM is reported as ``dssim``) and ``rel_l2`` of the
+    tone-mapped frame;
+  * ``flicker``: ``sum |(F_t - F_t-1) - (E_t - E_t-1)| / sum |E_t - E_t-1|`` over all pixels and frame pairs (F the
+    method's tone-mapped frames, E the exact ones): 0 when the error does not change from frame to frame.
+Sizes. The quality metrics are measured on frames of ``--eval-size`` (default 480x270 on CUDA: the exact sum
+over 512^2 VPLs at 1080p would be 5e11 VPL terms per frame); the timings on frames of ``--size`` (default
+1920x1080 on CUDA): ``ms_gather`` (``run_full`` over every hit pixel), ``ms_rebuild`` (``build``: RSM trace +
+pyramid + cut, or RSM trace + sample list) and ``ms_frame = ms_gather + ms_rebuild`` (the light moves every
+frame). CUDA graphs replay the launches unless ``--no-graphs``.
+Methods: ``exact``; tree variants (``--variants``: the default ``IndirectConfig`` first, then the paper's point
+clusters without refinement, the extended emitters without refinement, other refinement settings and limit
+levels); the Poisson-sampled RSM on a geometric ladder of sample counts (x2 from 64 to rsm^2 / 2; timings above
+``--max-timed`` samples are extrapolated linearly in the sample count from the two largest timed counts, and
+say so).
+Comparisons per tree variant: the sample count at which the sampled RSM's FLIP (and flicker) equals the tree's
+(piecewise linear in log samples vs log metric, at the first ladder step that reaches it; a tree better than
+every ladder point is reported as a lower bound ``>=``), the sampled ``ms_frame`` there, and the time ratio
+``speedup = sampled ms_frame / tree ms_frame`` (rebuild counted: the light moves every frame);
+``gather_speedup`` is the same ratio of ``ms_gather`` alone (a static light); ``count_speedup`` is the equal-quality
+sample count over the tree's ``sample_equiv`` (its gather time in sampled VPLs, timed interleaved with a
+1024-sample gather: robust to a shared machine's load, and the figure to read on the CPU).
+Side-by-side image (``indirect-side-by-side-{cpu,cuda}.png``): per scene at the first RSM size, the last frame:
+exact | tree (default) | sampled RSM at the tree's ``ms_frame`` (equal time), and below it |difference| x 8.
 
 python benchmarks/indirect.py --device cuda:0
 """
@@ -30,7 +41,11 @@ python benchmarks/indirect.py --device cuda:0
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
 import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -38,10 +53,159 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_results  # noqa: E402
 
-THRESHOLDS = ((0.05, 0.9), (0.25, 0.6))
-LIMITS = (6, 5, 4)
+# (label, IndirectConfig overrides); the first is the default config
+VARIANTS = {
+    "default": {},  # start 4, limit 6, extended emitters (scale 1.0), refinement t0.02 b256
+    "point L4 (paper)": dict(start_level=3, limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
+    "extended L4": dict(start_level=3, limit_level=4, refine_budget=0),
+    "extended L6": dict(refine_budget=0),
+    "L5 refine t0.02 b256": dict(limit_level=5),
+    "L6 refine t0.02 b64": dict(refine_budget=64),
+    "L6 refine t0.01 b1024": dict(refine_threshold=0.01, refine_budget=1024),
+    "extended L6 s1.5": dict(cluster_radius_scale=1.5, refine_budget=0),
+    "L7 refine t0.02 b256": dict(limit_level=7),
+    # calibration only (not in the default set)
+    "default n0.97": dict(normal_threshold=0.97),
+    "default r0.15": dict(refine_min_ratio=0.15),
+    "default s0.7": dict(cluster_radius_scale=0.7),
+}
+DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "L5 refine t0.02 b256",
+                    "L6 refine t0.02 b64", "L6 refine t0.01 b1024", "extended L6 s1.5", "L7 refine t0.02 b256")
+QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L6")
+
+
+# ---------------------------------------------------------------------------------------------------
+# metrics (run in worker processes)
+
+
+def _flip(ref, test, ppd):
+    try:
+        import flip_evaluator
+    except ImportError:
+        return None
+    _, mean, _ = flip_evaluator.evaluate(ref, test, "LDR", inputsRGB=True, applyMagma=False,
+                                         computeMeanError=True, parameters={"ppd": float(ppd)})
+    return float(mean)
+
+
+def _frame_metrics(ref, test, ppd, use_flip=True):
+    from skimage.metrics import structural_similarity
+
+    ref = np.clip(ref, 0.0, 1.0).astype(np.float32)
+    test = np.clip(test, 0.0, 1.0).astype(np.float32)
+    ssim = float(structural_similarity(ref, test, channel_axis=2, data_range=1.0))
+    rel = float(np.linalg.norm(test - ref) / max(np.linalg.norm(ref), 1e-30))
+    return {"flip": _flip(ref, test, ppd) if use_flip else None, "ssim": ssim, "rel_l2": rel}
+
+
+def flip_available() -> bool:
+    try:
+        import flip_evaluator  # noqa: F401
+
+        return True
+    except ImportError:
+        return False
+
+
+# ---------------------------------------------------------------------------------------------------
+# equal-quality solve
+
+
+def crossing(ns, vals, target):
+    """Sample count where the ladder's metric (decreasing in n, roughly) first reaches ``target``:
+    (n, bound) with bound "" (interpolated in log n vs log metric), ">=" (the target is below every ladder
+    value: n is the largest count, a lower bound) or "<=" (the target is above the first value: n is the
+    smallest count, an upper bound)."""
+    ns = np.asarray(ns, float)
+    vals = np.maximum(np.asarray(vals, float), 1e-12)
+    o = np.argsort(ns)
+    ns, vals = ns[o], vals[o]
+    target = max(float(target), 1e-12)
+    if vals[0] <= target:
+        return float(ns[0]), "<="
+    for i in range(1, len(ns)):
+        if vals[i] <= target:
+            a, b = math.log(vals[i - 1]), math.log(vals[i])
+            t = 0.0 if a == b else (a - math.log(target)) / (a - b)
+            return float(math.exp(math.log(ns[i - 1]) + t * (math.log(ns[i]) - math.log(ns[i - 1])))), ""
+    return float(ns[-1]), ">="
+
+
+def ms_at(ns, ms, n):
+    """Sampled ms_frame at n samples: piecewise linear between ladder points, linear beyond the ends."""
+    ns, ms = np.asarray(ns, float), np.asarray(ms, float)
+    o = np.argsort(ns)
+    ns, ms = ns[o], ms[o]
+    if ns[0] <= n <= ns[-1]:
+        return float(np.interp(n, ns, ms))
+    i = 0 if n < ns[0] else len(ns) - 2
+    slope = (ms[i + 1] - ms[i]) / max(ns[i + 1] - ns[i], 1e-30)
+    return float(max(ms[i] + (n - ns[i]) * slope, 1e-6))
+
+
+def n_at_ms(ns, ms, target):
+    """Sample count whose sampled ms_frame equals ``target`` (ms increasing in n), at least 1."""
+    ns, ms = np.asarray(ns, float), np.asarray(ms, float)
+    o = np.argsort(ns)
+    ns, ms = ns[o], ms[o]
+    if ms[0] <= target <= ms[-1]:
+        return max(1.0, float(np.interp(target, ms, ns)))
+    i = 0 if target < ms[0] else len(ns) - 2
+    slope = (ns[i + 1] - ns[i]) / max(ms[i + 1] - ms[i], 1e-30)
+    return max(1.0, float(ns[i] + (target - ms[i]) * slope))
+
+
+# ---------------------------------------------------------------------------------------------------
+# scene, light path
+
+
+def load_named(name):
+    import foveawarp as fw
+    from foveawarp.scene import find_named_mesh
+    from foveawarp.scenes import bunny_in_box
+
+    if name == "teapot-in-box":
+        p = find_named_mesh("teapot")
+        if p is None:
+            raise ValueError("teapot-in-box needs teapot.obj in the shared scene folder")
+        return bunny_in_box(path=p)
+    return fw.load_scene(name)
+
+
+def arc_light(light0, extent, t, frames):
+    """The spot light of frame t: turned about the vertical through its rest position, aimed at a fixed point."""
+    import foveawarp as fw
+
+    p0 = np.asarray(light0.position, float)
+    d0 = np.asarray(light0.direction, float)
+    target = p0 + 1.5 * d0
+    phi = math.radians(-60.0 + 120.0 * t / max(frames - 1, 1))
+    r = 0.15 * extent
+    p = p0 + r * np.array([math.sin(phi), 0.0, math.cos(phi) - 1.0])
+    return fw.Light(kind=light0.kind, position=tuple(p), direction=tuple(target - p), cone_deg=light0.cone_deg,
+                    intensity=light0.intensity, penumbra=light0.penumbra)
+
+
+def set_light(ds, idx, light):
+    """Replace light ``idx`` of the DeviceScene's host scene and its device copy (the same conversion as
+    DeviceScene)."""
+    from foveawarp.kernels.shade import LightParams
+
+    ds.scene.lights[idx] = light
+    ps = []
+    for l in ds.scene.lights:
+        p = LightParams()
+        p.kind = 0 if l.kind == "point" else 1
+        p.position = wp.vec3(*l.position)
+        p.direction = wp.vec3(*l.direction)
+        outer = math.radians(min(l.cone_deg, 180.0))
+        p.cos_outer = math.cos(outer)
+        p.cos_inner = math.cos(outer * (1.0 - l.penumbra))
+        p.intensity = wp.vec3(*l.intensity)
+        ps.append(p)
+    ds.lights = wp.array(ps, dtype=LightParams, device=ds.device)
 
 
 def _graph_or_plain(fn, dev, use_graphs):
@@ -59,199 +223,304 @@ def _graph_or_plain(fn, dev, use_graphs):
         return fn, False
 
 
-def _lerp(x, y, t):
-    """Piecewise-linear y(t) through the points (x, y) sorted by x, extended linearly by the end segments.
-    Returns (value, extrapolated)."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    o = np.argsort(x)
-    x, y = x[o], y[o]
-    if x[0] <= t <= x[-1]:
-        return float(np.interp(t, x, y)), False
-    i = 0 if t < x[0] else len(x) - 2
-    slope = (y[i + 1] - y[i]) / ((x[i + 1] - x[i]) or 1e-30)
-    return float(y[i] + (t - x[i]) * slope), True
+# ---------------------------------------------------------------------------------------------------
 
 
-def _ms_at(samples, ms, n):
-    """ms of the sampled RSM at n samples: piecewise linear between measurements; outside, proportional to n
-    from the nearest measurement (the gather is linear in the sample count)."""
-    s, m = np.asarray(samples, float), np.asarray(ms, float)
-    if s.min() <= n <= s.max():
-        return float(np.interp(n, s, m))
-    j = int(np.argmin(s)) if n < s.min() else int(np.argmax(s))
-    return float(m[j] * n / s[j])
-
-
-def equal_error(samples, errs, ms, target_err):
-    """(samples, sampled ms, extrapolated) where the sampled RSM's error equals ``target_err``
-    (log error vs log samples, piecewise linear)."""
-    ls, ext = _lerp(np.log(np.maximum(errs, 1e-30)), np.log(samples), math.log(max(target_err, 1e-30)))
-    n = math.exp(ls)
-    return n, _ms_at(samples, ms, n), ext
-
-
-def equal_time(samples, errs, ms, target_ms):
-    """(samples, sampled error, extrapolated) where the sampled RSM's time equals ``target_ms``."""
-    s, m = np.asarray(samples, float), np.asarray(ms, float)
-    if m.min() <= target_ms <= m.max():
-        n, ext = _lerp(m, s, target_ms)
-    else:
-        j = int(np.argmin(m)) if target_ms < m.min() else int(np.argmax(m))
-        n, ext = s[j] * target_ms / max(m[j], 1e-30), True
-    le, ext2 = _lerp(np.log(samples), np.log(np.maximum(errs, 1e-30)), math.log(max(n, 1.0)))
-    return n, math.exp(le), ext or ext2
-
-
-def bench_scene(name, args, dev):
+def bench(name, n, args, dev, pool, sizes):
     import foveawarp as fw
     from foveawarp.config import IndirectConfig
+    from foveawarp.kernels.tonemap import tonemap_kernel
     from foveawarp.stages.indirect import IndirectStage
 
     try:
-        scene = fw.load_scene(name)
+        scene = load_named(name)
     except ValueError as e:
         print(f"skip {name}: {e}")
         return None
-    w, h = (96, 54) if args.quick else (1920, 1080)
-    n = args.rsm or (64 if args.quick else 256)
-    repeats = args.repeats or (3 if args.quick else 20)
-    warmup = args.warmup
-    loop = fw.FrameLoop(scene, w, h, device=dev, timing=False)
-    loop.render_reference(scene.camera)
-    g = loop.gbuffer
-    hit = g.hit.numpy().reshape(-1).astype(bool)
-    idx = np.flatnonzero(hit)
-    stride = args.exact_stride or (1 if (args.quick or dev.is_cuda) else 16)
-    sub = idx[::stride]
-    P = g.position.numpy().reshape(-1, 3)[sub]
-    N = g.normal.numpy().reshape(-1, 3)[sub]
-    A = g.albedo.numpy().reshape(-1, 3)[sub]
-    rp, rn, ra = (wp.array(a, dtype=wp.vec3, device=dev) for a in (P, N, A))
-    out = wp.zeros(len(sub), dtype=wp.vec3, device=dev)
-    scratch = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    print(f"{name}: {w}x{h}, {idx.size} hit pixels, RSM {n}^2, exact on {len(sub)} receivers (stride {stride})")
-
-    def base_frame():
-        loop.render_reference(scene.camera)
-
-    t_base = time_ms(base_frame, dev, repeats, warmup)["median_ms"]
-
-    def measure(label, cfg, method, **kw):
-        st = IndirectStage(loop.dscene, cfg, dev, method=method, **kw)
-        st.update()
-        st.run_points(rp, rn, ra, out)
-        res = out.numpy().astype(np.float64)
-        k = st.cluster_count()
-        gather, gg = _graph_or_plain(lambda: st.run_full(g, scratch), dev, not args.no_graphs)
-        dyn, _ = _graph_or_plain(lambda: (st.build(), st.run_full(g, scratch)), dev, not args.no_graphs)
-        build, _ = _graph_or_plain(st.build, dev, not args.no_graphs)
-        reps = repeats if method != "exact" else max(1, min(repeats, 3))
-        wu = warmup if method != "exact" else 1
-
-        def static_frame():
-            st.update()
-            gather()
-
-        t_g = time_ms(gather, dev, reps, wu)["median_ms"]
-        t_s = time_ms(static_frame, dev, reps, wu)["median_ms"]
-        t_d = time_ms(dyn, dev, reps, wu)["median_ms"]
-        t_b = time_ms(build, dev, reps, wu)["median_ms"]
-        t_fs = time_ms(lambda: (base_frame(), static_frame()), dev, reps, wu)["median_ms"]
-        t_fd = time_ms(lambda: (base_frame(), dyn()), dev, reps, wu)["median_ms"]
-        row = {"scene": name, "method": label, "clusters": k, "ms_gather": t_g, "ms_build": t_b, "ms_static": t_s,
-               "ms_dynamic": t_d, "dyn_over_static": t_d / max(t_s, 1e-9), "ms_frame_static": t_fs,
-               "ms_frame_dynamic": t_fd, "frame_dyn_over_static": t_fd / max(t_fs, 1e-9), "graphs": gg}
-        return row, res
-
-    rows = []
-    exact_cfg = IndirectConfig(rsm_size=n, start_level=0, limit_level=0)
-    row, exact = measure("exact", exact_cfg, "exact")
-    row["rel_err"] = 0.0
-    rows.append(row)
-    ex_norm = max(float(np.linalg.norm(exact)), 1e-30)
+    (tw, th), (ew, eh) = sizes
+    frames = args.frames
+    variants = [v for v in (args.variants.split(",") if args.variants else
+                            (QUICK_VARIANTS if args.quick else DEFAULT_VARIANTS)) if v]
+    for v in variants:
+        if v not in VARIANTS:
+            raise SystemExit(f"unknown variant {v!r}; known: {', '.join(VARIANTS)}")
+    ladder = []
+    s = 64
+    while s <= (n * n) // 2 and s <= args.max_samples:
+        ladder.append(s)
+        s *= 2
+    repeats = args.repeats or (3 if args.quick else 10)
     leaf = int(round(math.log2(n)))
+    cfgs = {}
+    for v in variants:  # levels clamped to the leaves of small RSMs
+        kw = {**IndirectConfig().__dict__, **VARIANTS[v], "rsm_size": n}
+        kw["limit_level"] = min(kw["limit_level"], leaf)
+        kw["start_level"] = min(kw["start_level"], kw["limit_level"])
+        cfgs[v] = IndirectConfig(**kw)
+    base = IndirectConfig(rsm_size=n, start_level=0, limit_level=0)  # exact and sampled: levels unused
 
-    def err(res):
-        return float(np.linalg.norm(res - exact) / ex_norm)
+    # --- timing at the timing size (static camera; build() is the moving light's per-frame rebuild) ----
+    tl = fw.FrameLoop(scene, tw, th, device=dev, timing=False)
+    tl.render_reference(scene.camera)
+    scratch = wp.zeros((th, tw), dtype=wp.vec3, device=dev)
+    timings = {}
+    n_ref = min(1024, (n * n) // 2)
+    ref_st = IndirectStage(tl.dscene, base, dev, method="sampled", samples=n_ref, seed=args.seed)
+    ref_st.update(force=True)
+    ref_gather, _ = _graph_or_plain(lambda: ref_st.run_full(tl.gbuffer, scratch), dev, not args.no_graphs)
 
-    tree_rows = []
-    for dthr, nthr in THRESHOLDS:
-        for lim in LIMITS:
-            lim_ = min(lim, leaf)
-            cfg = IndirectConfig(rsm_size=n, depth_threshold=dthr, normal_threshold=nthr, start_level=min(3, lim_),
-                                 limit_level=lim_)
-            methods = [("lighttree", "tree")]
-            if (dthr, nthr) == THRESHOLDS[0]:
-                methods.append(("traverse", "tree-per-receiver"))
-            for method, tag in methods:
-                row, res = measure(f"{tag} L{lim_} d{dthr} n{nthr}", cfg, method)
-                row.update(limit_level=lim_, depth_threshold=dthr, normal_threshold=nthr, rel_err=err(res))
-                rows.append(row)
-                if method == "lighttree":
-                    tree_rows.append(row)
-    samples = [256, 1024, 2040] + ([] if args.quick else [4096, 8192])
-    samples = [s for s in samples if s <= n * n]
-    samp_rows = []
-    for s in samples:
-        cfg = IndirectConfig(rsm_size=n, start_level=0, limit_level=0)
-        row, res = measure(f"sampled {s}", cfg, "sampled", samples=s, seed=args.seed)
-        row.update(samples=s, rel_err=err(res))
+    def once(fn):
+        wp.synchronize_device(dev)
+        t0 = time.perf_counter()
+        fn()
+        wp.synchronize_device(dev)
+        return time.perf_counter() - t0
+
+    def sample_equivalents(gather, reps):
+        """The tree gather's cost in sampled VPLs: median over interleaved pairs of (tree gather time / time of
+        the ``n_ref``-sample gather) x n_ref; interleaving cancels slow drifts of a shared machine's load."""
+        ratios = []
+        for _ in range(max(reps, 5)):
+            a = once(gather)
+            b = once(ref_gather)
+            ratios.append(a / max(b, 1e-12))
+        return float(np.median(ratios)) * n_ref
+
+    def time_stage(label, cfg, method, reps, **kw):
+        st = IndirectStage(tl.dscene, cfg, dev, method=method, **kw)
+        st.update(force=True)
+        gather, gg = _graph_or_plain(lambda: st.run_full(tl.gbuffer, scratch), dev, not args.no_graphs)
+        build, _ = _graph_or_plain(st.build, dev, not args.no_graphs)
+        tgd = time_ms(gather, dev, reps, min(args.warmup, reps))
+        tg = tgd["median_ms"]
+        tb = time_ms(build, dev, reps, min(args.warmup, reps))["median_ms"]
+        timings[label] = {"ms_gather": tg, "ms_gather_p10": tgd["p10_ms"], "ms_rebuild": tb, "ms_frame": tg + tb,
+                          "clusters": st.cluster_count(), "graphs": gg, "timed": True}
+        if method == "lighttree":
+            timings[label]["sample_equiv"] = sample_equivalents(gather, reps)
+
+    for v in variants:
+        time_stage(v, cfgs[v], "lighttree", repeats)
+    for s in ladder:
+        if s <= args.max_timed:
+            time_stage(f"sampled {s}", base, "sampled", repeats, samples=s, seed=args.seed)
+    timed = [s for s in ladder if s <= args.max_timed]
+    for s in ladder:
+        if s > args.max_timed:  # linear in the sample count through the two largest timed counts
+            a, b = timed[-2], timed[-1]
+            ta, tb_ = timings[f"sampled {a}"], timings[f"sampled {b}"]
+            k = (s - b) / (b - a)
+            tg = tb_["ms_gather"] + k * (tb_["ms_gather"] - ta["ms_gather"])
+            timings[f"sampled {s}"] = {"ms_gather": tg, "ms_rebuild": tb_["ms_rebuild"],
+                                       "ms_frame": tg + tb_["ms_rebuild"], "clusters": s, "graphs": False,
+                                       "timed": False}
+    del tl
+
+    # --- quality at the eval size over the moving-light frames --------------------------------------------
+    el = fw.FrameLoop(scene, ew, eh, device=dev, timing=False)
+    ds = el.dscene
+    li = IndirectStage(ds, base, dev, method="exact").light_index
+    light0 = ds.scene.lights[li]
+    ext = float(ds.extent)
+    sc = el.config.shading
+    methods = [("exact", base, "exact", {})] + [(v, cfgs[v], "lighttree", {}) for v in variants] + \
+              [(f"sampled {s}", base, "sampled", {"samples": s, "seed": args.seed}) for s in ladder]
+    stages = {lab: IndirectStage(ds, cfg, dev, method=m, **kw) for lab, cfg, m, kw in methods}
+    hdr = wp.zeros((eh, ew), dtype=wp.vec3, device=dev)
+    ldr = wp.zeros((eh, ew), dtype=wp.vec3, device=dev)
+    ppd = 67.0 * ew / 1920.0
+    futures = {lab: [] for lab in stages}
+    prev = {}
+    flick_num = {lab: 0.0 for lab in stages}
+    flick_den = 0.0
+    last = {}
+    try:
+        for t in range(frames):
+            set_light(ds, li, arc_light(light0, ext, t, frames))
+            el.render_reference(scene.camera)
+            direct = wp.clone(el.radiance)
+            imgs = {}
+            for lab, st in stages.items():
+                st.update()
+                wp.copy(hdr, direct)
+                st.run_full(el.gbuffer, hdr)
+                fw.parallel.launch(tonemap_kernel, dim=(eh, ew), inputs=[hdr, float(sc.exposure),
+                                   float(sc.white_point)], outputs=[ldr], device=dev)
+                imgs[lab] = ldr.numpy().astype(np.float32)
+            ex = imgs["exact"]
+            if t > 0:
+                de = ex - prev["exact"]
+                flick_den += float(np.abs(de).sum())
+                for lab in stages:
+                    flick_num[lab] += float(np.abs((imgs[lab] - prev[lab]) - de).sum())
+            for lab in stages:
+                if lab != "exact":
+                    futures[lab].append(pool.submit(_frame_metrics, ex, imgs[lab], ppd, args.have_flip))
+            prev = imgs
+            if t == frames - 1:
+                last = {"exact": ex, "tree": imgs[variants[0]]}
+    finally:
+        set_light(ds, li, light0)
+    rows = []
+    for lab, cfg, m, kw in methods:
+        if lab == "exact":
+            continue
+        res = [f.result() for f in futures[lab]]
+        flips = [r["flip"] for r in res]
+        row = {"scene": name, "rsm": n, "method": lab, "kind": "tree" if m == "lighttree" else "sampled",
+               "flip": None if any(f is None for f in flips) else float(np.mean(flips)),
+               "dssim": float(np.mean([1.0 - r["ssim"] for r in res])),
+               "rel_l2": float(np.mean([r["rel_l2"] for r in res])),
+               "flicker": flick_num[lab] / max(flick_den, 1e-30)}
+        row.update(timings[lab])
+        if m == "sampled":
+            row["samples"] = kw["samples"]
+        else:
+            row["config"] = {k: getattr(cfg, k) for k in ("start_level", "limit_level", "cluster_radius_scale",
+                                                          "refine_threshold", "refine_budget", "refine_min_ratio")}
         rows.append(row)
-        samp_rows.append(row)
 
+    samp = [r for r in rows if r["kind"] == "sampled"]
+    ns = [r["samples"] for r in samp]
+    msf = [r["ms_frame"] for r in samp]
+    msg = [r["ms_gather"] for r in samp]
     comps = []
-    if len(samp_rows) >= 2:
-        ss = [r["samples"] for r in samp_rows]
-        es = [r["rel_err"] for r in samp_rows]
-        ms = [r["ms_static"] for r in samp_rows]
-        msd = [r["ms_dynamic"] for r in samp_rows]
-        for r in tree_rows:
-            n_eq, ms_eq, ext = equal_error(ss, es, ms, r["rel_err"])
-            _, msd_eq, _ = equal_error(ss, es, msd, r["rel_err"])
-            n_t, e_t, ext_t = equal_time(ss, es, ms, r["ms_static"])
-            comps.append({"scene": name, "tree": r["method"], "tree_err": r["rel_err"], "tree_ms_static": r["ms_static"],
-                          "eq_err_samples": n_eq, "eq_err_sampled_ms_static": ms_eq,
-                          "speedup_static": ms_eq / max(r["ms_static"], 1e-9),
-                          "speedup_dynamic": msd_eq / max(r["ms_dynamic"], 1e-9),
-                          "eq_err_extrapolated": ext, "eq_time_samples": n_t, "eq_time_sampled_err": e_t,
-                          "eq_time_err_ratio": e_t / max(r["rel_err"], 1e-30), "eq_time_extrapolated": ext_t})
-    return {"scene": name, "width": w, "height": h, "rsm_size": n, "hit_pixels": int(idx.size),
-            "exact_receivers": int(len(sub)), "exact_stride": int(stride), "ms_base_frame": t_base,
-            "rows": rows, "comparisons": comps}
+    for r in rows:
+        if r["kind"] != "tree":
+            continue
+        c = {"scene": name, "rsm": n, "tree": r["method"], "tree_ms_frame": r["ms_frame"], "tree_flip": r["flip"],
+             "tree_flicker": r["flicker"]}
+        for key in ("flip", "flicker", "dssim"):
+            if r[key] is None or any(x[key] is None for x in samp):
+                c[f"eq_{key}_samples"] = c[f"eq_{key}_bound"] = c[f"speedup_eq_{key}"] = None
+                continue
+            n_eq, bound = crossing(ns, [x[key] for x in samp], r[key])
+            ms_eq = ms_at(ns, msf, n_eq)
+            c[f"eq_{key}_samples"] = n_eq
+            c[f"eq_{key}_bound"] = bound
+            c[f"eq_{key}_sampled_ms"] = ms_eq
+            c[f"speedup_eq_{key}"] = ms_eq / max(r["ms_frame"], 1e-9)
+            c[f"gather_speedup_eq_{key}"] = ms_at(ns, msg, n_eq) / max(r["ms_gather"], 1e-9)
+            c[f"count_speedup_eq_{key}"] = n_eq / max(r["sample_equiv"], 1e-9)
+        comps.append(c)
+
+    # the side-by-side: sampled RSM at the default tree's ms_frame, last frame
+    tree0 = next(r for r in rows if r["method"] == variants[0])
+    n_time = int(round(min(n_at_ms(ns, msf, tree0["ms_frame"]), n * n)))
+    set_light(ds, li, arc_light(light0, ext, frames - 1, frames))
+    try:
+        el.render_reference(scene.camera)
+        st = IndirectStage(ds, base, dev, method="sampled", samples=n_time, seed=args.seed)
+        st.update()
+        wp.copy(hdr, el.radiance)
+        st.run_full(el.gbuffer, hdr)
+        fw.parallel.launch(tonemap_kernel, dim=(eh, ew), inputs=[hdr, float(sc.exposure), float(sc.white_point)],
+                           outputs=[ldr], device=dev)
+        last["sampled"] = ldr.numpy().astype(np.float32)
+    finally:
+        set_light(ds, li, light0)
+    return {"scene": name, "rsm": n, "size": [tw, th], "eval_size": [ew, eh], "frames": frames, "ladder": ladder,
+            "hit_pixels_eval": int(el.gbuffer.hit.numpy().sum()), "flip_ppd": ppd, "rows": rows,
+            "comparisons": comps, "equal_time_samples": n_time}, last
+
+
+def side_by_side(panels):
+    """Rows per scene: exact | tree | sampled (equal time), then |difference from exact| x 8."""
+    blocks = []
+    for p in panels:
+        ex, tr, sa = p["exact"], p["tree"], p["sampled"]
+        top = np.concatenate([ex, tr, sa], axis=1)
+        diff = lambda a: np.clip(8.0 * np.abs(a - ex), 0.0, 1.0)  # noqa: E731
+        bot = np.concatenate([np.zeros_like(ex), diff(tr), diff(sa)], axis=1)
+        blocks += [top, bot]
+    return (np.clip(np.concatenate(blocks, axis=0), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def main(argv=None):
     p = base_parser(__doc__.splitlines()[0])
-    p.add_argument("--scenes", default="cornell,bunny-in-box")
-    p.add_argument("--rsm", type=int, default=None, help="RSM edge (default 256; --quick 64)")
-    p.add_argument("--exact-stride", type=int, default=None, help="exact sum on every k-th hit pixel")
+    p.add_argument("--scenes", default="cornell,bunny-in-box,teapot-in-box")
+    p.add_argument("--rsm", default=None, help="RSM edges, comma separated (CUDA: 256,512; CPU: 64,128; --quick 32)")
+    p.add_argument("--size", default=None, help="timing frame WxH (CUDA 1920x1080, CPU 240x135, --quick 96x54)")
+    p.add_argument("--eval-size", default=None, help="quality frame WxH (CUDA 480x270, CPU 240x135, --quick 96x54)")
+    p.add_argument("--frames", type=int, default=8, help="frames of the moving light (>= 2)")
+    p.add_argument("--variants", default=None, help=f"tree variants, comma separated, of: {', '.join(VARIANTS)}")
+    p.add_argument("--max-samples", type=int, default=1 << 16, help="largest sampled-RSM count of the ladder")
+    p.add_argument("--max-timed", type=int, default=1 << 13,
+                   help="ladder counts above this are timed by linear extrapolation in the sample count")
+    p.add_argument("--workers", type=int, default=None, help="metric worker processes (default: cores, <= 8)")
     p.add_argument("--seed", type=int, default=0, help="Poisson-disk pattern seed")
     p.add_argument("--no-graphs", action="store_true", help="no CUDA graph replay")
     args = p.parse_args(argv)
+    if args.frames < 2:
+        raise SystemExit("--frames must be >= 2")
     import foveawarp as fw  # noqa: F401  (initializes warp quietly)
     from foveawarp._util import get_device
 
     dev = get_device(args.device)
-    results = []
-    for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
-        r = bench_scene(name, args, dev)
-        if r is not None:
-            results.append(r)
-    cols = ["scene", "method", "clusters", "rel_err", "ms_gather", "ms_build", "ms_static", "ms_dynamic",
-            "dyn_over_static", "ms_frame_static", "ms_frame_dynamic", "frame_dyn_over_static"]
-    ccols = ["scene", "tree", "tree_err", "tree_ms_static", "eq_err_samples", "eq_err_sampled_ms_static",
-             "speedup_static", "speedup_dynamic", "eq_err_extrapolated", "eq_time_samples", "eq_time_sampled_err",
-             "eq_time_err_ratio"]
-    md = ""
-    for r in results:
-        md += (f"### {r['scene']} {r['width']}x{r['height']}, RSM {r['rsm_size']}^2, {r['hit_pixels']} receivers "
-               f"(exact on {r['exact_receivers']}), reference frame {r['ms_base_frame']:.3f} ms\n\n")
-        md += md_table(r["rows"], cols) + "\n"
-        if r["comparisons"]:
-            md += "Equal error / equal time against the sampled RSM:\n\n" + md_table(r["comparisons"], ccols) + "\n"
-    print(md)
-    path = write_results("indirect", dev, {"quick": bool(args.quick), "results": results}, md, out=args.out)
-    print(f"wrote {path}")
+    cuda = dev.is_cuda
+    wh = lambda s: tuple(int(x) for x in s.lower().split("x"))  # noqa: E731
+    size = wh(args.size) if args.size else ((96, 54) if args.quick else (1920, 1080) if cuda else (240, 135))
+    esize = wh(args.eval_size) if args.eval_size else ((96, 54) if args.quick else (480, 270) if cuda else (240, 135))
+    rsms = [int(x) for x in args.rsm.split(",")] if args.rsm else ([32] if args.quick else [256, 512] if cuda
+                                                                   else [64, 128])
+    have_flip = flip_available()
+    args.have_flip = have_flip
+    if not have_flip:
+        print("FLIP unavailable (pip install flip-evaluator, or .[bench]): flip columns are null, no equal-FLIP "
+              "comparison; dssim (1 - SSIM) is reported as a separate, labelled comparison")
+    workers = args.workers or max(1, min(8, (os.cpu_count() or 2)))
+    results, panels = [], []
+
+    def save(final):
+        """Write the JSON / markdown / side-by-side so far (after every scene and RSM size, so that a run cut
+        short by a time limit still leaves its finished parts)."""
+        md = (f"Indirect light, moving spot light: quality at {esize[0]}x{esize[1]} against the exact all-VPL sum "
+              f"(FLIP {'flip-evaluator' if have_flip else 'UNAVAILABLE'}), timing at {size[0]}x{size[1]} "
+              f"(ms_frame = gather + rebuild).{'' if final else ' PARTIAL: the run did not finish.'}\n\n")
+        for r in results:
+            md += (f"### {r['scene']}, RSM {r['rsm']}^2, {r['frames']} frames, {r['hit_pixels_eval']} hit pixels at "
+                   f"eval size, FLIP ppd {r['flip_ppd']:.2f}, sampled at equal time: {r['equal_time_samples']}\n\n")
+            md += md_table(r["rows"], cols) + "\n"
+            md += ("Equal FLIP / equal flicker / equal 1-SSIM against the sampled RSM (speedup = sampled ms_frame / "
+                   "tree ms_frame; bound '>=': the tree beats every ladder count, the ratio is a lower bound):\n\n")
+            md += md_table(r["comparisons"], ccols) + "\n"
+        payload = {"quick": bool(args.quick), "flip_available": have_flip, "size": list(size),
+                   "eval_size": list(esize), "complete": bool(final), "results": results}
+        path = write_results("indirect", dev, payload, md, out=args.out)
+        if panels:
+            import imageio.v3 as iio
+
+            folder = Path(args.out) if args.out else RESULTS
+            png = folder / f"indirect-side-by-side-{'cuda' if cuda else 'cpu'}.png"
+            iio.imwrite(png, side_by_side(panels))
+            if final:
+                print(f"wrote {png}")
+        if final:
+            print(md)
+            print(f"wrote {path}")
+
+    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
+            "ms_gather_p10", "ms_rebuild", "ms_frame", "timed"]
+    ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
+             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
+             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
+             "eq_dssim_samples", "speedup_eq_dssim"]
+    t_start = time.perf_counter()
+    # spawned (not forked) workers: the parent holds a CUDA context; the workers only run NumPy / FLIP / SSIM
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
+            for i, n in enumerate(rsms):
+                print(f"{name}: RSM {n}^2, timing {size[0]}x{size[1]}, quality {esize[0]}x{esize[1]}, "
+                      f"{args.frames} frames ({time.perf_counter() - t_start:.0f} s in)", flush=True)
+                out = bench(name, n, args, dev, pool, (size, esize))
+                if out is None:
+                    break
+                r, last = out
+                results.append(r)
+                if i == 0:
+                    panels.append(last)
+                save(False)
+    save(True)
 
 
 if __name__ == "__main__":

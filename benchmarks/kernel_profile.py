@@ -48,7 +48,7 @@ def main(argv=None):
         scene = fw.load_scene(name)
         for size in args.sizes.split(","):
             w, h = (int(v) for v in size.split("x"))
-            loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, graph=False)
+            loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, graph=False, policy="foveated")
 
             def fov(i):
                 t = (i + 1) / 30.0

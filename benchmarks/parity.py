@@ -84,7 +84,7 @@ def render_sequence(fw, device, s: dict) -> dict:
     scene = fw.load_scene(s["scene"], motion=True) if s["motion"] else fw.load_scene(s["scene"])
     cfg = fw.Config().with_(shading={"ao_samples": int(s["ao_samples"])})
     w, h = int(s["width"]), int(s["height"])
-    loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, timing=False)
+    loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, timing=False, policy="foveated")
     out = {}
     rates = []
     frame = cam = t = None

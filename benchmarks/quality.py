@@ -71,7 +71,7 @@ def pareto(points):
 def run_scene(fw, scene, w, h, dev, frames, metric_every, settings, pool, base_cfg):
     rows = []
     fov = scene.camera.fov_y_deg
-    ref_loop = fw.FrameLoop(scene, w, h, config=base_cfg, device=dev, timing=False)
+    ref_loop = fw.FrameLoop(scene, w, h, config=base_cfg, device=dev, timing=False, policy="foveated")
     refs = {}
     for i in range(0, frames, metric_every):
         t = i / 30.0
@@ -79,7 +79,7 @@ def run_scene(fw, scene, w, h, dev, frames, metric_every, settings, pool, base_c
     ref_ms = time_ms(lambda: ref_loop.render_reference(scene.camera_at(0.0), time=0.0), dev, 5, 1)["median_ms"]
     for name, over in settings.items():
         cfg = base_cfg.with_(**over) if over else base_cfg
-        loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+        loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
         jobs, rates, hits, ms = [], [], [], []
         for i in range(frames):
             t = i / 30.0
@@ -128,21 +128,21 @@ def timing_4k(fw, dev, repeats, quick, scene_name=None, settings=None, size=None
 
         row = {"scene": scene.name, "resolution": f"{w}x{h}", "shading": label, "overrides": over}
         for tag, graph in (("foveated_ms", None), ("foveated_eager_ms", False)):
-            loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, graph=graph)
+            loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, graph=graph, policy="foveated")
             state["i"] = 0
             row[tag] = time_ms(lambda: moving(loop), dev, repeats, 4)["median_ms"]
             st = moving(loop).stats
             row["sampling_rate" if graph is None else "sampling_rate_eager"] = st["sampling_rate"]
             row["graph_state" if graph is None else "graph_state_eager"] = st["graph"]
         # a static view: after convergence only the refresh budget is traced
-        loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+        loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
         for _ in range(20):
             loop.render(scene.camera, gaze_px=g)
         row["static_refresh_ms"] = time_ms(lambda: loop.render(scene.camera, gaze_px=g), dev, repeats, 2)["median_ms"]
         st = loop.render(scene.camera, gaze_px=g).stats
         row["static_refresh_rate"] = st["sampling_rate"]
         row["static_refresh_skipped"] = "trace" in st["skipped"]
-        ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+        ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
         row["reference_ms"] = time_ms(lambda: ref.render_reference(scene.camera), dev, max(3, repeats // 2), 1)[
             "median_ms"]
         row["speedup"] = row["reference_ms"] / row["foveated_ms"]

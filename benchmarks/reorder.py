@@ -142,7 +142,7 @@ def main():
         for w, h in sizes:
             for shading, ao in (("light", 0), ("heavy", 8)):
                 cfg = fw.Config(shading=fw.ShadingConfig(ao_samples=ao))
-                loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+                loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
                 cam = scene.camera
                 loop.render_reference(cam)  # G-buffer for this view; compile
                 full = time_ms(lambda: loop.shade_full(cam), dev, repeats, args.warmup)["median_ms"]

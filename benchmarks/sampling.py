@@ -26,7 +26,7 @@ from foveawarp.stages.sampling import SamplingStage, launch_tile_pass  # noqa: E
 
 
 def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
-    loop = fw.FrameLoop("cornell", w, h, device=dev, timing=False)
+    loop = fw.FrameLoop("cornell", w, h, device=dev, timing=False, policy="foveated")
     cam = loop.scene.camera
     stage = SamplingStage(w, h, fw.Config(), device=dev)
     gaze = (0.5 * w, 0.5 * h)
@@ -73,7 +73,7 @@ def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
 def scene_rates(names, w: int, h: int, dev) -> list:
     rows = []
     for name in names:
-        loop = fw.FrameLoop(name, w, h, device=dev, timing=False)
+        loop = fw.FrameLoop(name, w, h, device=dev, timing=False, policy="foveated")
         cam = loop.scene.camera
         loop.render_reference(cam)
         stage = SamplingStage(w, h, fw.Config(), device=dev)

@@ -1,6 +1,6 @@
 """Soak: many frames with a moving camera, a moving gaze and moving objects; memory flat, no NaN, stable frame time.
 
-One FrameLoop (timing=False) renders ``--frames`` frames (the first ``--warmup`` of them are warm-up and excluded
+One FrameLoop (timing=False, policy="foveated") renders ``--frames`` frames (the first ``--warmup`` of them are warm-up and excluded
 from every statistic). Per frame: the camera follows the scene's orbit path (``Scene.camera_at``), the gaze follows
 a Lissajous curve that leaves the screen part of the time, and ``time=`` advances at ``--fps`` so animated objects
 move (``cornell`` is loaded with ``motion=True``: the short block slides). Every ``--cut-every`` frames the frame is
@@ -154,7 +154,7 @@ def main() -> int:
         p.error(f"--warmup must be in [0, frames), got {warmup} with {frames} frames")
     scene = load(fw, args.scene, args.motion)
     cfg = fw.Config().with_(shading={"ao_samples": args.ao}) if args.ao else fw.Config()
-    loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
+    loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
     print(f"soak: {scene.summary()} at {w}x{h} on {dev.alias}: {frames} frames ({warmup} warm-up), "
           f"check every {check_every}", flush=True)
 
@@ -240,7 +240,7 @@ def main() -> int:
         "nan_checks": checks, "nan_frames": nan_frames, "sampling_rate_mean": float(np.mean(rates)),
         "verdict": verdict, "row": row,
         "method": "frame ms = host perf_counter between wp.synchronize_device calls around FrameLoop.render "
-                  "(timing=False); statistics over the frames after warm-up; memory sampled every check_every "
+                  "(timing=False, policy='foveated'); statistics over the frames after warm-up; memory sampled every check_every "
                   "frames after warm-up with the device idle and after gc.collect()",
     }
     mem_cols = "memory_growth_bytes"

@@ -440,22 +440,38 @@ class IndirectConfig:
         depth_threshold: relative depth difference (fraction of the scene's bounding-box diagonal) below
             which children join a cluster, in (0, 1]; paper 0.05.
         normal_threshold: minimum dot(n_child, n_avg) for a valid cluster, in [-1, 1]; paper 0.9.
-        start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes), >= 0; paper: 8 x 8
-            nodes, i.e. 3.
-        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 4 (16 x 16
-            nodes), the paper's fastest setting (its "limit level 6" counts levels from the 512^2 leaves up);
-            5 and 6 (32^2, 64^2 nodes) are finer and slower (benchmarks/indirect.py).
+        start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes; no cluster is coarser),
+            >= 0. Default 4 (16 x 16 nodes); the paper's 8 x 8 nodes is 3.
+        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 6 (64 x 64
+            nodes; the paper's fastest setting is 4, its "limit level 6" counting from the 512^2 leaves up). The
+            default (start 4, limit 6, extended emitters of scale 1.0, refinement at threshold 0.02 with a budget
+            of 256 splits) is the Pareto choice of ``benchmarks/indirect.py`` (README, "Indirect light").
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
+        cluster_radius_scale: a cluster of the tree methods is an extended emitter of radius
+            ``a = cluster_radius_scale x`` its flux-weighted RMS extent (``kernels.lighttree.cluster_term``); 0
+            gives the point form of the paper, in [0, 16]. A uniform disk has ``a^2 = 2 rms^2``.
+        refine_threshold: per-receiver refinement (Lightcuts-style): a cut cluster seen under radius / distance
+            above ``refine_min_ratio`` is split when its estimated error exceeds this fraction of the receiver's
+            coarse estimate (``kernels.lighttree.gather_list``), in (0, 1e6].
+        refine_budget: the most splits per receiver (each replaces a cluster by its four children); 0 turns
+            refinement off, in [0, 65536].
+        refine_min_ratio: clusters seen under radius / distance at or below this are never split (their
+            estimated error is at most ``ratio / (1 - ratio)`` of their bound; the test needs no square root),
+            in [0, 1]; 0 lets every cluster be tested.
     """
 
     rsm_size: int = 256
     depth_threshold: float = 0.05
     normal_threshold: float = 0.9
-    start_level: int = 3
-    limit_level: int = 4
+    start_level: int = 4
+    limit_level: int = 6
     d_min_rel: float = 0.02
     strength: float = 1.0
+    cluster_radius_scale: float = 1.0
+    refine_threshold: float = 0.02
+    refine_budget: int = 256
+    refine_min_ratio: float = 0.25
 
     def __post_init__(self):
         check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
@@ -468,6 +484,10 @@ class IndirectConfig:
         check_int_range("IndirectConfig.limit_level", self.limit_level, self.start_level, max_level)
         check_range("IndirectConfig.d_min_rel", self.d_min_rel, 0.0, 1.0, lo_open=True)
         check_range("IndirectConfig.strength", self.strength, 0.0, None)
+        check_range("IndirectConfig.cluster_radius_scale", self.cluster_radius_scale, 0.0, 16.0)
+        check_range("IndirectConfig.refine_threshold", self.refine_threshold, 0.0, 1.0e6, lo_open=True)
+        check_int_range("IndirectConfig.refine_budget", self.refine_budget, 0, 65536)
+        check_range("IndirectConfig.refine_min_ratio", self.refine_min_ratio, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -490,6 +510,10 @@ class TemporalConfig:
             accumulated stochastic history of a traced pixel (5 x 5 neighbourhood of fresh values), in [0, 100].
         motion_alpha_per_px: weight of a traced pixel's fresh stochastic value per pixel of screen motion
             (the history weight falls with motion), per pixel, in [0, 1]; 0.05 gives fresh-only at 20 px/frame.
+        still_min_probability: with stochastic shading (AO rays, area-light samples), while the camera and scene
+            stand still and the accumulation is not yet full (fewer than ``max_history_frames`` still frames),
+            the sampling map's minimum probability is raised to this, in [0, 1], so that the periphery
+            converges too (progressive refinement); then the refresh budget takes over. 0 disables it.
     """
 
     enabled: bool = True
@@ -500,6 +524,7 @@ class TemporalConfig:
     normal_cos_min: float = 0.9
     clamp_gamma: float = 1.25
     motion_alpha_per_px: float = 0.05
+    still_min_probability: float = 0.25
 
     def __post_init__(self):
         check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)
@@ -509,6 +534,7 @@ class TemporalConfig:
         check_range("TemporalConfig.normal_cos_min", self.normal_cos_min, -1.0, 1.0)
         check_range("TemporalConfig.clamp_gamma", self.clamp_gamma, 0.0, 100.0)
         check_range("TemporalConfig.motion_alpha_per_px", self.motion_alpha_per_px, 0.0, 1.0)
+        check_range("TemporalConfig.still_min_probability", self.still_min_probability, 0.0, 1.0)
         check_bool("TemporalConfig.enabled", self.enabled)
 
 

@@ -337,11 +337,19 @@ class FrameLoop:
             self._gbuffer(camera, prev_cam)
         foveated = cfg.foveation.enabled and mode == "foveated"
         strategy = cfg.reorder.strategy if foveated else "full"
+        tc = cfg.temporal
+        still_boost = (foveated and history and not moving and tc.enabled and tc.still_min_probability > 0.0
+                       and self._stochastic_shading() and self._static_frames < tc.max_history_frames)
+        if still_boost:
+            skipped["foveation.min_probability"] = (f"raised to TemporalConfig.still_min_probability "
+                                                    f"({tc.still_min_probability:g}): still view, stochastic "
+                                                    f"shading still converging")
         with self._stage("sampling"):
             if foveated:
                 self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
                                         first_frame=not history, eye_prev=prev_cam.eye if history else None,
-                                        camera_prev=prev_cam if history else None)
+                                        camera_prev=prev_cam if history else None,
+                                        min_probability=tc.still_min_probability if still_boost else None)
                 skipped.update(self.sampling.skipped)
             else:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"

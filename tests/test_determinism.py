@@ -33,7 +33,7 @@ def _copy(a):
 
 def _render(device, scene_kw, over, frames=4):
     scene = fw.load_scene("cornell", **scene_kw)
-    loop = fw.FrameLoop(scene, W, H, config=fw.Config().with_(**over), device=device, timing=False)
+    loop = fw.FrameLoop(scene, W, H, config=fw.Config().with_(**over), device=device, timing=False, policy="foveated")
     out = {}
     gazes = [(20.0, 24.0), (26.0, 22.0), (-40.0, 24.0), (40.0, 30.0)]
     for i in range(frames):

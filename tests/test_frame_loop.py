@@ -237,7 +237,7 @@ def test_refresh_fraction_zero_traces_only_pixels_without_history(device):
 
 def test_graph_is_off_on_cpu_and_with_timing():
     scene = fw.load_scene("cornell")
-    f = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False).render(scene.camera)
+    f = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False, policy="foveated").render(scene.camera)
     assert f.stats["graph"] == "eager"
     with pytest.raises(ValueError, match="graph"):
         fw.FrameLoop(scene, 32, 24, device="cpu", graph="yes")
@@ -252,8 +252,8 @@ def test_graph_replay_equals_eager_launches(strategy):
     over = {"reorder": {"strategy": strategy}, "shading": {"ao_samples": 2},
             "dof": {"aperture_m": 0.02}, "temporal": {"max_history_frames": 4}}
     cfg = fw.Config().with_(**over)
-    g = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False)
-    e = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, graph=False)
+    g = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
+    e = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, graph=False, policy="foveated")
     states = []
     for i in range(40):
         moving = i < 12
@@ -269,3 +269,40 @@ def test_graph_replay_equals_eager_launches(strategy):
         assert fg.stats["skipped"] == fe.stats["skipped"]
     assert "captured" in states and states.count("replayed") >= 25, states
     assert any("trace" in s for s in [fg.stats["skipped"]])  # the refresh phase was reached (and replayed)
+
+
+# -- the cost policy (issue 14: never slower than full resolution) ------------------------------------------
+
+
+def test_policy_full_equals_reference_and_validation():
+    scene = fw.load_scene("cornell")
+    loop = fw.FrameLoop(scene, W, H, device="cpu", policy="full")
+    f = loop.render(scene.camera, gaze_px=(10.0, 10.0))
+    assert f.stats["sampling_rate"] == 1.0 and f.stats["policy"]["path"] == "full"
+    assert "foveation" in f.stats["skipped"]
+    ref = _loop(scene, "cpu").render_reference(scene.camera).numpy()
+    np.testing.assert_allclose(f.numpy(), ref, atol=1e-6)
+    with pytest.raises(ValueError, match="policy"):
+        fw.FrameLoop(scene, W, H, device="cpu", policy="fastest")
+    # the default on the CPU (and with per-stage timing) is the foveated frame
+    assert fw.FrameLoop(scene, 8, 8, device="cpu").policy == "foveated"
+
+
+def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
+    scene = fw.load_scene("cornell")
+    loop = fw.FrameLoop(scene, W, H, device="cpu", policy="auto")
+    n = loop.POLICY_WARM + loop.POLICY_TIMED
+    paths = []
+    for i in range(2 * n + 3):
+        f = loop.render(scene.camera_at(i / 60.0), gaze_px=(48.0, 32.0))
+        paths.append(f.stats["policy"]["path"])
+        if paths[-1] == "foveated" and i > 0 and paths[-2] == "full":
+            # history from before a full-resolution frame is not reused
+            assert f.stats["skipped"]["reprojection"] == "previous frame rendered at full resolution"
+    assert paths[:n] == ["foveated"] * n and paths[n:2 * n] == ["full"] * n
+    est = f.stats["policy"]
+    assert est["foveated_ms"] > 0 and est["full_ms"] > 0
+    cheaper = "full" if est["full_ms"] < (1 - loop.POLICY_MARGIN) * est["foveated_ms"] else "foveated"
+    assert paths[2 * n:] == [cheaper] * 3
+    if cheaper == "full":
+        assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]

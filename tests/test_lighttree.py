@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import foveawarp as fw
 from foveawarp import ops
 from foveawarp.config import IndirectConfig
+from foveawarp.kernels import lighttree
 from foveawarp.scene import DeviceScene
 from foveawarp.scenes import SceneBuilder
 from foveawarp.stages.indirect import IndirectStage, poisson_disk
@@ -110,18 +111,43 @@ def _np_cut(levels, start, limit):
     return cut
 
 
-def _np_gather(x, n, albedo, vflux, vpos, vnrm, d_min, strength=1.0):
-    """albedo/pi * strength * 1/pi * sum Phi max(0, n_p.(x-x_p)) max(0, n.(x_p-x)) / max(d^2, d_min^2)^2."""
+def _np_gather(x, n, albedo, vflux, vpos, vnrm, d_min, strength=1.0, a2=None):
+    """albedo/pi * strength * 1/pi * sum Phi max(0, n_p.(x-x_p)) max(0, n.(x_p-x)) / max(d^2, d_min^2)^2;
+    with ``a2`` (per VPL / cluster squared emitter radii) the extended form: the denominator becomes
+    max(d^2, d_min^2) max(d^2 + a^2, d_min^2)."""
     x, n, albedo = (np.asarray(a, np.float64) for a in (x, n, albedo))
+    a2 = np.zeros(vflux.shape[0]) if a2 is None else np.asarray(a2, np.float64)
     acc = np.zeros_like(x)
     for s in range(0, vflux.shape[0], 512):
         fp, pp, npp = (np.asarray(a[s:s + 512], np.float64) for a in (vflux, vpos, vnrm))
         d = x[:, None, :] - pp[None]
         ce = np.clip((npp[None] * d).sum(-1), 0, None)
         cr = np.clip(-(n[:, None, :] * d).sum(-1), 0, None)
-        r2 = np.maximum((d * d).sum(-1), d_min * d_min)
-        acc += ((ce * cr / (r2 * r2))[..., None] * fp[None]).sum(1)
+        dd = (d * d).sum(-1)
+        r2 = np.maximum(dd, d_min * d_min)
+        r2a = np.maximum(dd + a2[None, s:s + 512], d_min * d_min)
+        acc += ((ce * cr / (r2 * r2a))[..., None] * fp[None]).sum(1)
     return albedo * acc * strength / np.pi ** 2
+
+
+def _np_extent(flux, pos, level, i, j):
+    """Flux-weighted mean squared distance of the leaf VPLs under node (level, i, j) from their flux-weighted
+    centre, the largest such distance, and the centre: straight from the leaves (image layout)."""
+    n = flux.shape[0]
+    L = int(round(math.log2(n)))
+    s = 1 << (L - level)
+    f = np.asarray(flux[i * s:(i + 1) * s, j * s:(j + 1) * s], np.float64).reshape(-1, 3)
+    p = np.asarray(pos[i * s:(i + 1) * s, j * s:(j + 1) * s], np.float64).reshape(-1, 3)
+    w = f.sum(-1)
+    if not (w > 0).any():
+        return 0.0, 0.0, np.zeros(3)
+    c = (p * w[:, None]).sum(0) / w.sum()
+    d2 = ((p - c) ** 2).sum(-1)
+    return float((w * d2).sum() / w.sum()), float(np.sqrt(d2[w > 0].max())), c
+
+
+# the paper's clusters: points at the flux-weighted centre, no per-receiver refinement
+POINT = dict(cluster_radius_scale=0.0, refine_budget=0)
 
 
 def _rel(a, b):
@@ -314,15 +340,17 @@ def test_pyramid_and_validity_match_numpy(cornell, device):
 @HYP
 @given(n=st.sampled_from([8, 16]), zero_frac=st.floats(0.0, 0.9), depth_thr=st.floats(0.01, 0.5),
        normal_thr=st.floats(0.0, 0.999), seed=st.integers(0, 2**31 - 1), start=st.integers(0, 2),
-       extra=st.integers(0, 3))
-def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_thr, seed, start, extra):
-    """Random RSMs (zero-flux texels, clustered normals and depths): pyramid, validity, cut partition, and
-    the cut gather == per-receiver traversal == the NumPy gather over the NumPy cut."""
+       extra=st.integers(0, 3), scale=st.sampled_from([0.0, 1.5, 4.0]))
+def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_thr, seed, start, extra, scale):
+    """Random RSMs (zero-flux texels, clustered normals and depths): pyramid, validity, cut partition, every
+    node's extent (flux-weighted mean squared spread and bounding radius) against the leaves under it, and the
+    cut gather (extended emitters of radius ``scale x`` the RMS spread, no refinement) == per-receiver
+    traversal == the NumPy gather over the NumPy cut."""
     rng = np.random.default_rng(seed)
     leaf = int(round(math.log2(n)))
     limit = min(start + extra, leaf)
     cfg = IndirectConfig(rsm_size=n, depth_threshold=depth_thr, normal_threshold=normal_thr, start_level=start,
-                         limit_level=limit)
+                         limit_level=limit, cluster_radius_scale=scale, refine_budget=0)
     ds = _cpu_dscene(cornell)
     flux = rng.random((n, n, 3)).astype(np.float32) * (rng.random((n, n, 1)) >= zero_frac)
     base_n = rng.normal(size=3)
@@ -339,6 +367,17 @@ def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_th
     st_ = stages["lighttree"]
     levels = _np_pyramid(flux, pos, nrm.astype(np.float32), depth, st_.depth_tol, normal_thr)
     _check_tree_against_numpy(st_, levels, rtol=1e-4)
+    # extents from the leaves (not from the children): spread2 within float32 of the two-pass NumPy value
+    # (relative to the node's squared bounding radius), the radius bounds every lit leaf of the node
+    for lv in range(leaf + 1):
+        got = st_.level_numpy(lv)
+        for i in range(1 << lv):
+            for j in range(1 << lv):
+                s2, rad, _ = _np_extent(flux, pos, lv, i, j)
+                scale2 = max(rad * rad, 1e-12)
+                assert abs(got["spread2"][i, j] - s2) <= 1e-4 * scale2 + 1e-9, (lv, i, j)
+                assert got["radius"][i, j] >= rad * (1 - 1e-4) - 1e-6, (lv, i, j)
+                assert got["spread2"][i, j] <= got["radius"][i, j] ** 2 * (1 + 1e-4) + 1e-9
     amb = any(levels[lv]["amb"].any() for lv in range(leaf + 1))
     cut = _np_cut(levels, start, limit)
     np.testing.assert_allclose(st_.cut_numpy()["flux"].sum(0), flux.sum((0, 1)), rtol=1e-4, atol=1e-5)
@@ -352,7 +391,8 @@ def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_th
     alb = rng.random((m, 3))
     ref = _np_gather(x, nx, alb, np.array([levels[lv]["flux"][i, j] for lv, i, j in cut]),
                      np.array([levels[lv]["position"][i, j] for lv, i, j in cut]),
-                     np.array([levels[lv]["normal"][i, j] for lv, i, j in cut]), cfg.d_min_rel * ds.extent)
+                     np.array([levels[lv]["normal"][i, j] for lv, i, j in cut]), cfg.d_min_rel * ds.extent,
+                     a2=np.array([scale ** 2 * _np_extent(flux, pos, lv, i, j)[0] for lv, i, j in cut]))
     outs = {}
     for method, s in stages.items():
         o = wp.zeros(m, dtype=wp.vec3, device="cpu")
@@ -398,18 +438,19 @@ def test_exact_matches_numpy_and_tree_converges(cornell, device):
     # the error against exact falls as the limit level deepens (default thresholds). Not a theorem: a
     # finer cut can lose a lucky cancellation (at rsm 32 this view's error rises from limit 2 to 3), so
     # check level by level at rsm 64 and every two levels at rsm 32
-    errs = [_rel(ops.indirect_light_tree(cornell, P, N, A, config=IndirectConfig(**base, limit_level=lim),
+    errs = [_rel(ops.indirect_light_tree(cornell, P, N, A, config=IndirectConfig(**base, **POINT, limit_level=lim),
                                          device=device), exact) for lim in (1, 2, 3, 4, 5)]
     assert all(b < a for a, b in zip(errs, errs[2:])), errs
     big = dict(rsm_size=64, start_level=1)
     exact64 = ops.indirect_vpl_exact(cornell, P, N, A, config=IndirectConfig(**big, limit_level=1), device=device)
-    errs = [_rel(ops.indirect_light_tree(cornell, P, N, A, config=IndirectConfig(**big, limit_level=lim),
+    errs = [_rel(ops.indirect_light_tree(cornell, P, N, A, config=IndirectConfig(**big, **POINT, limit_level=lim),
                                          device=device), exact64) for lim in (1, 2, 3, 4, 5, 6)]
     assert all(b <= a * 1.02 for a, b in zip(errs, errs[1:])), errs
     assert errs[0] > 0.2 and errs[-1] < 0.1 * errs[0], errs
-    # per-receiver traversal == the cut
+    # per-receiver traversal == the cut (extended emitters; refinement off: its budget is spent in a
+    # different order by the two, list order against depth-first Morton order)
     for lim in (2, 4):
-        c = IndirectConfig(**base, limit_level=lim)
+        c = IndirectConfig(**base, limit_level=lim, refine_budget=0)
         a = ops.indirect_light_tree(cornell, P, N, A, config=c, device=device)
         b = ops.indirect_light_tree(cornell, P, N, A, config=c, traversal="per-receiver", device=device)
         np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-6 * np.abs(a).max())
@@ -574,6 +615,211 @@ def test_update_caches_until_light_or_geometry_moves(device):
     stage.run_points()
     out = stage.receiver_out.numpy()
     assert np.all(np.isfinite(out)) and np.all(out > 0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# extended emitters and per-receiver refinement
+
+
+@wp.kernel
+def _terms_kernel(x: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), flux: wp.vec3, xp: wp.vec3,
+                  np_: wp.vec3, a2: float, d_min2: float, out_ext: wp.array(dtype=wp.vec3),
+                  out_pt: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out_ext[i] = lighttree.cluster_term(x[i], n[i], flux, xp, np_, a2, d_min2)
+    out_pt[i] = lighttree.vpl_term(x[i], n[i], flux, xp, np_, d_min2)
+
+
+@wp.kernel
+def _bound_kernel(x: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), w: wp.array(dtype=float),
+                  c: wp.array(dtype=wp.vec3), r: wp.array(dtype=float), d_min2: float,
+                  out: wp.array2d(dtype=float)):
+    i, k = wp.tid()
+    out[i, k] = lighttree.cluster_bound(x[i], n[i], w[k], c[k], r[k], d_min2)
+
+
+def _terms(x, n, flux, xp, np_, a2, d_min2):
+    f = lambda a: wp.array(np.asarray(a, np.float32), dtype=wp.vec3, device="cpu")  # noqa: E731
+    ext = wp.zeros(len(x), dtype=wp.vec3, device="cpu")
+    pt = wp.zeros(len(x), dtype=wp.vec3, device="cpu")
+    wp.launch(_terms_kernel, dim=len(x), inputs=[f(x), f(n), wp.vec3(*flux), wp.vec3(*xp), wp.vec3(*np_),
+                                                  float(a2), float(d_min2)], outputs=[ext, pt], device="cpu")
+    return ext.numpy().astype(np.float64), pt.numpy().astype(np.float64)
+
+
+@HYP
+@given(seed=st.integers(0, 2**31 - 1), a=st.sampled_from([1e-3, 0.05, 0.3, 2.0]),
+       d_min=st.sampled_from([1e-6, 0.01, 0.1]))
+def test_extended_emitter_far_field_near_field_and_point_limit(seed, a, d_min):
+    """cluster_term against the point form (vpl_term) and a NumPy one: a2 = 0 gives the point form exactly;
+    beyond 10 a and d_min it is within a^2 / d^2 <= 1% of it (never above); on or inside the emitter (d <= a,
+    the centre itself included) it is finite and <= Phi / max(a^2, d_min^2) per channel."""
+    rng = np.random.default_rng(seed)
+    flux = rng.random(3) + 0.1
+    xp = rng.normal(size=3)
+    np_ = rng.normal(size=3)
+    np_ /= np.linalg.norm(np_)
+    m = 256
+    dirs = rng.normal(size=(m, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    dirs = np.where((dirs @ np_)[:, None] < 0, -dirs, dirs)  # in front of the emitter
+    nr = -dirs + 0.5 * rng.normal(size=(m, 3))
+    nr /= np.linalg.norm(nr, axis=1, keepdims=True)
+    # far
+    dist = max(10 * a, 2 * d_min) * (1 + 20 * rng.random(m))
+    x = xp + dirs * dist[:, None]
+    ext, pt = _terms(x, nr, flux, xp, np_, a * a, d_min * d_min)
+    f32 = lambda v: np.asarray(v, np.float32).astype(np.float64)  # noqa: E731  (the kernel's inputs)
+    ref = _np_gather(f32(x), f32(nr), np.ones(3), f32(flux)[None], f32(xp)[None], f32(np_)[None], d_min) * np.pi ** 2
+    # float32 differences x - x_p at up to 200 a from the emitter: cosines lose ~1e-3 relative at grazing angles
+    np.testing.assert_allclose(pt, ref, rtol=2e-3, atol=1e-5 * np.abs(ref).max())
+    assert np.all(ext <= pt * (1 + 1e-5) + 1e-30)
+    rel_allowed = (a * a) / (dist * dist)
+    assert np.all(np.abs(ext - pt) <= (rel_allowed[:, None] * 1.001 + 1e-5) * pt + 1e-30)
+    assert rel_allowed.max() <= 0.0101
+    # a = 0: the point form, exactly
+    e0, p0 = _terms(x, nr, flux, xp, np_, 0.0, d_min * d_min)
+    assert np.array_equal(e0, p0)
+    # near / inside / at the centre, any normal
+    r = a * rng.random(m) ** (1 / 3)
+    r[:8] = 0.0
+    x = xp + rng.normal(size=(m, 3)) / np.sqrt(3) * r[:, None]
+    nr = rng.normal(size=(m, 3))
+    nr /= np.linalg.norm(nr, axis=1, keepdims=True)
+    ext, _ = _terms(x, nr, flux, xp, np_, a * a, d_min * d_min)
+    assert np.all(np.isfinite(ext)) and ext.min() >= 0
+    assert np.all(ext <= flux / max(a * a, d_min * d_min) * (1 + 1e-5))
+
+
+def _node_leaves(stage, node):
+    """Leaf indices (Morton, into the leaf level) under flat pyramid index ``node``."""
+    from foveawarp.stages.indirect import level_offset
+
+    lv = 0
+    while node >= level_offset(lv + 1):
+        lv += 1
+    m = node - level_offset(lv)
+    k = 4 ** (stage.leaf_level - lv)
+    return np.arange(m * k, (m + 1) * k)
+
+
+def test_error_bound_holds_and_receivers_inside_clusters_are_bounded(cornell, device):
+    """For every cluster of the cut and receivers all over the frame and inside the clusters: the exact sum of
+    the cluster's VPLs and its extended-emitter term are both <= cluster_bound (Lightcuts' rule, brute force in
+    NumPy over the leaves under the node); receivers at and around cluster centres get finite values below
+    albedo / pi^2 * sum_c Phi_c / max(a_c^2, d_min^2) (no refinement) or the d_min bound (refinement on)."""
+    _, P, N, A, _ = _cornell_receivers(cornell, device)
+    cfg = IndirectConfig(rsm_size=32, start_level=1, limit_level=3, refine_budget=0)
+    ds = _cpu_dscene(cornell)
+    st_ = IndirectStage(ds, cfg, method="lighttree")
+    st_.update()
+    cut = st_.cut_numpy()
+    nodes = st_.list_node.numpy()[:len(cut["flux"])]
+    radius = st_.tree_radius.numpy()[nodes]
+    lo = int(sum(4 ** lv for lv in range(st_.leaf_level)))
+    lf, lp, ln = (arr.numpy()[lo:].astype(np.float64) for arr in (st_.tree_flux, st_.tree_pos, st_.tree_normal))
+    rng = np.random.default_rng(3)
+    # receivers: G-buffer points, cluster centres, and points inside the clusters' spheres, random normals
+    k = len(nodes)
+    inside = cut["position"] + rng.normal(size=(k, 3)) / np.sqrt(3) * (radius * rng.random(k))[:, None]
+    X = np.concatenate([P[::7], cut["position"], inside]).astype(np.float64)
+    nn = rng.normal(size=(len(X) - len(P[::7]), 3))
+    Nn = np.concatenate([N[::7], nn / np.linalg.norm(nn, axis=1, keepdims=True)])
+    d_min = cfg.d_min_rel * ds.extent
+    out = wp.zeros((len(X), k), dtype=float, device="cpu")
+    f3 = lambda a: wp.array(np.asarray(a, np.float32), dtype=wp.vec3, device="cpu")  # noqa: E731
+    f1 = lambda a: wp.array(np.asarray(a, np.float32), dtype=float, device="cpu")  # noqa: E731
+    wp.launch(_bound_kernel, dim=(len(X), k), inputs=[f3(X), f3(Nn), f1(cut["flux"].sum(1)), f3(cut["position"]),
+                                                      f1(radius), float(d_min * d_min)], outputs=[out], device="cpu")
+    bound = out.numpy().astype(np.float64)
+    a2 = cfg.cluster_radius_scale ** 2 * cut["spread2"].astype(np.float64)
+    checked = 0
+    for c in range(k):
+        leaves = _node_leaves(st_, int(nodes[c]))
+        exact = _np_gather(X, Nn, np.ones(3), lf[leaves], lp[leaves], ln[leaves], d_min).sum(1) * np.pi ** 2
+        term = _np_gather(X, Nn, np.ones(3), cut["flux"][c:c + 1], cut["position"][c:c + 1],
+                          cut["normal"][c:c + 1], d_min, a2=a2[c:c + 1]).sum(1) * np.pi ** 2
+        tol = 1e-4 * bound[:, c] + 1e-12
+        assert np.all(exact <= bound[:, c] + tol), c
+        assert np.all(term <= bound[:, c] + tol), c
+        checked += int((bound[:, c] > 0).sum())
+    assert checked > 0.2 * bound.size
+    # receivers at / inside clusters through the stage: finite and bounded
+    Xs, Ns = X[len(P[::7]):], Nn[len(P[::7]):]
+    alb = np.ones_like(Xs)
+    lim_ext = np.sum(cut["flux"] / np.maximum(a2, d_min * d_min)[:, None], axis=0) / np.pi ** 2
+    lim_dmin = cut["flux"].sum(0) / (d_min * d_min) / np.pi ** 2
+    for budget, lim in ((0, lim_ext), (32, lim_dmin), (4096, lim_dmin)):
+        c2 = IndirectConfig(rsm_size=32, start_level=1, limit_level=3, refine_budget=budget)
+        for trav in ("cut", "per-receiver"):
+            o = ops.indirect_light_tree(ds, Xs, Ns, alb, config=c2, traversal=trav)
+            assert np.all(np.isfinite(o)) and o.min() >= 0
+            assert np.all(o <= lim[None] * (1 + 1e-4)), (budget, trav)
+
+
+def test_full_refinement_is_the_exact_sum(cornell, device):
+    """With a vanishing split threshold, no minimum angular size and an unlimited budget every cluster a
+    receiver can see is opened
+    down to its VPLs, whose extended form is the point form: the tree equals the exact sum (rtol 1e-4, both
+    the cut gather and the per-receiver traversal)."""
+    _, P, N, A, _ = _cornell_receivers(cornell, device)
+    cfg = IndirectConfig(rsm_size=32, start_level=1, limit_level=3, refine_threshold=1e-9, refine_budget=65536,
+                         refine_min_ratio=0.0)
+    exact = ops.indirect_vpl_exact(cornell, P, N, A, config=cfg, device=device)
+    assert np.abs(exact).max() > 0
+    for trav in ("cut", "per-receiver"):
+        got = ops.indirect_light_tree(cornell, P, N, A, config=cfg, traversal=trav, device=device)
+        np.testing.assert_allclose(got, exact, rtol=1e-4, atol=1e-5 * np.abs(exact).max())
+
+
+def _random_room(rng):
+    """A floor, two walls and 1-3 random boxes, a spot light above aimed down at a random point."""
+    b = SceneBuilder()
+    b.add_quad((-1, 0, -1), (0, 0, 2), (2, 0, 0), tuple(rng.uniform(0.2, 0.9, 3)))
+    b.add_quad((-1, 0, -1), (2, 0, 0), (0, 2, 0), tuple(rng.uniform(0.2, 0.9, 3)))
+    b.add_quad((-1, 0, -1), (0, 2, 0), (0, 0, 2), tuple(rng.uniform(0.2, 0.9, 3)))
+    for _ in range(int(rng.integers(1, 4))):
+        size = rng.uniform(0.1, 0.6, 3)
+        c = np.array([rng.uniform(-0.7, 0.7), size[1] / 2, rng.uniform(-0.7, 0.7)])
+        b.add_box(tuple(c), tuple(size), tuple(rng.uniform(0.2, 0.9, 3)), yaw_rad=float(rng.uniform(0, 3)))
+    pos = (rng.uniform(-0.6, 0.6), rng.uniform(1.2, 1.9), rng.uniform(-0.6, 0.6))
+    aim = np.array([rng.uniform(-0.5, 0.5), 0.0, rng.uniform(-0.5, 0.5)]) - np.asarray(pos)
+    light = fw.Light(kind="spot", position=pos, direction=tuple(aim), cone_deg=float(rng.uniform(30, 75)),
+                     intensity=(4.0, 3.5, 3.0), penumbra=0.3)
+    return b.build(lights=[light])
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), threshold=st.sampled_from([0.02, 0.05, 0.2]),
+       budget=st.sampled_from([4, 32, 256]), trav=st.sampled_from(["cut", "per-receiver"]))
+def test_refinement_never_increases_the_error(seed, threshold, budget, trav):
+    """On generated rooms (random boxes, colours and spot light), receivers on the floor and the walls: the
+    relative L2 error against the exact sum with per-receiver refinement is not above the error of the same
+    extended-emitter cut without it, within 0.5% of that error. Not a theorem: a partly refined cluster can
+    lose a lucky cancellation. With this split rule none of 240 generated cases (60 rooms, seeds 1 + 7919 k, x 4
+    threshold / budget / traversal settings) rose at all; an earlier rule (no angular-size precondition)
+    raised 2 of them by at most 0.1%, both at budget 4."""
+    rng = np.random.default_rng(seed)
+    scene = _random_room(rng)
+    ds = _cpu_dscene(scene)
+    m = 300
+    u = rng.uniform(-0.95, 0.95, (m, 2))
+    h = rng.uniform(0.02, 1.9, m)
+    face = rng.integers(0, 3, m)
+    X = np.where((face == 0)[:, None], np.stack([u[:, 0], np.zeros(m), u[:, 1]], 1),
+                 np.where((face == 1)[:, None], np.stack([u[:, 0], h, np.full(m, -1.0)], 1),
+                          np.stack([np.full(m, -1.0), h, u[:, 1]], 1))) + 1e-4 * np.eye(3)[[1, 2, 0]][face]
+    Nn = np.eye(3)[[1, 2, 0]][face]
+    alb = np.full((m, 3), 0.7)
+    base = dict(rsm_size=32, start_level=1, limit_level=3)
+    exact = ops.indirect_vpl_exact(ds, X, Nn, alb, config=IndirectConfig(**base))
+    if np.abs(exact).max() == 0:
+        return
+    e0 = _rel(ops.indirect_light_tree(ds, X, Nn, alb, config=IndirectConfig(**base, refine_budget=0),
+                                      traversal=trav), exact)
+    e1 = _rel(ops.indirect_light_tree(ds, X, Nn, alb, config=IndirectConfig(
+        **base, refine_threshold=threshold, refine_budget=budget), traversal=trav), exact)
+    assert e1 <= e0 * 1.005 + 1e-7, (e0, e1)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -25,11 +25,24 @@ itself valid; single VPLs (leaves) and all-zero nodes are valid. The second cond
 it is valid (or on the limit level) and its parent is not" selects exactly the nodes a top-down descent stops
 at: a partition of the VPLs.
 
-Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4):
+Extent. Every node also stores ``spread2``, the flux-weighted mean squared distance of its VPLs from its
+centre, and ``radius``, a sphere about the centre holding all of them (0 for a single VPL).
+
+Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4), for point VPLs ("exact", "sampled"):
 ``E(x) = 1/pi * sum_c Phi_c max(0, n_c.(x - x_c)) max(0, n.(x_c - x)) / max(|x - x_c|^2, d_min^2)^2`` and
-``L = albedo / pi * E * strength``. The extra ``1/pi`` is the Lambertian VPL's radiant intensity
-``Phi cos / pi`` (Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the
-physical unoccluded one-bounce radiance, on the same scale as the direct term of ``shade.py``.
+``L = albedo / pi * E * strength``. The extra ``1/pi`` is the Lambertian VPL's radiant intensity ``Phi cos / pi``
+(Dachsbacher & Stamminger's printed form folds it into Phi); with it, strength 1 is the physical unoccluded
+one-bounce radiance, on the same scale as the direct term of ``shade.py``.
+The tree methods evaluate a cluster as an EXTENDED emitter (``cluster_term``): the second
+``max(|d|^2, d_min^2)`` of the denominator becomes ``max(|d|^2 + a^2, d_min^2)`` with
+``a^2 = cluster_radius_scale^2 * spread2`` (a Lambertian disk's on-axis form, in the spirit of virtual
+spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it far away, and at most
+``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
+Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
+cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver
+(``cluster_error``: the strict bound ``cluster_bound`` times ``min(1, radius / gap)``) exceeds
+``refine_threshold`` times the receiver's coarse estimate (``split_threshold``) is replaced by its four
+children, recursively, until the receiver's budget of splits is spent.
 """
 
 import warp as wp
@@ -48,13 +61,24 @@ class IndirectParams:
     tree_pos: wp.array(dtype=wp.vec3)
     tree_normal: wp.array(dtype=wp.vec3)
     tree_valid: wp.array(dtype=wp.uint8)
+    tree_spread2: wp.array(dtype=float)  # flux-weighted mean squared distance of the VPLs from the node centre
+    tree_radius: wp.array(dtype=float)  # radius of a sphere about the node centre holding all its VPLs
     list_flux: wp.array(dtype=wp.vec3)
     list_pos: wp.array(dtype=wp.vec3)
     list_normal: wp.array(dtype=wp.vec3)
+    list_spread2: wp.array(dtype=float)
+    list_node: wp.array(dtype=wp.int32)  # flat pyramid index of each list entry ("lighttree" only)
     list_count: wp.array(dtype=wp.int32)
     use_tree: int  # 1: descend the tree per receiver; 0: sum the list[0:list_count[0]]
     start_level: int
     limit_level: int
+    leaf_level: int
+    extended: int  # 1: clusters are extended emitters (tree methods); 0: point VPLs (exact, sampled)
+    radius_scale2: float  # a^2 = radius_scale2 * spread2: the emitter's softening radius
+    refine_threshold: float  # split a cluster when its error bound exceeds this fraction of the estimate
+    refine_budget: int  # splits per receiver; 0: no refinement
+    refine_ratio2: float  # only clusters seen under (radius / distance)^2 above this are tested for a split
+    floor_per_flux: float  # estimates below floor_per_flux * (total flux) count as that in the split threshold
     d_min2: float  # squared distance clamp, > 0
     scale: float  # strength / pi^2 (albedo / pi times the VPL's 1 / pi)
     enabled: int  # 0: nothing to add (no light)
@@ -143,6 +167,8 @@ def rsm_kernel(
     out_normal: wp.array(dtype=wp.vec3),
     out_depth: wp.array(dtype=float),
     out_valid: wp.array(dtype=wp.uint8),
+    out_spread2: wp.array(dtype=float),
+    out_radius: wp.array(dtype=float),
     row0: int,
 ):
     """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
@@ -182,6 +208,8 @@ def rsm_kernel(
     out_normal[k] = n
     out_depth[k] = depth
     out_valid[k] = wp.uint8(1)  # single VPLs are always valid
+    out_spread2[k] = 0.0  # a single VPL is a point
+    out_radius[k] = 0.0
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -195,6 +223,8 @@ def pyramid_level_kernel(
     c_normal: wp.array(dtype=wp.vec3),
     c_depth: wp.array(dtype=float),
     c_valid: wp.array(dtype=wp.uint8),
+    c_spread2: wp.array(dtype=float),
+    c_radius: wp.array(dtype=float),
     depth_tol: float,
     normal_threshold: float,
     p_flux: wp.array(dtype=wp.vec3),
@@ -202,8 +232,14 @@ def pyramid_level_kernel(
     p_normal: wp.array(dtype=wp.vec3),
     p_depth: wp.array(dtype=float),
     p_valid: wp.array(dtype=wp.uint8),
+    p_spread2: wp.array(dtype=float),
+    p_radius: wp.array(dtype=float),
 ):
-    """One level of the light quad-tree from the level below (children 4m .. 4m + 3)."""
+    """One level of the light quad-tree from the level below (children 4m .. 4m + 3).
+
+    Extent: ``spread2`` is the flux-weighted mean of ``|x_vpl - x_node|^2`` over the node's VPLs (from the
+    children's: ``sum w_c (spread2_c + |x_c - x_node|^2) / sum w_c``); ``radius`` bounds ``|x_vpl - x_node|``
+    (``max_c |x_c - x_node| + radius_c``). Zero-flux children do not count."""
     m = wp.tid()
     c0 = 4 * m
     fsum = wp.vec3(0.0, 0.0, 0.0)
@@ -227,6 +263,8 @@ def pyramid_level_kernel(
     pos = wp.vec3(0.0, 0.0, 0.0)
     nrm = wp.vec3(0.0, 0.0, 0.0)
     depth = float(0.0)
+    spread2 = float(0.0)
+    radius = float(0.0)
     if wsum > 0.0:
         pos = psum / wsum
         depth = dsum / wsum
@@ -240,6 +278,15 @@ def pyramid_level_kernel(
                     valid = 0
                 if not (wp.dot(c_normal[c0 + k], nrm) > normal_threshold):
                     valid = 0
+        s2 = float(0.0)
+        for k in range(4):
+            w = flux_weight(c_flux[c0 + k])
+            if w > 0.0:
+                dc = c_pos[c0 + k] - pos
+                lc2 = wp.dot(dc, dc)
+                s2 += w * (c_spread2[c0 + k] + lc2)
+                radius = wp.max(radius, wp.sqrt(lc2) + c_radius[c0 + k])
+        spread2 = s2 / wsum
     else:
         fsum = wp.vec3(0.0, 0.0, 0.0)
     p_flux[m] = fsum
@@ -247,6 +294,8 @@ def pyramid_level_kernel(
     p_normal[m] = nrm
     p_depth[m] = depth
     p_valid[m] = wp.uint8(valid)
+    p_spread2[m] = spread2
+    p_radius[m] = radius
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -294,9 +343,12 @@ def cut_scatter_kernel(
     flux: wp.array(dtype=wp.vec3),
     pos: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
+    spread2: wp.array(dtype=float),
     out_flux: wp.array(dtype=wp.vec3),
     out_pos: wp.array(dtype=wp.vec3),
     out_normal: wp.array(dtype=wp.vec3),
+    out_spread2: wp.array(dtype=float),
+    out_node: wp.array(dtype=wp.int32),
     out_count: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
@@ -309,6 +361,8 @@ def cut_scatter_kernel(
         out_flux[s] = flux[base + g]
         out_pos[s] = pos[base + g]
         out_normal[s] = normal[base + g]
+        out_spread2[s] = spread2[base + g]
+        out_node[s] = base + g
 
 
 @wp.kernel(enable_backward=False)
@@ -347,39 +401,183 @@ def vpl_term(x: wp.vec3, n: wp.vec3, flux: wp.vec3, xp: wp.vec3, np_: wp.vec3, d
 
 
 @wp.func
+def cluster_term(x: wp.vec3, n: wp.vec3, flux: wp.vec3, xp: wp.vec3, np_: wp.vec3, a2: float,
+                 d_min2: float) -> wp.vec3:
+    """A cluster as an extended emitter of squared radius ``a2`` (without the 1/pi):
+    ``Phi max(0, n_p.d) max(0, -n.d) / (max(|d|^2, d_min^2) max(|d|^2 + a^2, d_min^2))``, d = x - x_p.
+
+    Far away (``|d|^2 >> a^2``) this is ``Phi cos_p cos / (|d|^2 + a^2)``, the on-axis irradiance of a
+    Lambertian disk of radius ``a`` (``a^2 = 2 x`` the disk's mean squared radius); it is the point form
+    ``vpl_term`` exactly when ``a2 = 0``, within a relative ``a^2 / |d|^2`` beyond ``d_min``, and never above
+    ``Phi / max(a^2, d_min^2)`` (``cos_p cos |d|^2 <= |d|^2``): a receiver on or inside the cluster sees no
+    point singularity."""
+    d = x - xp
+    ce = wp.dot(np_, d)
+    cr = -wp.dot(n, d)
+    if ce <= 0.0 or cr <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    r2 = wp.dot(d, d)
+    return flux * (ce * cr / (wp.max(r2, d_min2) * wp.max(r2 + a2, d_min2)))
+
+
+@wp.func
+def cluster_bound(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d_min2: float) -> float:
+    """Upper bound (in flux-weight units, the sum of the colour channels) of both a cluster's exact VPL sum
+    and its ``cluster_term`` at the receiver (x, n): ``w / max(gap^2, d_min^2)``, ``gap = max(|c - x| - radius,
+    0)`` the nearest the cluster's bounding sphere comes, and 0 when the sphere lies behind the receiver's plane
+    (every term is at most ``Phi cos / max(d^2, d_min^2)``). Both sums lie in [0, bound], so it also bounds the
+    error of using the cluster (Lightcuts' rule)."""
+    d = c - x
+    if wp.dot(n, d) + radius <= 0.0:
+        return 0.0
+    g = wp.max(wp.length(d) - radius, 0.0)
+    return w / wp.max(g * g, d_min2)
+
+
+@wp.func
+def cluster_error(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d_min2: float) -> float:
+    """First-order estimate of the error of using the cluster at (x, n): ``cluster_bound`` times
+    ``min(1, radius / gap)``, ``gap = max(|c - x| - radius, d_min)``. Over the cluster's sphere ``1/r^2`` and
+    the cosines change by a relative ``O(radius / gap)``, so a far cluster is split only when it is both bright
+    and wide; a receiver inside the sphere gets the full bound (the refinement's split rule)."""
+    d = c - x
+    if wp.dot(n, d) + radius <= 0.0:
+        return 0.0
+    gap = wp.max(wp.length(d) - radius, wp.sqrt(d_min2))
+    return w / (gap * gap) * wp.min(1.0, radius / gap)
+
+
+@wp.func
+def may_split(x: wp.vec3, c: wp.vec3, radius: float, ratio2: float) -> int:
+    """1 when the cluster's bounding sphere is seen under ``radius / distance > sqrt(ratio2)`` (no square
+    root): only such clusters are tested for a split."""
+    d = c - x
+    if radius * radius > ratio2 * wp.dot(d, d):
+        return 1
+    return 0
+
+
+@wp.func
+def node_level(node: int) -> int:
+    level = int(0)
+    while node >= level_offset(level + 1):
+        level += 1
+    return level
+
+
+@wp.func
+def node_term(ip: IndirectParams, x: wp.vec3, n: wp.vec3, node: int) -> wp.vec3:
+    return cluster_term(x, n, ip.tree_flux[node], ip.tree_pos[node], ip.tree_normal[node],
+                        ip.radius_scale2 * ip.tree_spread2[node], ip.d_min2)
+
+
+@wp.func
+def descend(ip: IndirectParams, x: wp.vec3, n: wp.vec3, root_level: int, root_m: int, thr: float,
+            budget: int) -> wp.vec4:
+    """Sum of the subtree of node ``root_m`` of ``root_level`` as a stackless depth-first descent in Morton
+    order. A node is opened when it is not a cluster of the view-independent cut (invalid above the limit
+    level) or, with ``budget`` left and above the leaves, when its ``cluster_error`` exceeds ``thr`` (each such
+    split spends 1 of ``budget``); otherwise it is added as an extended emitter. Returns (sum, budget left)."""
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    level = root_level
+    m = root_m
+    done = int(0)
+    while done == 0:
+        node = level_offset(level) + m
+        f = ip.tree_flux[node]
+        w = flux_weight(f)
+        open_ = int(0)
+        if w > 0.0:
+            if level < ip.limit_level and ip.tree_valid[node] == wp.uint8(0):
+                open_ = 1
+            elif budget > 0 and level < ip.leaf_level:
+                c = ip.tree_pos[node]
+                rad = ip.tree_radius[node]
+                if may_split(x, c, rad, ip.refine_ratio2) != 0:
+                    if cluster_error(x, n, w, c, rad, ip.d_min2) > thr:
+                        open_ = 1
+                        budget -= 1
+            if open_ == 0:
+                acc += node_term(ip, x, n, node)
+        if open_ != 0:
+            level += 1
+            m = m * 4
+        else:
+            # next node: the next sibling, climbing while this was the last child
+            m += 1
+            while level > root_level and (m & 3) == 0:
+                m = m >> 2
+                level -= 1
+            if level == root_level:
+                done = 1
+    return wp.vec4(acc[0], acc[1], acc[2], float(budget))
+
+
+@wp.func
+def split_threshold(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> float:
+    """``refine_threshold x`` the receiver's coarse estimate: the nodes of level ``min(start_level, 2)`` (at
+    most 16) as extended emitters, floored at ``floor_per_flux x`` the total flux."""
+    lv = wp.min(ip.start_level, 2)
+    e = wp.vec3(0.0, 0.0, 0.0)
+    base = level_offset(lv)
+    for m in range(1 << (2 * lv)):
+        if flux_weight(ip.tree_flux[base + m]) > 0.0:
+            e += node_term(ip, x, n, base + m)
+    est = wp.max(flux_weight(e), ip.floor_per_flux * flux_weight(ip.tree_flux[0]))
+    return ip.refine_threshold * est
+
+
+@wp.func
 def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Sum of the list: point VPLs (exact, sampled), or the cut's clusters as extended emitters, refined per
+    receiver (Lightcuts-style) when ``refine_budget > 0``: in list order (coarse levels first), a cluster
+    seen under ``radius / distance > refine_min_ratio`` (``may_split``) whose estimated error
+    (``cluster_error``) exceeds the split threshold (``split_threshold``) is replaced by its subtree, itself
+    refined by the same rule, until the receiver's budget of splits is spent."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     count = ip.list_count[0]
+    if ip.extended == 0:
+        for k in range(count):
+            acc += vpl_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k], ip.d_min2)
+        return acc
+    budget = ip.refine_budget
+    thr = float(0.0)
+    if budget > 0:
+        thr = split_threshold(ip, x, n)
     for k in range(count):
-        acc += vpl_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k], ip.d_min2)
+        opened = int(0)
+        if budget > 0:
+            node = ip.list_node[k]
+            rad = ip.tree_radius[node]
+            if may_split(x, ip.list_pos[k], rad, ip.refine_ratio2) != 0:  # (a single VPL has radius 0: never)
+                w = flux_weight(ip.list_flux[k])
+                if cluster_error(x, n, w, ip.list_pos[k], rad, ip.d_min2) > thr:
+                    level = node_level(node)
+                    r = descend(ip, x, n, level, node - level_offset(level), thr, budget)
+                    budget = int(r[3])
+                    acc += wp.vec3(r[0], r[1], r[2])
+                    opened = 1
+        if opened == 0:
+            acc += cluster_term(x, n, ip.list_flux[k], ip.list_pos[k], ip.list_normal[k],
+                                ip.radius_scale2 * ip.list_spread2[k], ip.d_min2)
     return acc
 
 
 @wp.func
 def gather_tree(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
-    """Top-down descent from every start-level node without a stack: depth-first in Morton order, stopping
-    at valid or limit-level nodes (the paper's breadth-first passes select the same clusters)."""
+    """The paper's per-receiver traversal: a stackless Morton-order descent from every start-level node,
+    stopping at valid or limit-level nodes (the paper's breadth-first passes select the same clusters); with
+    ``refine_budget > 0`` the descent also opens clusters by the rule of ``gather_list`` (depth first, so a
+    spent budget may leave different clusters unopened than the list order does)."""
     acc = wp.vec3(0.0, 0.0, 0.0)
-    level = ip.start_level
-    m = int(0)
-    end = 1 << (2 * ip.start_level)
-    done = int(0)
-    while done == 0:
-        node = level_offset(level) + m
-        if level >= ip.limit_level or ip.tree_valid[node] != wp.uint8(0):
-            f = ip.tree_flux[node]
-            if flux_weight(f) > 0.0:
-                acc += vpl_term(x, n, f, ip.tree_pos[node], ip.tree_normal[node], ip.d_min2)
-            # next node: the next sibling, climbing while this was the last child
-            m += 1
-            while level > ip.start_level and (m & 3) == 0:
-                m = m >> 2
-                level -= 1
-            if level == ip.start_level and m >= end:
-                done = 1
-        else:
-            level += 1
-            m = m * 4
+    budget = ip.refine_budget
+    thr = float(3.0e38)
+    if budget > 0:
+        thr = split_threshold(ip, x, n)
+    for m in range(1 << (2 * ip.start_level)):
+        r = descend(ip, x, n, ip.start_level, m, thr, budget)
+        budget = int(r[3])
+        acc += wp.vec3(r[0], r[1], r[2])
     return acc
 
 
@@ -387,6 +585,8 @@ def gather_tree(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
 def indirect_radiance(ip: IndirectParams, x: wp.vec3, n: wp.vec3, albedo: wp.vec3) -> wp.vec3:
     """albedo / pi * E(x) * strength at the receiver (x, n); zero for a zero normal."""
     if ip.enabled == 0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    if wp.dot(n, n) == 0.0:
         return wp.vec3(0.0, 0.0, 0.0)
     e = wp.vec3(0.0, 0.0, 0.0)
     if ip.use_tree != 0:

@@ -69,6 +69,7 @@ class FrameParams:
     do_cache: int
     rot: int  # per-frame rank rotation, in [0, K)
     phase: float  # per-frame jitter phase, in [0, 1)
+    xi: float  # this frame's minimum probability (SamplingParams.xi, or higher while a still view converges)
 
 
 # -- geometry -----------------------------------------------------------------------------------------------
@@ -215,6 +216,7 @@ def frame_setup_kernel(
     do_cache: int,
     rot: int,
     phase: float,
+    xi: float,
     out: wp.array(dtype=FrameParams),
 ):
     """One thread: derive the per-frame scalars on the device (no host round trip for the focus depth)."""
@@ -246,6 +248,7 @@ def frame_setup_kernel(
     f.do_cache = do_cache
     f.rot = rot
     f.phase = phase
+    f.xi = xi
     out[0] = f
 
 
@@ -378,7 +381,7 @@ def sampling_map_kernel(
     s = float(1.0)
     if sp.foveation != 0:
         e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
-        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, sp.xi, sp.fovea_deg)
+        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
         s = p
         # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
         # remaining terms cannot change it (the fovea skips them)
@@ -400,7 +403,7 @@ def sampling_map_kernel(
                 s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
             if fp.dof_on != 0:
                 s = s * dof_factor(depth[y, x], fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
-        s = wp.clamp(s, sp.xi, 1.0)
+        s = wp.clamp(s, fp.xi, 1.0)
         if wp.isnan(s):
             s = 1.0
     out_probability[y, x] = p

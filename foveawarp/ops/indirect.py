@@ -85,11 +85,13 @@ def _run(method, scene, positions, normals, albedos, config, light_index, device
 def indirect_light_tree(scene, positions, normals, albedos, *, config: Optional[IndirectConfig] = None,
                         light_index: Optional[int] = None, traversal: str = "cut", device=None) -> np.ndarray:
     """Indirect radiance from the light quad-tree (the clusters a top-down descent from
-    ``config.start_level`` selects, down to ``config.limit_level``).
+    ``config.start_level`` selects, down to ``config.limit_level``), each an extended emitter of radius
+    ``config.cluster_radius_scale`` x its RMS extent, refined per receiver up to ``config.refine_budget``
+    splits (``refine_threshold``; see ``kernels/lighttree.py``).
 
-    ``traversal="cut"`` extracts the view-independent cluster list once and sums it per receiver;
-    ``"per-receiver"`` descends the tree for every receiver (the paper's scheme). Both select the same
-    clusters."""
+    ``traversal="cut"`` extracts the view-independent cluster list once and sums it per receiver (refining
+    in list order); ``"per-receiver"`` descends the tree for every receiver (the paper's scheme; refining in
+    depth-first order). Without refinement both select the same clusters."""
     from ..config import check_choice
 
     check_choice("traversal", traversal, ("cut", "per-receiver"))
@@ -127,8 +129,10 @@ def reflective_shadow_map(scene, *, config: Optional[IndirectConfig] = None, lig
 def light_quadtree(scene, *, config: Optional[IndirectConfig] = None, light_index: Optional[int] = None,
                    device=None) -> dict:
     """The light quad-tree: ``levels`` (list, index L: dict of (2^L, 2^L[, 3]) ``flux`` (sum), ``position``,
-    ``normal``, ``depth`` (flux-weighted averages), ``valid`` (uint8)) and ``cut`` (dict of (K, 3) ``flux``,
-    ``position``, ``normal``: the clusters every receiver sums)."""
+    ``normal``, ``depth`` (flux-weighted averages), ``valid`` (uint8), ``spread2`` (flux-weighted mean squared
+    distance of the node's VPLs from its position), ``radius`` (a bounding sphere's radius about it)) and
+    ``cut`` (dict of (K, 3) ``flux``, ``position``, ``normal`` and (K,) ``spread2``: the view-independent
+    clusters every receiver starts from)."""
     ds = _device_scene(scene, device)
     stage = IndirectStage(ds, config, light_index=light_index, method="lighttree")
     stage.update(force=True)

@@ -9,10 +9,15 @@ frame but the gather.
 Methods (``method=``):
     "lighttree": the light cut. Validity is view independent, so the clusters a top-down descent selects
         are the same for every receiver: they are extracted ONCE per build (flags per node of the levels
-        start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list.
-    "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel). Same
-        clusters and the same result as "lighttree" up to float summation order; kept to measure the cost
-        of traversing per pixel.
+        start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list,
+        each cluster an extended emitter (``IndirectConfig.cluster_radius_scale``); with
+        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters whose
+        estimated error exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's
+        subtree), up to ``refine_budget`` splits (``kernels/lighttree.py``).
+    "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel), with the same
+        emitters and split rule. Without refinement it gives the same clusters and result as "lighttree" up
+        to float summation order; with it, a receiver whose budget runs out may have split other clusters
+        (depth-first order instead of list order).
     "exact": the sum over all N^2 VPLs (the reference).
     "sampled": RSM sampling with a fixed Poisson-disk pattern of ``samples`` texels, each standing for
         N^2 / samples VPLs.
@@ -190,14 +195,18 @@ class IndirectStage:
         self.tree_normal = wp.zeros(total, dtype=wp.vec3, device=dev)
         self.tree_depth = wp.zeros(total, dtype=float, device=dev)
         self.tree_valid = wp.zeros(total, dtype=wp.uint8, device=dev)
-        self._levels = []  # per level: views (flux, pos, normal, depth, valid)
+        self.tree_spread2 = wp.zeros(total, dtype=float, device=dev)
+        self.tree_radius = wp.zeros(total, dtype=float, device=dev)
+        self._levels = []  # per level: views (flux, pos, normal, depth, valid, spread2, radius)
         for lv in range(self.leaf_level + 1):
             a, b = level_offset(lv), level_offset(lv + 1)
             self._levels.append(tuple(arr[a:b] for arr in (self.tree_flux, self.tree_pos, self.tree_normal,
-                                                             self.tree_depth, self.tree_valid)))
+                                                             self.tree_depth, self.tree_valid, self.tree_spread2,
+                                                             self.tree_radius)))
         leaf = self._levels[self.leaf_level]
 
         self.list_count = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.list_node = wp.zeros(1, dtype=wp.int32, device=dev)
         if method == "lighttree":
             cap = 1 << (2 * self.limit_level)  # a cut is a partition of the leaves into nodes of level <= limit
             n_flags = level_offset(self.limit_level + 1) - level_offset(self.start_level)
@@ -206,8 +215,10 @@ class IndirectStage:
             self.list_flux = wp.zeros(cap, dtype=wp.vec3, device=dev)
             self.list_pos = wp.zeros(cap, dtype=wp.vec3, device=dev)
             self.list_normal = wp.zeros(cap, dtype=wp.vec3, device=dev)
+            self.list_spread2 = wp.zeros(cap, dtype=float, device=dev)
+            self.list_node = wp.zeros(cap, dtype=wp.int32, device=dev)
         elif method == "exact":
-            self.list_flux, self.list_pos, self.list_normal = leaf[0], leaf[1], leaf[2]
+            self.list_flux, self.list_pos, self.list_normal, self.list_spread2 = leaf[0], leaf[1], leaf[2], leaf[5]
             self.list_count.fill_(n * n)
         elif method == "sampled":
             pts = poisson_disk(self.samples, self.seed)
@@ -219,11 +230,13 @@ class IndirectStage:
             self.list_flux = wp.zeros(self.samples, dtype=wp.vec3, device=dev)
             self.list_pos = wp.zeros(self.samples, dtype=wp.vec3, device=dev)
             self.list_normal = wp.zeros(self.samples, dtype=wp.vec3, device=dev)
+            self.list_spread2 = wp.zeros(self.samples, dtype=float, device=dev)
             self.list_count.fill_(self.samples)
         else:  # traverse: the list is unused; give the struct valid (tiny) arrays
             self.list_flux = wp.zeros(1, dtype=wp.vec3, device=dev)
             self.list_pos = wp.zeros(1, dtype=wp.vec3, device=dev)
             self.list_normal = wp.zeros(1, dtype=wp.vec3, device=dev)
+            self.list_spread2 = wp.zeros(1, dtype=float, device=dev)
 
         ext = float(dscene.extent)
         self.depth_tol = float(config.depth_threshold) * ext
@@ -232,10 +245,21 @@ class IndirectStage:
         ip.tree_flux, ip.tree_pos, ip.tree_normal, ip.tree_valid = (self.tree_flux, self.tree_pos,
                                                                    self.tree_normal, self.tree_valid)
         ip.list_flux, ip.list_pos, ip.list_normal = self.list_flux, self.list_pos, self.list_normal
+        ip.tree_spread2, ip.tree_radius = self.tree_spread2, self.tree_radius
+        ip.list_spread2, ip.list_node = self.list_spread2, self.list_node
         ip.list_count = self.list_count
         ip.use_tree = 1 if method == "traverse" else 0
         ip.start_level = self.start_level
         ip.limit_level = self.limit_level
+        ip.leaf_level = self.leaf_level
+        tree = method in ("lighttree", "traverse")
+        ip.extended = 1 if tree else 0
+        ip.radius_scale2 = float(config.cluster_radius_scale) ** 2 if tree else 0.0
+        ip.refine_threshold = float(config.refine_threshold)
+        ip.refine_budget = int(config.refine_budget) if tree else 0
+        ip.refine_ratio2 = float(config.refine_min_ratio) ** 2
+        # a receiver whose estimate is below 1e-6 of the total flux per extent^2 splits as if it were that
+        ip.floor_per_flux = 1.0e-6 / max(ext * ext, 1.0e-30)
         ip.d_min2 = max(d_min * d_min, 1.0e-30)
         ip.scale = float(config.strength) / (math.pi * math.pi)
         ip.enabled = 1 if self.enabled else 0
@@ -342,6 +366,8 @@ class IndirectStage:
             a = a.astype(np.float32)
             dst.assign(np.ascontiguousarray(a.reshape(n * n, -1)[order].reshape((n * n, 3) if ch == 3 else -1)))
         leaf[4].fill_(1)
+        leaf[5].zero_()
+        leaf[6].zero_()
         self._built_light = _light_key(self.light) if self.enabled else ("loaded",)
 
     def build_tree(self) -> None:
@@ -360,8 +386,9 @@ class IndirectStage:
             wp.utils.array_scan(self._flags, self._slots, inclusive=False)
             wp.launch(cut_scatter_kernel, dim=nf,
                       inputs=[self._flags, self._slots, level_offset(self.start_level), self.tree_flux,
-                              self.tree_pos, self.tree_normal],
-                      outputs=[self.list_flux, self.list_pos, self.list_normal, self.list_count], device=dev)
+                              self.tree_pos, self.tree_normal, self.tree_spread2],
+                      outputs=[self.list_flux, self.list_pos, self.list_normal, self.list_spread2, self.list_node,
+                               self.list_count], device=dev)
         elif self.method == "sampled":
             wp.launch(gather_samples_kernel, dim=self.samples,
                       inputs=[self._texels, self.sample_weight, leaf[0], leaf[1], leaf[2]],
@@ -461,13 +488,14 @@ class IndirectStage:
         side = 1 << level
         rows, cols = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
         k = morton_index(rows, cols)
-        names = ("flux", "position", "normal", "depth", "valid")
+        names = ("flux", "position", "normal", "depth", "valid", "spread2", "radius")
         return {nm: arr.numpy()[k] for nm, arr in zip(names, self._levels[level])}
 
     def rsm_numpy(self) -> dict:
         """The RSM as (N, N[, 3]) images: flux, position, normal, depth; and the texel ``solid_angle``."""
         d = self.level_numpy(self.leaf_level)
-        d.pop("valid")
+        for k in ("valid", "spread2", "radius"):
+            d.pop(k)
         l = self.light
         cos_outer = -1.0 if l is None or l.kind == "point" else math.cos(math.radians(min(l.cone_deg, 180.0)))
         d["solid_angle"] = 2.0 * math.pi * (1.0 - cos_outer) / float(self.rsm_size ** 2)
@@ -475,9 +503,10 @@ class IndirectStage:
 
     def cut_numpy(self) -> dict:
         """The VPL list a receiver sums ("lighttree": the light cut; "exact": all VPLs; "sampled": the
-        weighted samples) as (K, 3) arrays flux, position, normal."""
+        weighted samples) as (K, 3) arrays flux, position, normal, and (K,) ``spread2`` (the clusters'
+        flux-weighted mean squared extent; 0 for single VPLs)."""
         if self.method == "traverse":
             raise ValueError("method 'traverse' keeps no list; use method 'lighttree' for the cut")
         k = int(self.list_count.numpy()[0])
         return {"flux": self.list_flux.numpy()[:k], "position": self.list_pos.numpy()[:k],
-                "normal": self.list_normal.numpy()[:k]}
+                "normal": self.list_normal.numpy()[:k], "spread2": self.list_spread2.numpy()[:k]}

@@ -13,7 +13,7 @@ import warp as wp
 from .. import parallel
 from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
-from ..config import Config, check_bool, check_int_range, check_vec, show
+from ..config import Config, check_bool, check_int_range, check_range, check_vec, show
 from ..kernels.camera import CameraParams
 from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
 from ..kernels.sampling import (
@@ -211,7 +211,7 @@ class SamplingStage:
         self.launch(gbuffer)
 
     def set_frame(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
-                  eye_prev=None, camera_prev: Optional[Camera] = None) -> None:
+                  eye_prev=None, camera_prev: Optional[Camera] = None, min_probability: Optional[float] = None) -> None:
         """Validate this frame's inputs, decide what to skip (``self.skipped``) and launch the one-thread setup
         kernel that writes every per-frame value (gaze, w_min, w_far, focus depth read from the G-buffer at the
         gaze pixel, threshold rotation, flags) to ``self.frame_params`` on the device.
@@ -227,6 +227,8 @@ class SamplingStage:
             eye_prev: previous eye position (world units); required unless ``first_frame``.
             camera_prev: optional previous camera; given, the velocity term uses object motion only
                 (camera motion removed), otherwise the G-buffer velocity (which includes camera motion).
+            min_probability: this frame's minimum probability xi in [0, 1]; None: the config's
+                (``FoveationConfig.effective_min_probability``); a smaller value is raised to it.
         """
         w, h = self.width, self.height
         gaze = _check_gaze(gaze_px)
@@ -285,13 +287,16 @@ class SamplingStage:
                 raise ValueError(f"camera_prev must be a foveawarp.Camera or None, got {type(camera_prev).__name__}")
             obj_vel = 1
             cam_prev = camera_prev.params(w, h)
+        xi = float(self.params.xi)
+        if min_probability is not None:
+            xi = max(xi, check_range("min_probability", min_probability, 0.0, 1.0))
         rot, phase = frame_rotation(fi, self.block)
         gx, gy = clamp_gaze(gaze, w, h)
         self.skipped = skipped
         wp.launch(frame_setup_kernel, dim=1,
                   inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope, self.params.mar_fovea_deg,
                           NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg), focus_mode, focus,
-                          gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache, rot, phase],
+                          gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache, rot, phase, xi],
                   outputs=[self.frame_params], device=self.device)
 
     def launch(self, gbuffer) -> None:

@@ -4,6 +4,7 @@ lights, light inside or outside the geometry."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -44,7 +45,8 @@ def test_vpls_at_the_receiver(device, cases, scale, light_kind, light_inside, co
     light_inside = light_inside and light_kind == "spot"
     scene = _room(scale, light_kind, light_inside, cone)
     lvl = int(round(math.log2(rsm)))
-    cfg = IndirectConfig(rsm_size=rsm, start_level=min(1, lvl), limit_level=min(2, lvl), d_min_rel=d_min_rel)
+    cfg = IndirectConfig(rsm_size=rsm, start_level=min(1, lvl), limit_level=min(2, lvl), d_min_rel=d_min_rel,
+                         refine_threshold=1e-6, refine_budget=32, refine_min_ratio=0.0)
     ds = fw.DeviceScene(scene, device)
     r = ops.reflective_shadow_map(ds, config=cfg)
     flux = assert_finite("rsm flux", r["flux"]).reshape(-1, 3)
@@ -77,10 +79,13 @@ def test_vpls_at_the_receiver(device, cases, scale, light_kind, light_inside, co
     alb = rng.random((n, 3)).astype(np.float32)
     bound = alb.astype(np.float64) / math.pi ** 2 * flux.astype(np.float64).sum(axis=0) / max(d_min * d_min,
                                                                                                1e-30)
+    plain = dataclasses.replace(cfg, refine_budget=0)  # extended emitters, no per-receiver refinement
     outs = {
         "exact": ops.indirect_vpl_exact(ds, p, normals, alb, config=cfg),
-        "cut": ops.indirect_light_tree(ds, p, normals, alb, config=cfg),
-        "traverse": ops.indirect_light_tree(ds, p, normals, alb, config=cfg, traversal="per-receiver"),
+        "cut": ops.indirect_light_tree(ds, p, normals, alb, config=plain),
+        "traverse": ops.indirect_light_tree(ds, p, normals, alb, config=plain, traversal="per-receiver"),
+        "cut refined": ops.indirect_light_tree(ds, p, normals, alb, config=cfg),
+        "traverse refined": ops.indirect_light_tree(ds, p, normals, alb, config=cfg, traversal="per-receiver"),
         "sampled": ops.indirect_rsm_sampled(ds, p, normals, alb, config=cfg, samples=min(64, rsm * rsm)),
     }
     for name, o in outs.items():
@@ -91,4 +96,4 @@ def test_vpls_at_the_receiver(device, cases, scale, light_kind, light_inside, co
         assert (o[kind == 3] == 0).all(), f"{name}: a zero normal received light"
     np.testing.assert_allclose(outs["cut"], outs["traverse"], rtol=1e-4,
                                atol=float(1e-5 * max(outs["cut"].max(), 1e-30)))
-    cases.add("indirect receivers at / near VPLs (4 methods each)", n)
+    cases.add("indirect receivers at / near VPLs (6 methods each)", n)
