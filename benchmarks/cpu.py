@@ -151,6 +151,7 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=None, help="timed frames per point and round")
     p.add_argument("--rounds", type=int, default=None, help="interleaved rounds (default 3; 1 with --quick)")
     p.add_argument("--scaling-scene", default="cornell")
+    p.add_argument("--oversplit", default="1,2,4,8", help="bands per thread to compare at the most threads ('' = skip)")
     args = p.parse_args(argv)
     dev = get_device(args.device or "cpu")
     if args.quick:
@@ -188,6 +189,19 @@ def main(argv=None):
             r["reference_speedup"] = b["reference_ms"] / r["reference_ms"]
             r["reference_speedup_best"] = b["reference_best_ms"] / r["reference_best_ms"]
     payload["scaling_scene"] = args.scaling_scene
+    oversplit = []
+    if dev.is_cpu and tmax > 1 and args.oversplit:
+        # bands per thread at the most threads (parallel.OVERSPLIT): load balance against Python per band
+        default = parallel.OVERSPLIT
+        fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
+        for k in [int(v) for v in args.oversplit.split(",")]:
+            parallel.OVERSPLIT = k
+            m = interleaved({"fov": (fl, False)}, frames, warmup, rounds)
+            oversplit.append({"oversplit": k, "threads": tmax, "foveated_ms": m["fov"]["median_ms"],
+                              "foveated_best_ms": m["fov"]["best_ms"]})
+            print("oversplit", oversplit[-1], flush=True)
+        parallel.OVERSPLIT = default
+    payload["oversplit_sweep"] = oversplit
     payload["scaling"] = scaling
 
     versus = []
@@ -223,6 +237,9 @@ def main(argv=None):
         md += md_table(scaling, ["threads", "foveated_ms", "foveated_speedup", "foveated_best_ms",
                                  "foveated_speedup_best", "reference_ms", "reference_speedup", "reference_best_ms",
                                  "reference_speedup_best"])
+    if oversplit:
+        md += f"\n### Bands per thread (parallel.OVERSPLIT, default {parallel.OVERSPLIT}) at {tmax} threads\n\n"
+        md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms"])
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
                             "foveated_best_ms", "reference_best_ms", "reference_over_foveated_best",

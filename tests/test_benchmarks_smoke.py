@@ -61,3 +61,24 @@ def test_viewer_benchmark_quick(tmp_path):
     assert row["frames"] > 0 and row["fps_delivered"] > 0
     assert row["latency_samples"] > 0 and 0 < row["latency_server_p50_ms"] <= row["latency_server_p95_ms"]
     assert (tmp_path / "viewer-cpu.md").is_file()
+
+
+def test_cpu_benchmark_quick(tmp_path):
+    """benchmarks/cpu.py at 96x54 on the CPU with 1 and 2 threads: scaling rows, foveated vs reference rows,
+    the primary-ray comparison (Embree part only when embreex is installed) and the plot's inputs."""
+    _run([str(REPO / "benchmarks" / "cpu.py"), "--quick", "--device", "cpu", "--scenes", "cornell", "--threads",
+          "1,2", "--oversplit", "2", "--frames", "2"], tmp_path)
+    res = json.loads((tmp_path / "cpu-cpu.json").read_text())
+    assert res["benchmark"] == "cpu" and res["resolution"] == "96x54" and res["commit"]
+    assert [r["threads"] for r in res["scaling"]] == [1, 2]
+    assert res["scaling"][0]["foveated_speedup"] == 1.0
+    assert all(r["foveated_ms"] > 0 and r["reference_ms"] > 0 for r in res["scaling"])
+    assert [(r["scene"], r["shading"]) for r in res["foveated_vs_reference"]] == [("cornell", "default"),
+                                                                               ("cornell", "ao_samples=8")]
+    (rays,) = res["primary_rays"]
+    assert rays["rays"] == 96 * 54 and 0 < rays["hit_fraction"] < 1
+    if "embree_1t_mrays_s" in rays:
+        assert rays["same_hit_miss"] > 0.99 and rays["same_face"] > 0.95
+    else:
+        assert "not installed" in rays["embree"]
+    assert [r["oversplit"] for r in res["oversplit_sweep"]] == [2]
