@@ -197,16 +197,22 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
                         device=dev, record_cmd=True)
         packed = _pack(cmd)
 
+    # bands have at most two sizes: their launch bounds are built here once and only read by the entry point
+    sized = {}
+    if packed is not None:
+        for r0, r1 in parts:
+            if r1 - r0 not in sized:
+                sized[r1 - r0] = _bounds_of((r1 - r0, *dims[1:]), packed[3])
+
     def run(band):
         r0, r1 = band
-        d = (r1 - r0, *dims[1:])
         if packed is not None:
-            forward, struct_type, args, kernel_dim = packed
+            forward, struct_type, args, _ = packed
             a = struct_type.from_buffer_copy(args)
             a.row0 = r0
-            bounds = _bounds_of(d, kernel_dim)
-            forward(ctypes.byref(bounds), ctypes.byref(a))
+            forward(ctypes.byref(sized[r1 - r0]), ctypes.byref(a))
         else:
+            d = (r1 - r0, *dims[1:])
             wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
     # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
