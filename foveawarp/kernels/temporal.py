@@ -145,108 +145,95 @@ def resolve_kernel(
     i = y * w + x
     zero = wp.vec3(0.0, 0.0, 0.0)
     sampled = sample_map[y, x] != wp.uint8(0)
+    n = normal[y, x]
+    # what this pixel shows and keeps: colour, stochastic part, age, staleness, filled (written once, below)
+    col = zero
+    st = zero
+    age = int(0)
+    stale = int(0)
+    filled = wp.uint8(0)
     if hit[y, x] == wp.uint8(0):
         # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
-        out_color[y, x] = tp.background
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[i] = tp.background
-        hist_stoch[i] = zero
-        hist_normal[i] = zero
-        hist_age[i] = 0
-        hist_stale[i] = 0
-        return
-    n = normal[y, x]
-    if sampled and tp.stochastic == 0:
+        col = tp.background
+        filled = wp.uint8(1)
+    elif sampled and tp.stochastic == 0:
         # deterministic shading: the fresh value is the answer; history would only add error
-        c = fresh[y, x]
-        out_color[y, x] = c
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[i] = c
-        hist_stoch[i] = zero
-        hist_normal[i] = n
-        hist_age[i] = 1
-        hist_stale[i] = 0
-        return
-    # bilinear history at the reprojected position, each tap validated by depth and normal
-    wsum = float(0.0)
-    hc = zero
-    hs = zero
-    age_h = int(1 << 30)
-    stale_h = int(0)
-    uv = reproj_uv[y, x]
-    if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
-        x0, y0, fx, fy = bilinear_taps(uv, w, h)
-        d = depth[y, x]
-        dp = prev_dist[y, x]
-        for k in range(4):
-            tx = x0 + (k & 1)
-            ty = y0 + (k >> 1)
-            wx = fx
-            if (k & 1) == 0:
-                wx = 1.0 - fx
-            wy = fy
-            if (k >> 1) == 0:
-                wy = 1.0 - fy
-            wt = wx * wy
-            if wt > 0.0:
-                if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, valid_prev, hist_normal_prev, hist_age_prev) != 0:
-                    j = ty * w + tx
-                    wsum += wt
-                    hc += hist_color_prev[j] * wt
-                    if tp.stochastic != 0:
-                        hs += hist_stoch_prev[j] * wt
-                    age_h = wp.min(age_h, hist_age_prev[j])
-                    stale_h = wp.max(stale_h, hist_stale_prev[j])
-    have = wsum > 1.0e-3
-    if have:
-        hc = hc / wsum
-        hs = hs / wsum
-    if sampled:
-        # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
-        c = fresh[y, x]
-        s = fresh_stoch[y, x]
-        age = int(1)
+        col = fresh[y, x]
+        age = 1
+        filled = wp.uint8(1)
+    else:
+        # bilinear history at the reprojected position, each tap validated by depth and normal
+        wsum = float(0.0)
+        hc = zero
+        hs = zero
+        age_h = int(1 << 30)
+        stale_h = int(0)
+        uv = reproj_uv[y, x]
+        if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
+            x0, y0, fx, fy = bilinear_taps(uv, w, h)
+            d = depth[y, x]
+            dp = prev_dist[y, x]
+            for k in range(4):
+                tx = x0 + (k & 1)
+                ty = y0 + (k >> 1)
+                wx = fx
+                if (k & 1) == 0:
+                    wx = 1.0 - fx
+                wy = fy
+                if (k >> 1) == 0:
+                    wy = 1.0 - fy
+                wt = wx * wy
+                if wt > 0.0:
+                    if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, valid_prev, hist_normal_prev,
+                              hist_age_prev) != 0:
+                        j = ty * w + tx
+                        wsum += wt
+                        hc += hist_color_prev[j] * wt
+                        if tp.stochastic != 0:
+                            hs += hist_stoch_prev[j] * wt
+                        age_h = wp.min(age_h, hist_age_prev[j])
+                        stale_h = wp.max(stale_h, hist_stale_prev[j])
+        have = wsum > 1.0e-3
         if have:
-            lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
-            if cnt >= 3:
-                hs = clip_to_box(hs, lo, hi)
-            m = wp.min(age_h, tp.max_frames - 1)
-            alpha = 1.0 / float(m + 1)
-            alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
-            alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
-            s_acc = hs + (s - hs) * alpha
-            c = c - s + s_acc
-            s = s_acc
-            age = m + 1
-        out_color[y, x] = c
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[i] = c
-        hist_stoch[i] = s
-        hist_normal[i] = n
-        hist_age[i] = age
-        hist_stale[i] = 0
-        return
-    still = wp.length(velocity[y, x]) <= 0.5
-    young_ok = age_h >= tp.min_age_reuse or still
-    stale_max = tp.max_frames
-    if tp.stochastic != 0 and not still:
-        stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
-    if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
-        out_color[y, x] = hc
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[i] = hc
-        hist_stoch[i] = hs
-        hist_normal[i] = n
-        hist_age[i] = age_h
-        hist_stale[i] = stale_h + 1
-        return
-    out_color[y, x] = zero
-    out_filled[y, x] = wp.uint8(0)
-    hist_color[i] = zero
-    hist_stoch[i] = zero
+            hc = hc / wsum
+            hs = hs / wsum
+        if sampled:
+            # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
+            col = fresh[y, x]
+            st = fresh_stoch[y, x]
+            age = 1
+            if have:
+                lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
+                if cnt >= 3:
+                    hs = clip_to_box(hs, lo, hi)
+                m = wp.min(age_h, tp.max_frames - 1)
+                alpha = 1.0 / float(m + 1)
+                alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
+                alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
+                s_acc = hs + (st - hs) * alpha
+                col = col - st + s_acc
+                st = s_acc
+                age = m + 1
+            filled = wp.uint8(1)
+        else:
+            still = wp.length(velocity[y, x]) <= 0.5
+            young_ok = age_h >= tp.min_age_reuse or still
+            stale_max = tp.max_frames
+            if tp.stochastic != 0 and not still:
+                stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
+            if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
+                col = hc
+                st = hs
+                age = age_h
+                stale = stale_h + 1
+                filled = wp.uint8(1)
+    out_color[y, x] = col
+    out_filled[y, x] = filled
+    hist_color[i] = col
+    hist_stoch[i] = st
     hist_normal[i] = n
-    hist_age[i] = 0
-    hist_stale[i] = 0
+    hist_age[i] = age
+    hist_stale[i] = stale
 
 
 @wp.func
