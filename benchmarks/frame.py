@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
 
@@ -225,7 +225,7 @@ def main(argv=None):
             for cname, over in configs:
                 cfg = fw.Config().with_(**over) if over else fw.Config()
                 base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "config": cname,
-                        "overrides": over, "metrics_on": where}
+                        "overrides": over, "metrics_on": where, "commit": git_commit()}
                 t0 = time.perf_counter()
                 if "quality" in parts:
                     q = quality(fw, scene, w, h, dev, cfg, args.frames, metrics)

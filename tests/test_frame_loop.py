@@ -302,7 +302,7 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     assert paths[:n] == ["foveated"] * n and paths[n:2 * n] == ["full"] * n
     est = f.stats["policy"]
     assert est["foveated_ms"] > 0 and est["full_ms"] > 0
-    cheaper = "full" if est["full_ms"] < (1 - loop.POLICY_MARGIN) * est["foveated_ms"] else "foveated"
+    cheaper = "foveated" if est["foveated_ms"] < (1 - loop.POLICY_MARGIN) * est["full_ms"] else "full"
     assert paths[2 * n:] == [cheaper] * 3
     if cheaper == "full":
         assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]

@@ -15,29 +15,6 @@ from foveawarp.stages.temporal import TemporalStage
 BG = np.array([0.02, 0.02, 0.03])
 
 
-def np_oct_encode(n):
-    """Octahedral encoding (NumPy, written from the definition), quantized to float16 like the history."""
-    n = np.asarray(n, np.float64)
-    s = np.abs(n).sum(-1, keepdims=True)
-    p = np.divide(n[..., :2], s, out=np.zeros_like(n[..., :2]), where=s > 0)
-    neg = n[..., 2] < 0
-    fold = (1.0 - np.abs(p[..., ::-1])) * np.where(p >= 0, 1.0, -1.0)  # sign(0) = +1, as wp.sign
-    p = np.where(neg[..., None], fold, p)
-    return p.astype(np.float16)
-
-
-def np_oct_decode(e):
-    e = np.asarray(e, np.float64)
-    x, y = e[..., 0], e[..., 1]
-    z = 1.0 - np.abs(x) - np.abs(y)
-    fx = (1.0 - np.abs(y)) * np.where(x >= 0, 1.0, -1.0)
-    fy = (1.0 - np.abs(x)) * np.where(y >= 0, 1.0, -1.0)
-    x, y = np.where(z < 0, fx, x), np.where(z < 0, fy, y)
-    v = np.stack([x, y, z], -1)
-    l = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, l, out=np.zeros_like(v), where=l > 0)
-
-
 def ref_resolve(inp, prev, cfg, use_history, stochastic):
     """Per-pixel loop of the rule in TemporalStage's docstring (NumPy, float64)."""
     h, w = inp["hit"].shape
@@ -68,9 +45,9 @@ def ref_resolve(inp, prev, cfg, use_history, stochastic):
                     if wt <= 0 or not (0 <= tx < w and 0 <= ty < h):
                         continue
                     j = ty * w + tx
-                    ok = (prev["age"][j] > 0
+                    ok = (prev["valid"][ty, tx] and prev["age"][j] > 0
                           and abs(prev["depth"][ty, tx] - inp["prev_dist"][y, x]) < cfg.depth_eps_rel * inp["depth"][y, x]
-                          and np.dot(prev["normal_dec"][j], inp["normal"][y, x]) >= cfg.normal_cos_min)
+                          and np.dot(prev["normal"][j], inp["normal"][y, x]) >= cfg.normal_cos_min)
                     if ok:
                         wsum += wt
                         hc += wt * prev["color"][j]
@@ -120,13 +97,11 @@ def _setup(rng, h, w, device, stochastic):
             "depth": rng.uniform(2.0, 3.0, (h, w)), "valid": (rng.random((h, w)) < 0.9).astype(np.uint8)}
     # history on the previous slot
     p = st._cur
-    st._hc[p].assign(prev["color"].astype(np.float32).reshape(h, w, 3))
-    st._hst[p].assign(prev["stoch"].astype(np.float32).reshape(h, w, 3))
-    enc = np_oct_encode(prev["normal"])
-    st._hn[p].assign(enc.reshape(h, w, 2))
-    prev["normal_dec"] = np_oct_decode(enc)
-    st._ha[p].assign(prev["age"].reshape(h, w))
-    st._hs[p].assign(prev["stale"].reshape(h, w))
+    st._hc[p].assign(prev["color"].astype(np.float32))
+    st._hst[p].assign(prev["stoch"].astype(np.float32))
+    st._hn[p].assign(prev["normal"].astype(np.float32))
+    st._ha[p].assign(prev["age"])
+    st._hs[p].assign(prev["stale"])
     ys, xs = np.mgrid[0:h, 0:w]
     uv = np.stack([xs + 0.5 + rng.uniform(-1.5, 1.5, (h, w)), ys + 0.5 + rng.uniform(-1.5, 1.5, (h, w))], -1)
     uv[rng.random((h, w)) < 0.05] = -1e4
@@ -200,9 +175,9 @@ def test_variance_clipping_on_a_step_edge(device):
     hist.reshape(h, w, 3)[:, : w // 2] = 0.2  # consistent
     hist.reshape(h, w, 3)[:, w // 2:] = 0.2  # the right half's history is stale: 0.2 instead of 0.8
     p = st._cur
-    st._hc[p].assign(hist.reshape(h, w, 3))
-    st._hst[p].assign(hist.reshape(h, w, 3))
-    st._hn[p].assign(np_oct_encode(np.tile([0.0, 0.0, 1.0], (h, w, 1))))
+    st._hc[p].assign(hist)
+    st._hst[p].assign(hist)
+    st._hn[p].fill_(wp.vec3(0.0, 0.0, 1.0))
     st._ha[p].fill_(15)
     g = GBuffer(w, h, device)
     g.hit.fill_(1)
@@ -278,33 +253,3 @@ def test_still_stochastic_view_converges_with_progressive_sampling():
     for i in range(4):
         fd = d.render(scene.camera, gaze_px=(64.0, 36.0))
         assert "foveation.min_probability" not in fd.stats["skipped"]
-
-
-def test_octahedral_normals_roundtrip(device, rng):
-    """The history's 4-byte normals: kernel encode/decode against the NumPy encoding, and within 0.15 degree of
-    the unit vector for random and axis-aligned normals; finite for a zero one."""
-    from foveawarp.kernels.temporal import oct_decode, oct_encode
-
-    @wp.kernel
-    def rt(n: wp.array(dtype=wp.vec3), e: wp.array(dtype=wp.vec2h), d: wp.array(dtype=wp.vec3)):
-        i = wp.tid()
-        e[i] = oct_encode(n[i])
-        d[i] = oct_decode(e[i])
-
-    v = rng.normal(size=(500, 3))
-    v = np.concatenate([v, np.eye(3), -np.eye(3), [[0.0, 0.0, 0.0]], [[1.0, -1.0, 0.0]], [[0.0, 1.0, -1.0]]])
-    u = np.divide(v, np.linalg.norm(v, axis=1, keepdims=True), out=np.zeros_like(v),
-                  where=np.linalg.norm(v, axis=1, keepdims=True) > 0)
-    n = wp.array(u.astype(np.float32), dtype=wp.vec3, device=device)
-    e = wp.zeros(len(u), dtype=wp.vec2h, device=device)
-    d = wp.zeros(len(u), dtype=wp.vec3, device=device)
-    wp.launch(rt, dim=len(u), inputs=[n], outputs=[e, d], device=device)
-    np.testing.assert_allclose(e.numpy().astype(np.float64), np_oct_encode(u.astype(np.float32)).astype(np.float64),
-                               atol=1e-3)
-    dec = d.numpy()
-    nz = np.linalg.norm(u, axis=1) > 0
-    ang = np.degrees(np.arccos(np.clip(np.sum(dec[nz] * u[nz], 1), -1, 1)))
-    assert ang.max() < 0.15, ang.max()
-    # a zero normal (a miss, never reused: its age is 0) decodes to a finite unit vector
-    np.testing.assert_allclose(np.linalg.norm(dec[~nz], axis=1), 1.0, atol=1e-6)
-    assert np.isfinite(dec).all()

@@ -50,52 +50,21 @@ def bilinear_taps(uv: wp.vec2, w: int, h: int):
 
 
 @wp.func
-def oct_encode(n: wp.vec3) -> wp.vec2h:
-    """Unit vector -> octahedral coordinates in [-1, 1]^2 as two halves (4 bytes instead of 12)."""
-    s = wp.abs(n[0]) + wp.abs(n[1]) + wp.abs(n[2])
-    if s <= 0.0:
-        return wp.vec2h(wp.float16(0.0), wp.float16(0.0))
-    x = n[0] / s
-    y = n[1] / s
-    if n[2] < 0.0:
-        ox = (1.0 - wp.abs(y)) * wp.sign(x)
-        oy = (1.0 - wp.abs(x)) * wp.sign(y)
-        x = ox
-        y = oy
-    return wp.vec2h(wp.float16(x), wp.float16(y))
-
-
-@wp.func
-def oct_decode(e: wp.vec2h) -> wp.vec3:
-    x = float(e[0])
-    y = float(e[1])
-    z = 1.0 - wp.abs(x) - wp.abs(y)
-    if z < 0.0:
-        ox = (1.0 - wp.abs(y)) * wp.sign(x)
-        oy = (1.0 - wp.abs(x)) * wp.sign(y)
-        x = ox
-        y = oy
-    v = wp.vec3(x, y, z)
-    l = wp.length(v)
-    if l <= 0.0:
-        return wp.vec3(0.0, 0.0, 0.0)
-    return v / l
-
-
-@wp.func
 def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth: float, tp: TemporalParams,
-           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array2d(dtype=wp.vec2h),
-           age_prev: wp.array2d(dtype=wp.int32)) -> int:
-    """1 when history tap (tx, ty) holds a colour of the same surface: on screen, filled last frame (age > 0),
-    the depth the point had there (``dist_prev``) within ``depth_eps_rel * depth``, the normal within
-    ``normal_cos_min``."""
+           depth_prev: wp.array2d(dtype=float), valid_prev: wp.array2d(dtype=wp.uint8),
+           normal_prev: wp.array(dtype=wp.vec3), age_prev: wp.array(dtype=wp.int32)) -> int:
+    """1 when history tap (tx, ty) holds a colour of the same surface: on screen, filled last frame, the depth
+    the point had there (``dist_prev``) within ``depth_eps_rel * depth``, the normal within ``normal_cos_min``."""
     if tx < 0 or ty < 0 or tx >= w or ty >= h:
         return 0
-    if age_prev[ty, tx] <= 0:
+    if valid_prev[ty, tx] == wp.uint8(0):
+        return 0
+    i = ty * w + tx
+    if age_prev[i] <= 0:
         return 0
     if not (wp.abs(depth_prev[ty, tx] - dist_prev) < tp.depth_eps_rel * depth):
         return 0
-    if wp.dot(oct_decode(normal_prev[ty, tx]), n) < tp.normal_cos_min:
+    if wp.dot(normal_prev[i], n) < tp.normal_cos_min:
         return 0
     return 1
 
@@ -156,120 +125,117 @@ def resolve_kernel(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    hist_color_prev: wp.array2d(dtype=wp.vec3),
-    hist_stoch_prev: wp.array2d(dtype=wp.vec3),
-    hist_normal_prev: wp.array2d(dtype=wp.vec2h),
-    hist_age_prev: wp.array2d(dtype=wp.int32),
-    hist_stale_prev: wp.array2d(dtype=wp.int32),
+    valid_prev: wp.array2d(dtype=wp.uint8),
+    hist_color_prev: wp.array(dtype=wp.vec3),
+    hist_stoch_prev: wp.array(dtype=wp.vec3),
+    hist_normal_prev: wp.array(dtype=wp.vec3),
+    hist_age_prev: wp.array(dtype=wp.int32),
+    hist_stale_prev: wp.array(dtype=wp.int32),
+    out_color: wp.array2d(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
-    hist_color: wp.array2d(dtype=wp.vec3),
-    hist_stoch: wp.array2d(dtype=wp.vec3),
-    hist_normal: wp.array2d(dtype=wp.vec2h),
-    hist_age: wp.array2d(dtype=wp.int32),
-    hist_stale: wp.array2d(dtype=wp.int32),
+    hist_color: wp.array(dtype=wp.vec3),
+    hist_stoch: wp.array(dtype=wp.vec3),
+    hist_normal: wp.array(dtype=wp.vec3),
+    hist_age: wp.array(dtype=wp.int32),
+    hist_stale: wp.array(dtype=wp.int32),
     row0: int,
 ):
-    """The colour output is ``hist_color`` itself (the stage's ``color``); ``hist_stoch`` is written only with
-    stochastic shading (it is read only then)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    w = hist_color.shape[1]
-    h = hist_color.shape[0]
+    w = out_color.shape[1]
+    h = out_color.shape[0]
+    i = y * w + x
     zero = wp.vec3(0.0, 0.0, 0.0)
     sampled = sample_map[y, x] != wp.uint8(0)
+    n = normal[y, x]
+    # what this pixel shows and keeps: colour, stochastic part, age, staleness, filled (written once, below)
+    col = zero
+    st = zero
+    age = int(0)
+    stale = int(0)
+    filled = wp.uint8(0)
     if hit[y, x] == wp.uint8(0):
         # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[y, x] = tp.background
-        if tp.stochastic != 0:
-            hist_stoch[y, x] = zero
-        hist_age[y, x] = 0
-        hist_stale[y, x] = 0
-        return
-    n = normal[y, x]
-    if sampled and tp.stochastic == 0:
+        col = tp.background
+        filled = wp.uint8(1)
+    elif sampled and tp.stochastic == 0:
         # deterministic shading: the fresh value is the answer; history would only add error
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[y, x] = fresh[y, x]
-        hist_normal[y, x] = oct_encode(n)
-        hist_age[y, x] = 1
-        hist_stale[y, x] = 0
-        return
-    # bilinear history at the reprojected position, each tap validated by depth and normal
-    wsum = float(0.0)
-    hc = zero
-    hs = zero
-    age_h = int(1 << 30)
-    stale_h = int(0)
-    uv = reproj_uv[y, x]
-    if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
-        x0, y0, fx, fy = bilinear_taps(uv, w, h)
-        d = depth[y, x]
-        dp = prev_dist[y, x]
-        for k in range(4):
-            tx = x0 + (k & 1)
-            ty = y0 + (k >> 1)
-            wx = fx
-            if (k & 1) == 0:
-                wx = 1.0 - fx
-            wy = fy
-            if (k >> 1) == 0:
-                wy = 1.0 - fy
-            wt = wx * wy
-            if wt > 0.0:
-                if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, hist_normal_prev, hist_age_prev) != 0:
-                    wsum += wt
-                    hc += hist_color_prev[ty, tx] * wt
-                    if tp.stochastic != 0:
-                        hs += hist_stoch_prev[ty, tx] * wt
-                    age_h = wp.min(age_h, hist_age_prev[ty, tx])
-                    stale_h = wp.max(stale_h, hist_stale_prev[ty, tx])
-    have = wsum > 1.0e-3
-    if have:
-        hc = hc / wsum
-        hs = hs / wsum
-    if sampled:
-        # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
-        c = fresh[y, x]
-        s = fresh_stoch[y, x]
-        age = int(1)
+        col = fresh[y, x]
+        age = 1
+        filled = wp.uint8(1)
+    else:
+        # bilinear history at the reprojected position, each tap validated by depth and normal
+        wsum = float(0.0)
+        hc = zero
+        hs = zero
+        age_h = int(1 << 30)
+        stale_h = int(0)
+        uv = reproj_uv[y, x]
+        if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
+            x0, y0, fx, fy = bilinear_taps(uv, w, h)
+            d = depth[y, x]
+            dp = prev_dist[y, x]
+            for k in range(4):
+                tx = x0 + (k & 1)
+                ty = y0 + (k >> 1)
+                wx = fx
+                if (k & 1) == 0:
+                    wx = 1.0 - fx
+                wy = fy
+                if (k >> 1) == 0:
+                    wy = 1.0 - fy
+                wt = wx * wy
+                if wt > 0.0:
+                    if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, valid_prev, hist_normal_prev,
+                              hist_age_prev) != 0:
+                        j = ty * w + tx
+                        wsum += wt
+                        hc += hist_color_prev[j] * wt
+                        if tp.stochastic != 0:
+                            hs += hist_stoch_prev[j] * wt
+                        age_h = wp.min(age_h, hist_age_prev[j])
+                        stale_h = wp.max(stale_h, hist_stale_prev[j])
+        have = wsum > 1.0e-3
         if have:
-            lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
-            if cnt >= 3:
-                hs = clip_to_box(hs, lo, hi)
-            m = wp.min(age_h, tp.max_frames - 1)
-            alpha = 1.0 / float(m + 1)
-            alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
-            alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
-            s_acc = hs + (s - hs) * alpha
-            c = c - s + s_acc
-            s = s_acc
-            age = m + 1
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[y, x] = c
-        hist_stoch[y, x] = s
-        hist_normal[y, x] = oct_encode(n)
-        hist_age[y, x] = age
-        hist_stale[y, x] = 0
-        return
-    still = wp.length(velocity[y, x]) <= 0.5
-    young_ok = age_h >= tp.min_age_reuse or still
-    stale_max = tp.max_frames
-    if tp.stochastic != 0 and not still:
-        stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
-    if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
-        out_filled[y, x] = wp.uint8(1)
-        hist_color[y, x] = hc
-        if tp.stochastic != 0:
-            hist_stoch[y, x] = hs
-        hist_normal[y, x] = oct_encode(n)
-        hist_age[y, x] = age_h
-        hist_stale[y, x] = stale_h + 1
-        return
-    out_filled[y, x] = wp.uint8(0)
-    hist_color[y, x] = zero
-    hist_age[y, x] = 0
-    hist_stale[y, x] = 0
+            hc = hc / wsum
+            hs = hs / wsum
+        if sampled:
+            # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
+            col = fresh[y, x]
+            st = fresh_stoch[y, x]
+            age = 1
+            if have:
+                lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
+                if cnt >= 3:
+                    hs = clip_to_box(hs, lo, hi)
+                m = wp.min(age_h, tp.max_frames - 1)
+                alpha = 1.0 / float(m + 1)
+                alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
+                alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
+                s_acc = hs + (st - hs) * alpha
+                col = col - st + s_acc
+                st = s_acc
+                age = m + 1
+            filled = wp.uint8(1)
+        else:
+            still = wp.length(velocity[y, x]) <= 0.5
+            young_ok = age_h >= tp.min_age_reuse or still
+            stale_max = tp.max_frames
+            if tp.stochastic != 0 and not still:
+                stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
+            if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
+                col = hc
+                st = hs
+                age = age_h
+                stale = stale_h + 1
+                filled = wp.uint8(1)
+    out_color[y, x] = col
+    out_filled[y, x] = filled
+    hist_color[i] = col
+    hist_stoch[i] = st
+    hist_normal[i] = n
+    hist_age[i] = age
+    hist_stale[i] = stale
 
 
 @wp.func
@@ -281,8 +247,8 @@ def _frac(v: float) -> float:
 def refresh_thin_kernel(
     cache_hit: wp.array2d(dtype=wp.uint8),
     prev_index: wp.array2d(dtype=wp.int32),
-    hist_age_prev: wp.array2d(dtype=wp.int32),
-    hist_stale_prev: wp.array2d(dtype=wp.int32),
+    hist_age_prev: wp.array(dtype=wp.int32),
+    hist_stale_prev: wp.array(dtype=wp.int32),
     frame_params: wp.array(dtype=FrameParams),
     fraction: float,
     keep_stale: int,
@@ -302,13 +268,11 @@ def refresh_thin_kernel(
     pi = prev_index[y, x]
     if pi < 0:
         return
-    py = pi // sample_map.shape[1]
-    px = pi - py * sample_map.shape[1]
-    if hist_age_prev[py, px] <= 0:
+    if hist_age_prev[pi] <= 0:
         return
-    if hist_stale_prev[py, px] >= keep_stale:
+    if hist_stale_prev[pi] >= keep_stale:
         return
-    if hist_age_prev[py, px] < keep_young:  # stochastic shading: still converging
+    if hist_age_prev[pi] < keep_young:  # stochastic shading: still converging
         return
     fp = frame_params[0]
     shift = _frac(float(fp.rot) * 0.6180339887 + fp.phase)

@@ -54,14 +54,14 @@ class TemporalStage:
 
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
         self.width, self.height, self.config, self.device = width, height, config, device
-        shape = (height, width)
-        self.filled = wp.zeros(shape, dtype=wp.uint8, device=device)
-        # ping-pong history; the colour just written is also the frame's output (``color``)
-        self._hc = [wp.zeros(shape, dtype=wp.vec3, device=device) for _ in range(2)]
-        self._hst = [wp.zeros(shape, dtype=wp.vec3, device=device) for _ in range(2)]
-        self._hn = [wp.zeros(shape, dtype=wp.vec2h, device=device) for _ in range(2)]  # octahedral normals
-        self._ha = [wp.zeros(shape, dtype=wp.int32, device=device) for _ in range(2)]
-        self._hs = [wp.zeros(shape, dtype=wp.int32, device=device) for _ in range(2)]
+        n = width * height
+        self.color = wp.zeros((height, width), dtype=wp.vec3, device=device)
+        self.filled = wp.zeros((height, width), dtype=wp.uint8, device=device)
+        self._hc = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._hst = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._hn = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._ha = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
+        self._hs = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
         self._cur = 0
 
     def reset(self) -> None:
@@ -71,14 +71,8 @@ class TemporalStage:
 
     @property
     def age(self):
-        """(H, W) int32: frames accumulated in the current history (0 = empty)."""
+        """(H*W,) int32: frames accumulated in the current history (0 = empty)."""
         return self._ha[self._cur]
-
-    @property
-    def color(self):
-        """(H, W) vec3: the last ``run``'s output colour (linear radiance, 0 where not filled); the current
-        history colour itself, so the array alternates between two buffers from frame to frame."""
-        return self._hc[self._cur]
 
     def params(self, *, use_history: bool, stochastic: bool, background=(0.0, 0.0, 0.0)) -> TemporalParams:
         c = self.config
@@ -103,9 +97,7 @@ class TemporalStage:
             gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, velocity).
             fresh: (H, W) vec3 radiance at the traced pixels.
             fresh_stoch: (H, W) vec3, the stochastic part of ``fresh`` (read only when ``stochastic``).
-            depth_prev: the previous frame's depth (metres), (H, W).
-            valid_prev: the previous frame's filled mask, (H, W); accepted for the caller's convenience, not read
-                (a history value with age > 0 was filled).
+            depth_prev, valid_prev: the previous frame's depth (metres) and filled mask, (H, W).
             use_history: False on the first frame and after a cut.
             stochastic: whether the shading has Monte Carlo terms.
             background: radiance of rays that miss (linear RGB).
@@ -117,8 +109,9 @@ class TemporalStage:
             dim=(self.height, self.width),
             inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
                     g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch, depth_prev,
-                    self._hc[prev], self._hst[prev], self._hn[prev], self._ha[prev], self._hs[prev]],
-            outputs=[self.filled, self._hc[cur], self._hst[cur], self._hn[cur], self._ha[cur], self._hs[cur]],
+                    valid_prev, self._hc[prev], self._hst[prev], self._hn[prev], self._ha[prev], self._hs[prev]],
+            outputs=[self.color, self.filled, self._hc[cur], self._hst[cur], self._hn[cur], self._ha[cur],
+                     self._hs[cur]],
             device=self.device,
         )
         self.swap()
