@@ -166,7 +166,7 @@ def main(argv=None):
     w, h = args.width, args.height
     scenes = [s for s in args.scenes.split(",") if s]
     payload = {"resolution": f"{w}x{h}", "usable_cores": cores, "threads": threads, "frames": frames,
-               "rounds": rounds, "warmup": warmup, "oversplit": parallel.OVERSPLIT,
+               "rounds": rounds, "warmup": warmup, "bands_per_thread": {t: parallel.bands_per_thread(t) for t in threads},
                "load_average_at_start": os.getloadavg() if hasattr(os, "getloadavg") else None, "camera": "scene camera path, 1/30 s per frame; gaze at the centre"}
 
     scaling = []
@@ -238,7 +238,8 @@ def main(argv=None):
                                  "foveated_speedup_best", "reference_ms", "reference_speedup", "reference_best_ms",
                                  "reference_speedup_best"])
     if oversplit:
-        md += f"\n### Bands per thread (parallel.OVERSPLIT, default {parallel.OVERSPLIT}) at {tmax} threads\n\n"
+        md += (f"\n### Bands per thread (parallel.OVERSPLIT; default at {tmax} threads: "
+               f"{parallel.bands_per_thread(tmax)}) at {tmax} threads\n\n")
         md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms"])
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",

@@ -50,8 +50,12 @@ MIN_ITEMS_PER_BAND = int(os.environ.get("FOVEAWARP_CPU_MIN_BAND_ITEMS", "2048") 
 # pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
 FAST_BANDS = True
 # bands per thread: the threads take bands from a shared queue, so rows of unequal cost (sky above, geometry
-# below) even out; more bands cost more Python per launch
-OVERSPLIT = 4
+# below) even out; each band costs a few microseconds of Python under the GIL. None: 4 up to 4 threads, else 2
+OVERSPLIT: Optional[int] = None
+
+
+def bands_per_thread(n: int) -> int:
+    return int(OVERSPLIT) if OVERSPLIT is not None else (4 if n <= 4 else 2)
 
 _context: contextvars.ContextVar[Optional[int]] = contextvars.ContextVar("foveawarp_cpu_threads", default=None)
 _pools: dict = {}
@@ -183,7 +187,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     for d in dims[1:]:
         row_items *= d
     min_items = MIN_ITEMS_PER_BAND if min_band_items is None else int(min_band_items)
-    parts = bands(dims[0], n * OVERSPLIT, row_items, min_items) if n > 1 else [(0, dims[0])]
+    parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
     if len(parts) == 1:
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
