@@ -202,6 +202,20 @@ def main(argv=None):
             print("oversplit", oversplit[-1], flush=True)
         parallel.OVERSPLIT = default
     payload["oversplit_sweep"] = oversplit
+    variants = []
+    if dev.is_cpu and tmax > 1:
+        # the reorder compaction (tile kernels) runs on one thread; "none" shades every pixel's mask entry instead
+        loops = {}
+        for label, cfg in (("reorder=tile (default)", fw.Config()),
+                           ("reorder=none", fw.Config().with_(reorder={"strategy": "none"}))):
+            loops[label] = (fw.FrameLoop(args.scaling_scene, w, h, config=cfg, device=dev, timing=False,
+                                         policy="foveated", cpu_threads=tmax), False)
+        m = interleaved(loops, frames, warmup, rounds)
+        for label in loops:
+            variants.append({"variant": label, "threads": tmax, "foveated_ms": m[label]["median_ms"],
+                             "foveated_best_ms": m[label]["best_ms"]})
+            print("variant", variants[-1], flush=True)
+    payload["variants"] = variants
     payload["scaling"] = scaling
 
     versus = []
@@ -241,6 +255,9 @@ def main(argv=None):
         md += (f"\n### Bands per thread (parallel.OVERSPLIT; default at {tmax} threads: "
                f"{parallel.bands_per_thread(tmax)}) at {tmax} threads\n\n")
         md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms"])
+    if variants:
+        md += f"\n### Frame variants at {tmax} threads ({args.scaling_scene})\n\n"
+        md += md_table(variants, ["variant", "threads", "foveated_ms", "foveated_best_ms"])
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
                             "foveated_best_ms", "reference_best_ms", "reference_over_foveated_best",
