@@ -196,6 +196,82 @@ def jfa_last_pass_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def jfa_last_pass_bands_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    src: wp.array2d(dtype=wp.vec2i),
+    step: int,
+    from_mask: int,
+    settled: int,
+    color_in: wp.array2d(dtype=wp.vec3),
+    color_mode: int,
+    nearest: wp.array2d(dtype=wp.vec2i),
+    r2_out: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    color_out: wp.array2d(dtype=wp.vec3),
+    tile_miss: wp.array2d(dtype=wp.int32),
+    row0: int,
+):
+    """``jfa_last_pass_kernel`` for the CPU's band-parallel launches (``foveawarp.parallel``): no tiles, no
+    atomics. Thread (ty, tx) runs the same per-pixel step over screen tile (ty, tx) and writes the same
+    ``nearest``, ``r2_out``, ``color_out`` and ``tile_r2``, plus its count of pixels without a seed to
+    ``tile_miss``; ``jfa_tile_stats_kernel`` then reduces ``tile_r2`` / ``tile_miss`` into the statistics
+    (equal to the tiled kernel's atomics: integer max and sum, and sqrt of the max r2)."""
+    ty, tx = wp.tid()
+    ty += row0  # band offset (foveawarp.parallel)
+    h = mask.shape[0]
+    w = mask.shape[1]
+    r2max = int(0)
+    missing = int(0)
+    for ly in range(RTILE):
+        y = ty * RTILE + ly
+        for lx in range(RTILE):
+            x = tx * RTILE + lx
+            if y < h and x < w:
+                if mask[y, x] != wp.uint8(0):
+                    if from_mask != 0:
+                        nearest[y, x] = wp.vec2i(x, y)
+                    if color_mode == 2:
+                        color_out[y, x] = finite_or_zero(color_in[y, x])
+                else:
+                    s = jfa_visit(mask, src, x, y, step, from_mask, settled)
+                    nearest[y, x] = s
+                    r2 = int(-1)
+                    if s[0] >= 0:
+                        r2 = seed_dist2(x, y, s)
+                        r2max = wp.max(r2max, r2)
+                    else:
+                        missing += 1
+                    r2_out[y, x] = r2
+                    if color_mode != 0:
+                        color_out[y, x] = voronoi_color(color_in, s)
+    tile_r2[ty, tx] = r2max
+    tile_miss[ty, tx] = missing
+
+
+@wp.kernel(enable_backward=False)
+def jfa_tile_stats_kernel(
+    tile_r2: wp.array2d(dtype=wp.int32),
+    tile_miss: wp.array2d(dtype=wp.int32),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """One thread: fold the per-tile results of ``jfa_last_pass_bands_kernel`` into the statistics as the
+    tiled kernel's atomics do (max into ``max_r2`` and ``max_radius``, add into ``unreached``)."""
+    m = int(0)
+    miss = int(0)
+    for ty in range(tile_r2.shape[0]):
+        for tx in range(tile_r2.shape[1]):
+            m = wp.max(m, tile_r2[ty, tx])
+            miss += tile_miss[ty, tx]
+    if m > 0:
+        max_r2[0] = wp.max(max_r2[0], m)
+        max_radius[0] = wp.max(max_radius[0], wp.sqrt(float(m)))
+    if miss > 0:
+        unreached[0] = unreached[0] + miss
+
+
+@wp.kernel(enable_backward=False)
 def voronoi_from_nearest_kernel(
     given: wp.array2d(dtype=wp.vec2i),
     color_in: wp.array2d(dtype=wp.vec3),

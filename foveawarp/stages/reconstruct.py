@@ -22,7 +22,9 @@ from .._util import check_image_size, get_device
 from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
 from ..kernels.jfa import (
     RTILE,
+    jfa_last_pass_bands_kernel,
     jfa_last_pass_kernel,
+    jfa_tile_stats_kernel,
     jfa_pass_kernel,
     voronoi_color_kernel,
     voronoi_fill_kernel,
@@ -134,6 +136,10 @@ class ReconstructStage:
             bounded JFA start also flags a mask that broke the block guarantee).
     """
 
+    # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
+    # CUDA; the tests compare the two)
+    cpu_bands = True
+
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
                  start_step: Optional[int] = None):
@@ -172,6 +178,9 @@ class ReconstructStage:
         self._accum = wp.zeros(shape, dtype=wp.vec4, device=dev) if self.exact_sibson else None
         self._block_dim = _CUDA_BLOCK if dev.is_cuda else 1
         self._num_tiles = tiles[0] * tiles[1]
+        # the CPU runs the last pass as bands of tiles (no tiles, no atomics: foveawarp.parallel); per-tile
+        # counts of pixels without a seed, folded into ``unreached`` by a one-thread kernel
+        self._tile_miss = None if dev.is_cuda else wp.zeros(tiles, dtype=wp.int32, device=dev)
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
@@ -225,13 +234,19 @@ class ReconstructStage:
                             inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
                             outputs=[self.nearest, dst, *self._stats_args()], device=dev)
             src = dst
-        wp.launch_tiled(
-            jfa_last_pass_kernel, dim=[self._num_tiles],
-            inputs=[seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, settled[-1] if n else 1, cin,
-                    mode],
-            outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
-            block_dim=self._block_dim, device=dev,
-        )
+        last = [seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, settled[-1] if n else 1, cin, mode]
+        if self._tile_miss is not None and self.cpu_bands:
+            parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.shape, inputs=last,
+                            outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, self._tile_miss],
+                            device=dev, min_band_items=8)
+            wp.launch(jfa_tile_stats_kernel, dim=1, inputs=[self.tile_radius_sq, self._tile_miss],
+                      outputs=self._stats_args(), device=dev)
+        else:
+            wp.launch_tiled(
+                jfa_last_pass_kernel, dim=[self._num_tiles], inputs=last,
+                outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
+                block_dim=self._block_dim, device=dev,
+            )
         self._mask = seed_mask
 
     def run_interpolate(self, color_in, color_out, nearest=None) -> None:
