@@ -150,3 +150,8 @@ def test_object_motion_velocity(device):
     assert np.abs(g["velocity"][on_block][:, 0]).min() > 0.5
     static = g["hit"].astype(bool) & ~on_block
     np.testing.assert_allclose(g["velocity"][static], 0.0, atol=2e-3)
+    # moved: 1 exactly on the moving block (its surface points changed place), 0 on static surfaces and misses
+    assert g["moved"][on_block].all() and not g["moved"][~on_block].any()
+    # prev_dist: the block's points at their previous place, seen from the (static) eye
+    np.testing.assert_allclose(g["prev_dist"][on_block], np.linalg.norm(prev_pos - cam.eye, axis=1), rtol=1e-4)
+    np.testing.assert_allclose(g["prev_dist"][static], g["depth"][static], rtol=1e-4)
