@@ -167,8 +167,9 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
 
     ``count``: for a work list whose live entries are ``[0, count[0])`` (a (1,) int32 array the kernel also
-    reads, exiting past it): on the CPU only those rows are split into bands (the count is read from host
-    memory: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim`` is launched."""
+    reads, exiting past it): on the CPU only those rows are split into bands (the count is read straight from
+    host memory, no ``.numpy()``: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim``
+    is launched."""
     _check_kernel(kernel)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
@@ -179,7 +180,10 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     if dev.is_cpu:
         n = current_cpu_threads() if threads is None else resolve_cpu_threads(threads, "threads")
         if count is not None and n > 1:
-            live = int(count.numpy()[0])
+            if count.dtype != wp.int32 or count.size < 1:
+                raise ValueError(f"count must be a wp.array of int32 with at least 1 element, got {count.dtype} "
+                                 f"of size {count.size}")
+            live = int(ctypes.c_int32.from_address(count.ptr).value)  # host memory on the CPU device
             if live <= 0:
                 return
             dims = (min(dims[0], live), *dims[1:])
