@@ -79,8 +79,6 @@ def test_launch_without_row0_is_refused():
 
 def test_work_list_count(every_band):
     """A work list launched with ``count``: only the live entries are split, the rest stay untouched."""
-    from foveawarp.kernels.shade import shade_list_kernel  # noqa: F401  (the kernel FrameLoop uses)
-
     loops = {n: fw.FrameLoop("cornell", 24, 16, device=DEV, cpu_threads=n, timing=False) for n in (1, 3, 40)}
     outs = {}
     for n, fl in loops.items():
