@@ -55,8 +55,9 @@ class FrameLoop:
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
             both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
-            on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison, and on the
-            CPU device the choice is left to the user until the CPU frame path is multi-threaded).
+            on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison; on the CPU
+            device the foveated frame is not yet cheaper than full resolution with default shading, docs/cpu.md,
+            so "auto" would render full frames there: the choice is left to the user).
         cpu_threads: threads of the band-parallel CPU launches (``foveawarp.parallel``), in [1, 1024]; None
             (default): the environment variable ``FOVEAWARP_CPU_THREADS``, else the usable cores. 1 = one
             thread per launch. The output does not depend on it (bit-identical). Ignored on CUDA.
