@@ -192,19 +192,10 @@ def set_light(ds, idx, light):
     """Replace light ``idx`` of the DeviceScene's host scene and its device copy (the same conversion as
     DeviceScene)."""
     from foveawarp.kernels.shade import LightParams
+    from foveawarp.scene import light_params
 
     ds.scene.lights[idx] = light
-    ps = []
-    for l in ds.scene.lights:
-        p = LightParams()
-        p.kind = 0 if l.kind == "point" else 1
-        p.position = wp.vec3(*l.position)
-        p.direction = wp.vec3(*l.direction)
-        outer = math.radians(min(l.cone_deg, 180.0))
-        p.cos_outer = math.cos(outer)
-        p.cos_inner = math.cos(outer * (1.0 - l.penumbra))
-        p.intensity = wp.vec3(*l.intensity)
-        ps.append(p)
+    ps = [light_params(l) for l in ds.scene.lights]
     ds.lights = wp.array(ps, dtype=LightParams, device=ds.device)
 
 

@@ -287,6 +287,20 @@ class Scene:
         )
 
 
+def light_params(light: Light) -> LightParams:
+    """The shading kernels' struct for a host :class:`Light` (spot cone as cosines of the outer and inner
+    angles)."""
+    p = LightParams()
+    p.kind = 0 if light.kind == "point" else 1
+    p.position = wp.vec3(*light.position)
+    p.direction = wp.vec3(*light.direction)
+    outer = math.radians(min(light.cone_deg, 180.0))
+    p.cos_outer = math.cos(outer)
+    p.cos_inner = math.cos(outer * (1.0 - light.penumbra))
+    p.intensity = wp.vec3(*light.intensity)
+    return p
+
+
 class DeviceScene:
     """The Warp arrays of a :class:`Scene` on one device. Owned by a FrameLoop (or by ops)."""
 
@@ -312,18 +326,7 @@ class DeviceScene:
         vn = scene.vertex_normals if scene.vertex_normals is not None else np.zeros_like(scene.vertices)
         self.vertex_normals = wp.array(vn, dtype=wp.vec3, device=dev)
         self.face_smooth = wp.array(scene.face_smooth, dtype=wp.uint8, device=dev)
-        lights = []
-        for l in scene.lights:
-            p = LightParams()
-            p.kind = 0 if l.kind == "point" else 1
-            p.position = wp.vec3(*l.position)
-            p.direction = wp.vec3(*l.direction)
-            outer = math.radians(min(l.cone_deg, 180.0))
-            inner = outer * (1.0 - l.penumbra)
-            p.cos_outer = math.cos(outer)
-            p.cos_inner = math.cos(inner)
-            p.intensity = wp.vec3(*l.intensity)
-            lights.append(p)
+        lights = [light_params(l) for l in scene.lights]
         self.num_lights = len(lights)
         self.lights = wp.array(lights if lights else [LightParams()], dtype=LightParams, device=dev)
         areas = []

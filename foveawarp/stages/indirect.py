@@ -289,15 +289,9 @@ class IndirectStage:
         l = self.light
         key = _light_key(l)
         if self._lp_key != key:
-            p = LightParams()
-            p.kind = 0 if l.kind == "point" else 1
-            p.position = wp.vec3(*l.position)
-            p.direction = wp.vec3(*l.direction)
-            outer = math.radians(min(l.cone_deg, 180.0))
-            p.cos_outer = math.cos(outer)
-            p.cos_inner = math.cos(outer * (1.0 - l.penumbra))
-            p.intensity = wp.vec3(*l.intensity)
-            self._lp, self._lp_key = p, key
+            from ..scene import light_params
+
+            self._lp, self._lp_key = light_params(l), key
         return self._lp
 
     @property
