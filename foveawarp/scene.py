@@ -290,6 +290,10 @@ class Scene:
 def light_params(light: Light) -> LightParams:
     """The shading kernels' struct for a host :class:`Light` (spot cone as cosines of the outer and inner
     angles)."""
+    import warp as wp
+
+    from .kernels.shade import LightParams
+
     p = LightParams()
     p.kind = 0 if light.kind == "point" else 1
     p.position = wp.vec3(*light.position)
