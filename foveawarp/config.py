@@ -216,6 +216,12 @@ class FoveationConfig:
             the two), so the probability falls to about ``xi`` there. A foveawarp extension: with the thesis
             normalizer the mean probability is about 1/2 whatever the MAR slope (44-59% measured at 1080p and
             4K). Default 12: 12-30% sampled at 1920x1080 on the built-in scenes and meshes (README table).
+        gbuffer: "full" (default) traces one primary ray per pixel for the G-buffer; "sparse" traces one per
+            ``coarse_cell`` x ``coarse_cell`` cell for the saliency terms plus one per sampled pixel (traced with
+            its shading), so the frame's primary rays scale with the sampling rate. The sparse mode has no
+            per-pixel history (no cache test, no temporal resolve: the unsampled pixels come from the
+            reconstruction alone) and no depth of field (``DofConfig.aperture_m`` must be 0).
+        coarse_cell: cell edge in pixels of the sparse mode's coarse G-buffer, in [1, 64]; default 4.
     """
 
     mar_slope: float = 0.028
@@ -225,6 +231,8 @@ class FoveationConfig:
     enabled: bool = True
     falloff_deg: Optional[float] = 12.0
     fovea_deg: float = 5.0
+    gbuffer: str = "full"
+    coarse_cell: int = 4
 
     def __post_init__(self):
         check_range("FoveationConfig.mar_slope", self.mar_slope, 0.0, 1.0, lo_open=True)
@@ -235,6 +243,8 @@ class FoveationConfig:
         check_range("FoveationConfig.fovea_deg", self.fovea_deg, 0.0, 180.0)
         if self.falloff_deg is not None:
             check_range("FoveationConfig.falloff_deg", self.falloff_deg, 0.0, 180.0, lo_open=True)
+        check_choice("FoveationConfig.gbuffer", self.gbuffer, GBUFFER_MODES)
+        check_int_range("FoveationConfig.coarse_cell", self.coarse_cell, 1, 64)
 
     @property
     def effective_min_probability(self) -> float:
@@ -361,6 +371,7 @@ class ShadingConfig:
 
 
 JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")
+GBUFFER_MODES = ("full", "sparse")
 
 
 @dataclass(frozen=True)

@@ -93,11 +93,15 @@ class FrameLoop:
         from .stages.indirect import IndirectStage
 
         cfg = self.config
+        self.sparse_gbuffer = cfg.foveation.enabled and cfg.foveation.gbuffer == "sparse"
+        if self.sparse_gbuffer and cfg.dof.enabled:
+            raise ValueError(f"FoveationConfig.gbuffer 'sparse' needs a pinhole camera: DofConfig.aperture_m must be "
+                             f"0, got {cfg.dof.aperture_m} (the DoF pass reads every pixel's depth)")
         self.dof = DofStage(w, h, cfg.dof, dev) if cfg.dof.enabled else None
         self.dof_out = wp.zeros((h, w), dtype=wp.vec3, device=dev) if cfg.dof.enabled else None
         self.indirect = (IndirectStage(self.dscene, cfg.indirect, dev) if cfg.shading.indirect == "lighttree"
                          else None)
-        self.sampling = self.reorder = self.temporal = self.reconstruct = self.recon = None
+        self.sampling = self.reorder = self.temporal = self.reconstruct = self.recon = self.sparse = None
         self.frame_index = 0
         self.prev_camera: Optional[Camera] = None
         self._ref_prev_camera: Optional[Camera] = None
@@ -137,6 +141,10 @@ class FrameLoop:
         self.temporal = TemporalStage(w, h, cfg.temporal, dev)
         self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev)
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        if self.sparse_gbuffer:
+            from .stages.sparse import SparseGBufferStage
+
+            self.sparse = SparseGBufferStage(self.dscene, w, h, cfg.foveation.coarse_cell, dev)
 
     # -- helpers ---------------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -334,12 +342,20 @@ class FrameLoop:
         moving = bool(geometry_moved or camera_moved)
         if not self.scene.is_animated:
             skipped["bvh_refit"] = "static scene"
-        with self._stage("gbuffer"):
-            self._gbuffer(camera, prev_cam)
         foveated = cfg.foveation.enabled and mode == "foveated"
+        sparse = foveated and self.sparse_gbuffer
+        with self._stage("gbuffer"):
+            if sparse:
+                self.sparse.trace_coarse(camera, prev_cam, self._max_t(camera))
+            else:
+                self._gbuffer(camera, prev_cam)
+        if sparse:
+            skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
+                                  f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
+            skipped["temporal"] = "sparse G-buffer: no per-pixel history (the reconstruction fills every gap)"
         strategy = cfg.reorder.strategy if foveated else "full"
         tc = cfg.temporal
-        still_boost = (foveated and history and not moving and tc.enabled and tc.still_min_probability > 0.0
+        still_boost = (foveated and not sparse and history and not moving and tc.enabled and tc.still_min_probability > 0.0
                        and self._stochastic_shading() and self._static_frames < tc.max_history_frames)
         if still_boost:
             skipped["foveation.min_probability"] = (f"raised to TemporalConfig.still_min_probability "
@@ -351,6 +367,8 @@ class FrameLoop:
                                         first_frame=not history, eye_prev=prev_cam.eye if history else None,
                                         camera_prev=prev_cam if history else None,
                                         min_probability=tc.still_min_probability if still_boost else None)
+                if sparse:
+                    skipped["cache_test"] = "sparse G-buffer: no per-pixel history"
                 skipped.update(self.sampling.skipped)
             else:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
@@ -367,7 +385,7 @@ class FrameLoop:
         # static view: same camera, nothing moved, indirect light unchanged, history kept
         static = history and not moving and not rebuilt
         self._static_frames = self._static_frames + 1 if static else 0
-        refresh = self._refresh_due(foveated)
+        refresh = self._refresh_due(foveated and not sparse)
         if refresh:
             skipped["trace"] = (f"static view, converged history: only the refresh budget "
                                 f"({cfg.temporal.refresh_fraction:g} of the samples with history) traced")
@@ -377,9 +395,12 @@ class FrameLoop:
         if not cfg.dof.enabled:
             skipped["dof"] = "pinhole camera (aperture 0)"
         # -- body: fixed arguments (captured as a CUDA graph in steady state) -----------------------------
-        key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
+        if sparse:  # no history: one graph per strategy and field of view
+            key = (strategy, "sparse", float(camera.fov_y_deg))
+        else:
+            key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
-        if graph_state == "replayed" and foveated:
+        if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
@@ -394,7 +415,11 @@ class FrameLoop:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
             stats.defer("cache_hit_rate", lambda: float(nh.numpy()[0]) / n)
-            stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
+            if sparse:
+                nc = self.sparse.num_coarse_rays
+                stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
+            else:
+                stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
         else:
             stats.update(sampling_rate=1.0, cache_hit_rate=0.0, rays_traced=n + n * self._rays_per_sample())
         if self.timing:
@@ -406,7 +431,14 @@ class FrameLoop:
         self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
-        extras = {"sparse": self.temporal.color, "filled": self.temporal.filled} if foveated else {}
+        if sparse:
+            # the G-buffer holds this frame's values only at the sampled pixels
+            extras = {"sparse": self.radiance, "filled": self.sampling.sample_map,
+                      "coarse_gbuffer": self.sparse.coarse}
+        elif foveated:
+            extras = {"sparse": self.temporal.color, "filled": self.temporal.filled}
+        else:
+            extras = {}
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
                      extras)
 
@@ -451,7 +483,11 @@ class FrameLoop:
         temporal ping-pong swap, is repeated by ``render`` after a graph replay."""
         cfg = self.config
         foveated = strategy != "full"
+        sparse = foveated and self.sparse_gbuffer
         smap = self.sampling.sample_map if foveated else self.full_map
+        if sparse:
+            self._sparse_body(smap, strategy)
+            return
         with self._stage("sampling"):
             if foveated:
                 self.sampling.launch(self.gbuffer)
@@ -486,6 +522,26 @@ class FrameLoop:
             self._tonemap(hdr, self.image)
         if foveated:
             self.sampling.end_frame(self.gbuffer, self.temporal.filled)
+
+    def _sparse_body(self, smap, strategy: str) -> None:
+        """The body of a sparse-G-buffer frame: sampling map from the coarse G-buffer, compaction, primary rays
+        and shading of the sampled pixels, indirect light, reconstruction from the samples alone, tone map."""
+        with self._stage("sampling"):
+            self.sparse.sample(self.sampling)
+        with self._stage("reorder"):
+            # the sampled pixels' primary rays need a flat list: the row and masked strategies compact one too
+            self.reorder.run(smap, strategy=strategy if strategy in ("scan", "tile") else "scan")
+        with self._stage("shade"):
+            self.sparse.trace_shade(self.gbuffer, self.shade, self.reorder.work, self.reorder.count, self.radiance,
+                                    self.radiance_stoch)
+        with self._stage("indirect"):
+            if self.indirect is not None:
+                self.indirect.run_list(self.gbuffer, self.reorder.work, self.reorder.count, self.radiance,
+                                       self.width)
+        with self._stage("reconstruct"):
+            self.reconstruct.run(self.radiance, smap, self.recon)
+        with self._stage("tonemap"):
+            self._tonemap(self.recon, self.image)
 
     def _run_body(self, key, body) -> str:
         """Run ``body`` eagerly, or (CUDA, graphs on) replay its captured graph for ``key``: the first frame of

@@ -27,8 +27,8 @@ def shading_normal(mesh: wp.uint64, face: int, u: float, v: float, face_n: wp.ve
     return n
 
 
-@wp.kernel(enable_backward=False)
-def gbuffer_kernel(
+@wp.func
+def trace_primary(
     mesh: wp.uint64,
     indices: wp.array(dtype=wp.int32),
     points_prev: wp.array(dtype=wp.vec3),
@@ -38,6 +38,10 @@ def gbuffer_kernel(
     cam: CameraParams,
     cam_prev: CameraParams,
     max_t: float,
+    px: float,
+    py: float,
+    y: int,
+    x: int,
     out_pos: wp.array2d(dtype=wp.vec3),
     out_normal: wp.array2d(dtype=wp.vec3),
     out_depth: wp.array2d(dtype=float),
@@ -48,12 +52,10 @@ def gbuffer_kernel(
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
-    row0: int,
 ):
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    px = float(x) + 0.5
-    py = float(y) + 0.5
+    """Trace the primary ray through the continuous pixel position (px, py) and write its G-buffer entry at
+    [y, x] of the output arrays (the full-resolution G-buffer writes pixel (x, y) through its own centre; the
+    coarse one of the sparse mode writes one entry per cell)."""
     d = camera_ray_dir(cam, px, py)
     q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
     if q.result:
@@ -98,3 +100,33 @@ def gbuffer_kernel(
         out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
         out_prev_dist[y, x] = 0.0
         out_moved[y, x] = wp.uint8(0)
+
+
+@wp.kernel(enable_backward=False)
+def gbuffer_kernel(
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    points_prev: wp.array(dtype=wp.vec3),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    face_albedo: wp.array(dtype=wp.vec3),
+    cam: CameraParams,
+    cam_prev: CameraParams,
+    max_t: float,
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_albedo: wp.array2d(dtype=wp.vec3),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_velocity: wp.array2d(dtype=wp.vec2),
+    out_reproj: wp.array2d(dtype=wp.vec2),
+    out_prev_dist: wp.array2d(dtype=float),
+    out_moved: wp.array2d(dtype=wp.uint8),
+    row0: int,
+):
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, float(x) + 0.5,
+                  float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity,
+                  out_reproj, out_prev_dist, out_moved)

@@ -1,0 +1,104 @@
+"""Sparse G-buffer stage (issue 14): a coarse G-buffer for the saliency terms, the sampling map from it, and
+the primary rays of the sampled pixels traced together with their shading (kernels/sparse.py)."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .. import parallel
+from ..buffers import GBuffer
+from ..camera import Camera
+from ..config import check_int_range
+from ..kernels.sparse import (
+    PrimaryParams,
+    coarse_gbuffer_kernel,
+    coarse_saliency_kernel,
+    set_primary_params_kernel,
+    sparse_sampling_kernel,
+    trace_shade_list_kernel,
+)
+from .sampling import launch_tile_pass
+
+__all__ = ["SparseGBufferStage"]
+
+
+class SparseGBufferStage:
+    """Primary rays only where needed, for one :class:`DeviceScene` at ``width`` x ``height``.
+
+    ``coarse`` is a :class:`GBuffer` of ``ceil(W / cell)`` x ``ceil(H / cell)`` entries, one primary ray through
+    the middle pixel of each cell; ``coarse_saliency`` holds eq. 3's ``max(dA, dN, V)`` per cell. Per frame:
+    ``trace_coarse`` (head: this frame's cameras), then ``sample`` (the sampling map into a
+    :class:`SamplingStage`'s buffers, no cache test) and ``trace_shade`` (the sampled pixels' primary rays into
+    the full-resolution G-buffer and their shading). Nothing is allocated per frame; ``sample`` and
+    ``trace_shade`` have fixed arguments (capturable in a CUDA graph).
+
+    Args:
+        dscene: the :class:`DeviceScene`.
+        width, height: image size in pixels.
+        cell: coarse cell edge in pixels, in [1, 64].
+        device: Warp device.
+    """
+
+    def __init__(self, dscene, width: int, height: int, cell: int, device):
+        self.dscene, self.width, self.height, self.device = dscene, width, height, device
+        self.cell = check_int_range("cell", cell, 1, 64)
+        self.coarse_width = (width + self.cell - 1) // self.cell
+        self.coarse_height = (height + self.cell - 1) // self.cell
+        self.coarse = GBuffer(self.coarse_width, self.coarse_height, device)
+        self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
+        self.primary = wp.zeros(1, dtype=PrimaryParams, device=device)
+
+    @property
+    def num_coarse_rays(self) -> int:
+        return self.coarse_width * self.coarse_height
+
+    def trace_coarse(self, camera: Camera, prev_camera: Camera, max_t: float) -> None:
+        """The coarse G-buffer for ``camera`` (reprojection fields against ``prev_camera``), and this frame's
+        primary-ray parameters for ``trace_shade`` (written on the device)."""
+        ds, w, h = self.dscene, self.width, self.height
+        cam, cam_prev = camera.params(w, h), prev_camera.params(w, h)
+        c = self.coarse
+        parallel.launch(
+            coarse_gbuffer_kernel,
+            dim=(self.coarse_height, self.coarse_width),
+            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo, cam,
+                    cam_prev, float(max_t), self.cell],
+            outputs=[c.position, c.normal, c.depth, c.albedo, c.face, c.hit, c.velocity, c.reproj_uv, c.prev_dist,
+                     c.moved],
+            device=self.device,
+        )
+        pp = PrimaryParams()
+        pp.cam, pp.cam_prev, pp.max_t = cam, cam_prev, float(max_t)
+        wp.launch(set_primary_params_kernel, dim=1, inputs=[pp], outputs=[self.primary], device=self.device)
+
+    def sample(self, sampling) -> None:
+        """Fill ``sampling``'s probability, saliency and sample_map (and its sample counter; no cache hits) for
+        the frame set by ``sampling.set_frame``: coarse saliency, per-pixel map, tile guarantee."""
+        dev, c = self.device, self.coarse
+        sampling.num_samples.zero_()
+        sampling.num_cache_hits.zero_()
+        parallel.launch(coarse_saliency_kernel, dim=(self.coarse_height, self.coarse_width),
+                        inputs=[sampling.params, sampling.frame_params, c.albedo, c.normal, c.hit, c.velocity,
+                                c.position, c.reproj_uv],
+                        outputs=[self.coarse_saliency], device=dev)
+        parallel.launch(sparse_sampling_kernel, dim=(self.height, self.width),
+                        inputs=[sampling.params, sampling.frame_params, sampling.ranks, self.coarse_saliency,
+                                self.cell],
+                        outputs=[sampling.probability, sampling.saliency, sampling.sample_map], device=dev)
+        launch_tile_pass(sampling.ranks, sampling.params, sampling.frame_params, sampling.tiles, sampling.sample_map,
+                         sampling.cache_hit, sampling.num_samples, sampling.num_cache_hits, dev)
+
+    def trace_shade(self, gbuffer: GBuffer, shade, work, count, out, out_stoch) -> None:
+        """Trace and shade the flat pixel indices ``work[0:count[0]]`` (``shade``: a :class:`ShadeStage` whose
+        parameters were uploaded this frame). Writes ``gbuffer`` at those pixels only."""
+        ds, g = self.dscene, gbuffer
+        parallel.launch(
+            trace_shade_list_kernel,
+            dim=work.shape[0],
+            inputs=[self.primary, shade.params_dev, work, count, ds.mesh.id, ds.indices, ds.points_prev,
+                    ds.vertex_normals, ds.face_smooth, ds.face_albedo, ds.lights, ds.area_lights, ds.face_emission],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                     g.moved, out, out_stoch],
+            device=self.device,
+            count=count,
+        )
