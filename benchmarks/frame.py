@@ -249,7 +249,7 @@ def main(argv=None):
                     for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
                         c2 = cfg.with_(**sover) if sover else cfg
                         tm = timing(fw, scene, w, h, dev, c2, args.timing_frames)
-                        rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": "full",
+                        rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": c2.foveation.gbuffer,
                                "sampling_rate": tm["timing_sampling_rate"], **qual, **tm}
                         records.append(rec)
                         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
