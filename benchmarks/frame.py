@@ -261,6 +261,9 @@ def main(argv=None):
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in st.items()
                            if not isinstance(v, list)}, flush=True)
                 print(f"   ({time.perf_counter() - t0:.1f} s)", flush=True)
+                # keep what is measured so far (a run cut short by a time limit still leaves its records)
+                write_results(args.name, dev, {"records": records, "frames": args.frames,
+                                               "timing_frames": args.timing_frames, "partial": True}, "", args.out)
     md = md_table(rows, list(rows[0])) if rows else ""
     trows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "config": r["config"],
               "shading": r["shading"], "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
