@@ -220,7 +220,8 @@ class FoveationConfig:
             ``coarse_cell`` x ``coarse_cell`` cell for the saliency terms plus one per sampled pixel (traced with
             its shading), so the frame's primary rays scale with the sampling rate. The sparse mode has no
             per-pixel history (no cache test, no temporal resolve: the unsampled pixels come from the
-            reconstruction alone) and no depth of field (``DofConfig.aperture_m`` must be 0).
+            reconstruction alone) and no depth of field (``DofConfig.aperture_m`` must be 0). Its Sibson half
+            window is 2 pixels unless ``ReconstructionConfig.sibson_window`` says otherwise.
         coarse_cell: cell edge in pixels of the sparse mode's coarse G-buffer, in [1, 64]; default 4.
     """
 

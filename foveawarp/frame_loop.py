@@ -26,6 +26,10 @@ from .stages.tonemap import TonemapStage
 __all__ = ["FrameLoop"]
 
 
+# Sibson half window of the sparse G-buffer mode (when ReconstructionConfig.sibson_window is None)
+SPARSE_SIBSON_WINDOW = 2
+
+
 def _cpu_threads(fn):
     """Run a launching method with this loop's ``cpu_threads`` for the band-parallel CPU launches."""
 
@@ -139,7 +143,12 @@ class FrameLoop:
         self.sampling = SamplingStage(w, h, cfg, dev)
         self.reorder = ReorderStage(w, h, cfg.reorder, dev)
         self.temporal = TemporalStage(w, h, cfg.temporal, dev)
-        self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev)
+        # the sparse mode fills ~85-90% of the pixels from samples alone, where the bounded Sibson gather's window
+        # sets the cost: J = 2 matched the block-exact window's PSNR (320x180, cornell and bunny in motion: 37.45 vs
+        # 37.41 dB, 38.99 vs 38.96 dB) with 25 instead of up to 81 taps; an explicit sibson_window wins
+        window = SPARSE_SIBSON_WINDOW if (self.sparse_gbuffer and cfg.reconstruction.sibson_window is None) else None
+        self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev,
+                                            window=window)
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         if self.sparse_gbuffer:
             from .stages.sparse import SparseGBufferStage

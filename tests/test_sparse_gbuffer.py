@@ -228,3 +228,18 @@ def test_sparse_graph_replay_equals_eager_on_cuda():
         states.append(fa.stats["graph"])
         np.testing.assert_array_equal(fa.image.numpy(), fb.image.numpy())
     assert "replayed" in states
+
+
+def test_sparse_mode_sibson_window():
+    from foveawarp.frame_loop import SPARSE_SIBSON_WINDOW
+
+    a = fw.FrameLoop("cornell", 32, 24, config=sparse_config(), device="cpu", timing=False, policy="foveated")
+    a._ensure_foveated_stages()
+    assert a.reconstruct.window == SPARSE_SIBSON_WINDOW == 2
+    b = fw.FrameLoop("cornell", 32, 24, config=sparse_config().with_(reconstruction={"sibson_window": 5}),
+                     device="cpu", timing=False, policy="foveated")
+    b._ensure_foveated_stages()
+    assert b.reconstruct.window == 5
+    c = fw.FrameLoop("cornell", 32, 24, device="cpu", timing=False, policy="foveated")  # full mode: block-exact J
+    c._ensure_foveated_stages()
+    assert c.reconstruct.window == 4
