@@ -250,3 +250,23 @@ def test_publish_returns_after_the_frame_has_left_and_stop_ends_the_threads():
     assert not [t for t in threading.enumerate() if t.name in ("foveawarp-render", "foveawarp-viewer")]
     srv._publish_threadsafe(b"late", {"frame": 9})                  # after stop: returns, sends nothing
     assert ws.sent == [b"f0", b"f1", b"f2"]
+
+
+# -- the CPU frame path ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("env, expected", [(None, "cores"), ("1", 1)])
+def test_the_viewer_renders_with_the_band_parallel_cpu_path(monkeypatch, env, expected):
+    """The viewer's FrameLoop uses the band-parallel CPU launches on the usable cores (FOVEAWARP_CPU_THREADS
+    overrides), like every FrameLoop."""
+    from foveawarp import parallel
+
+    if env is None:
+        monkeypatch.delenv(parallel.ENV_VAR, raising=False)
+    else:
+        monkeypatch.setenv(parallel.ENV_VAR, env)
+    s = ViewerSession(["cornell"], W, H, device="cpu")
+    with s._cond:
+        snap = s._snapshot()
+    s._ensure_loops(snap)
+    want = parallel.usable_cores() if expected == "cores" else expected
+    assert s._loop.cpu_threads == want
