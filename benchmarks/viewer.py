@@ -6,17 +6,26 @@ reads every frame the server sends (header parsed; the JPEG of the first and las
 checked). Reported per resolution:
 
 - ``fps_delivered``: frames received per second over the timed window (after ``--warmup-s``);
+- ``frame_ms``: the delivered frame time, 1000 / ``fps_delivered`` (the interval between frames as the client
+  receives them: render, copy, encode and send of one frame, as the server runs one frame at a time);
 - ``latency_server_p50/p95_ms``: from a gaze message's arrival at the server to the first frame rendered with it
-  leaving the server (the server measures it; ``GET /stats.json`` after a ``reset_stats`` message);
-- ``latency_client_p50/p95_ms``: from the client sending a gaze to receiving the first frame rendered with it;
-- ``latency_p95_frames``: the server p95 in units of the delivered frame time (target <= 2);
-- ``render_ms`` / ``encode_ms``: the server's median render + copy and JPEG encode times per frame.
+  leaving the server (the server measures it; ``GET /stats.json`` after a ``reset_stats`` message). Only gazes
+  that a frame used count: a gaze replaced by a newer one before the next frame started is never rendered;
+- ``latency_p95_frames``: that server p95 in units of ``frame_ms`` (target <= 2);
+- ``latency_msg_p50/p95_ms`` and ``latency_msg_p95_frames``: every gaze message, from its arrival to the first
+  frame rendered with it or a newer gaze leaving the server (the stricter reading: the wait of a gaze that arrives
+  just after a frame started counts in full even when a newer gaze replaces it);
+- ``latency_client_p50/p95_ms``: from the client sending a gaze to receiving the first frame rendered with it
+  (includes the client's own receive path and the server's wait to read the message);
+- ``render_ms`` / ``encode_ms``: the server's median render + copy and JPEG encode times per frame;
+  ``encoder``: the JPEG encoder the server used.
 
 Targets (issue 20): >= 60 fps at 1280x720 on the H100 with p95 latency <= 2 frame times; >= 5 fps at 480x270 on
 the CPU.
 
     python benchmarks/viewer.py --device cuda:0                 # 1280x720 and 1920x1080
     python benchmarks/viewer.py --device cpu                    # 480x270
+    python benchmarks/viewer.py --device cuda:0 --encoder pillow # the Pillow fallback
     python benchmarks/viewer.py --device cpu --screenshot docs/viewer.png   # the README screenshot (chromium)
 """
 
@@ -47,10 +56,12 @@ URL_RE = re.compile(r"open (http://\S+/)")
 class ViewerProcess:
     """`python -m foveawarp.cli view ...` on a free loopback port; the URL is read from its first line."""
 
-    def __init__(self, device, width, height, scene="cornell", timing="off", quality=80, timeout=300.0):
-        cmd = [sys.executable, "-m", "foveawarp.cli", "view", "--device", device, "--width", str(width),
-               "--height", str(height), "--scene", scene, "--port", "0", "--timing", timing,
-               "--quality", str(quality)]
+    def __init__(self, device, width, height, scene="cornell", timing="off", quality=80, encoder="auto",
+                 timeout=300.0, cmd=None):
+        if cmd is None:
+            cmd = [sys.executable, "-m", "foveawarp.cli", "view", "--device", device, "--width", str(width),
+                   "--height", str(height), "--scene", scene, "--port", "0", "--timing", timing,
+                   "--quality", str(quality), "--encoder", encoder]
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                      env=env)
@@ -168,6 +179,7 @@ async def measure(vp: ViewerProcess, width, height, seconds, warmup_s, gaze_hz, 
     med = lambda k: float(np.median([h["stats"][k] for _, h in window if k in h["stats"]])) if window else None  # noqa: E731
     p50 = server.get("latency_ms_p50")
     p95 = server.get("latency_ms_p95")
+    m95 = server.get("latency_msg_ms_p95")
     frame_ms = 1e3 / fps if fps > 0 else float("inf")
     return {
         "resolution": f"{width}x{height}",
@@ -180,12 +192,16 @@ async def measure(vp: ViewerProcess, width, height, seconds, warmup_s, gaze_hz, 
         "latency_server_p95_ms": p95,
         "latency_samples": server.get("latency_samples"),
         "latency_p95_frames": (p95 / frame_ms) if p95 is not None and fps > 0 else None,
+        "latency_msg_p50_ms": server.get("latency_msg_ms_p50"),
+        "latency_msg_p95_ms": m95,
+        "latency_msg_p95_frames": (m95 / frame_ms) if m95 is not None and fps > 0 else None,
         "latency_client_p50_ms": float(np.percentile(rts, 50)) if rts.size else None,
         "latency_client_p95_ms": float(np.percentile(rts, 95)) if rts.size else None,
         "render_ms": med("ms_frame"),
         "encode_ms": med("ms_encode"),
         "sampling_rate": med("sampling_rate"),
         "jpeg_kb": float(np.mean([h["stats"]["jpeg_bytes"] for _, h in window]) / 1024) if window else None,
+        "encoder": server.get("encoder"),
         "decoded_sizes_ok": sizes == {(width, height)},
         "gaze_hz": gaze_hz,
     }
@@ -234,6 +250,9 @@ def main():
     p.add_argument("--seconds", type=float, default=None, help="timed window per size (default 10; quick 3)")
     p.add_argument("--warmup-s", type=float, default=None, help="untimed seconds after the first frame (default 3)")
     p.add_argument("--gaze-hz", type=float, default=250.0, help="gaze messages per second (an eye tracker's rate)")
+    p.add_argument("--quality", type=int, default=80, help="JPEG quality (default 80)")
+    p.add_argument("--encoder", default="auto", choices=("auto", "simplejpeg", "pillow"),
+                   help="the server's JPEG encoder (default auto: simplejpeg when installed)")
     p.add_argument("--screenshot", default=None, help="instead of measuring, save the README screenshot here")
     args = p.parse_args()
     import warp as wp
@@ -256,7 +275,7 @@ def main():
     warmup_s = args.warmup_s if args.warmup_s is not None else (1.0 if args.quick else 3.0)
     rows = []
     for w, h in sizes:
-        vp = ViewerProcess(device, w, h, scene=args.scene)
+        vp = ViewerProcess(device, w, h, scene=args.scene, quality=args.quality, encoder=args.encoder)
         try:
             r = asyncio.run(measure(vp, w, h, seconds, warmup_s, args.gaze_hz))
         finally:
@@ -279,12 +298,15 @@ def main():
     if targets:
         table += "\n" + md_table(targets, ["target", "value", "met"])
     print(table)
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
     write_results("viewer", device, {"scene": args.scene, "rows": rows, "targets": targets,
-                                     "cpu_count": os.cpu_count()}, table, out=args.out)
+                                     "cpu_count": os.cpu_count(), "load_average": load,
+                                     "quality": args.quality, "encoder": args.encoder}, table, out=args.out)
 
 
 COLS = ["resolution", "fps_delivered", "frame_ms", "latency_server_p50_ms", "latency_server_p95_ms",
-        "latency_p95_frames", "latency_client_p50_ms", "latency_client_p95_ms", "render_ms", "encode_ms",
+        "latency_p95_frames", "latency_msg_p50_ms", "latency_msg_p95_ms", "latency_msg_p95_frames",
+        "latency_client_p50_ms", "latency_client_p95_ms", "render_ms", "encode_ms",
         "sampling_rate", "jpeg_kb", "decoded_sizes_ok"]
 
 if __name__ == "__main__":

@@ -238,7 +238,8 @@ def cmd_view(args) -> int:
     from .viewer.session import ViewerSession
 
     timing = None if args.timing is None else args.timing == "on"
-    session = ViewerSession(scenes, w, h, device=device, gaze_trace=trace, timing=timing, quality=args.quality)
+    session = ViewerSession(scenes, w, h, device=device, gaze_trace=trace, timing=timing, quality=args.quality,
+                            encoder=args.encoder)
     server = ViewerServer(session, host=args.host, port=args.port)
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: the viewer listens on {args.host}, not only on this machine's loopback: anyone who can "
@@ -360,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--timing", choices=("on", "off"), default=None,
                    help="per-stage timing (default: on for the CPU, off on CUDA, which then replays CUDA graphs)")
     v.add_argument("--quality", type=int, default=80, help="JPEG quality in [10, 100] (default 80)")
+    v.add_argument("--encoder", choices=("auto", "simplejpeg", "pillow"), default="auto",
+                   help="JPEG encoder (default auto: simplejpeg when installed, else Pillow)")
     v.add_argument("--serve-seconds", type=_positive_float, default=None,
                    help="stop after this many seconds (scripted runs; default: until Ctrl-C)")
     v.set_defaults(func=cmd_view)

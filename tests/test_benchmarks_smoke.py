@@ -60,6 +60,10 @@ def test_viewer_benchmark_quick(tmp_path):
     assert row["resolution"] == "96x54" and row["decoded_sizes_ok"] is True
     assert row["frames"] > 0 and row["fps_delivered"] > 0
     assert row["latency_samples"] > 0 and 0 < row["latency_server_p50_ms"] <= row["latency_server_p95_ms"]
+    # every gaze message waits at least as long as the rendered ones (it includes those replaced before a frame)
+    assert 0 < row["latency_msg_p50_ms"] <= row["latency_msg_p95_ms"]
+    assert row["latency_msg_p95_ms"] >= row["latency_server_p50_ms"]
+    assert row["encoder"] in ("simplejpeg", "pillow") and res["load_average"] is not None
     assert (tmp_path / "viewer-cpu.md").is_file()
 
 

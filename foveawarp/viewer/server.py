@@ -6,7 +6,10 @@ back as binary messages ``[uint32 LE header length][header JSON][JPEG]`` plus JS
 ``state`` (shared settings changed) and ``error`` (a message was rejected; the session goes on).
 
 Each client has a one-frame slot: a new frame replaces one not yet sent (dropped, never queued), so a client
-that falls behind sees the newest frame next. Rendering runs on the session's render thread.
+that falls behind sees the newest frame next. Rendering and encoding run on the session's render thread, which
+hands each frame to the event loop and waits (at most ``SEND_WAIT_S``) until it has been written to every client
+that was ready for it before it takes the next gaze: one frame is in flight, and its send does not compete with
+the next frame's Python work for the GIL. A client still busy with an earlier frame is not waited for.
 """
 
 from __future__ import annotations
@@ -46,12 +49,30 @@ STATIC_FILES = {
 }
 MAX_CLIENTS = 8
 MAX_INCOMING_BYTES = 2**16   # a client message above this closes its connection (1009); above 4096 chars: error
+SEND_WAIT_S = 0.1            # longest wait of the render thread for a frame's send (then it renders the next)
+
+
+class _Delivery:
+    """The clients that still owe the render thread the send of one frame (event loop thread only, except
+    ``event``, which the render thread waits on)."""
+
+    __slots__ = ("pending", "event")
+
+    def __init__(self):
+        self.pending = 0
+        self.event = threading.Event()
+
+    def settle(self) -> None:
+        self.pending -= 1
+        if self.pending <= 0:
+            self.event.set()
 
 
 class _Client:
     def __init__(self, ws):
         self.ws = ws
-        self.frame = None            # (payload, meta) not yet sent: replaced, never queued
+        self.frame = None            # (payload, meta, delivery) not yet sent: replaced, never queued
+        self.busy = False            # sending a frame now
         self.state = None            # latest state message not yet sent
         self.errors = []             # render errors to tell this client
         self.wake = asyncio.Event()
@@ -76,7 +97,6 @@ class ViewerServer:
         self._clients: set = set()
         self._server = None
         self._loop: Optional[asyncio.AbstractEventLoop] = None
-        self._last_latency_gaze = 0
         self._static = {path: ((STATIC_DIR / name).read_bytes(), ctype) for path, (name, ctype) in STATIC_FILES.items()}
         self._thread: Optional[threading.Thread] = None
         self._stopped: Optional[asyncio.Event] = None
@@ -201,6 +221,9 @@ class ViewerServer:
         finally:
             self._clients.discard(client)
             self.session.set_clients(len(self._clients))
+            if client.frame is not None:     # never sent: the render thread does not wait for it
+                _settle(client.frame[2])
+                client.frame = None
             sender.cancel()
             try:
                 await sender
@@ -223,35 +246,43 @@ class ViewerServer:
                 while client.errors:
                     await self._send(client, error_message(client.errors.pop(0)))
                 if client.frame is not None:
-                    (payload, meta), client.frame = client.frame, None
-                    await self._send(client, payload)
-                    client.sent += 1
-                    self._frame_left(meta)
+                    (payload, meta, delivery), client.frame = client.frame, None
+                    client.busy = True
+                    try:
+                        await self._send(client, payload)
+                        client.sent += 1
+                        self.session.frame_left(meta, time.perf_counter())
+                    finally:
+                        client.busy = False
+                        _settle(delivery)
         except ConnectionClosed:
             return
 
-    def _frame_left(self, meta: dict) -> None:
-        """Gaze-to-frame latency: the first frame rendered with a new gaze has just left for a client."""
-        gid, t = meta.get("gaze_id", 0), meta.get("gaze_t")
-        if gid > self._last_latency_gaze and t is not None:
-            self._last_latency_gaze = gid
-            self.session.record_latency((time.perf_counter() - t) * 1e3)
-
     # -- from the render thread --------------------------------------------------------------------------
     def _publish_threadsafe(self, payload: bytes, meta: dict) -> None:
+        """Hand a frame to the event loop and wait (at most ``SEND_WAIT_S``) until it has left for every client
+        that was ready for it."""
         loop = self._loop
         if loop is not None and not loop.is_closed():
+            delivery = _Delivery()
             try:
-                loop.call_soon_threadsafe(self._on_frame, payload, meta)
+                loop.call_soon_threadsafe(self._on_frame, payload, meta, delivery)
             except RuntimeError:  # loop closing
-                pass
+                return
+            delivery.event.wait(SEND_WAIT_S)
 
-    def _on_frame(self, payload: bytes, meta: dict) -> None:
+    def _on_frame(self, payload: bytes, meta: dict, delivery: Optional[_Delivery] = None) -> None:
         for c in list(self._clients):
-            if c.frame is not None:
+            if c.frame is not None:      # the previous frame never went out: dropped
                 c.dropped += 1
-            c.frame = (payload, meta)
+                _settle(c.frame[2])
+            owes = delivery is not None and not c.busy   # a client busy sending is not waited for
+            c.frame = (payload, meta, delivery if owes else None)
+            if owes:
+                delivery.pending += 1
             c.wake.set()
+        if delivery is not None and delivery.pending <= 0:
+            delivery.event.set()
 
     def _error_threadsafe(self, text: str) -> None:
         log.warning("%s", text)
@@ -269,6 +300,11 @@ class ViewerServer:
                 c.errors.append(text)
             c.state = state
             c.wake.set()
+
+
+def _settle(delivery: Optional[_Delivery]) -> None:
+    if delivery is not None:
+        delivery.settle()
 
 
 def _response(status: int, body: bytes, ctype: str) -> Response:

@@ -65,16 +65,19 @@ class ViewerSession:
         timing: per-stage timing of the FrameLoop (default: on for the CPU, off on CUDA, where the frame
             body then runs as a CUDA graph).
         quality: JPEG quality in [10, 100].
+        encoder: the JPEG encoder, one of ``JPEG_ENCODERS``: "auto" (default) = simplejpeg when installed (the
+            ``viewer`` extra), else Pillow; "simplejpeg" or "pillow" to force one (ValueError when absent).
     """
 
     def __init__(self, scenes=("cornell",), width: int = 640, height: int = 360, device=None, gaze_trace=None,
-                 timing: Optional[bool] = None, quality: int = 80):
+                 timing: Optional[bool] = None, quality: int = 80, encoder: str = "auto"):
         self.width, self.height = check_image_size(width, height)
         scenes = list(scenes) if scenes else ["cornell"]
         self._sources = dict(zip(scene_labels(scenes), [str(s) for s in scenes]))
         if not isinstance(quality, int) or isinstance(quality, bool) or not 10 <= quality <= 100:
             raise ValueError(f"quality must be an integer in [10, 100], got {quality!r}")
         self.quality = quality
+        self.encoder = resolve_jpeg_encoder(encoder)
         self.device = get_device(device)
         self.trace = gaze_trace
         self.limits = Limits(self.width, self.height, tuple(self._sources), gaze_trace is not None)
@@ -128,7 +131,10 @@ class ViewerSession:
         self._stats_lock = threading.Lock()
         self.frames = 0
         self._frame_times: deque = deque(maxlen=240)
-        self.latencies: deque = deque(maxlen=LATENCY_WINDOW)
+        self.latencies: deque = deque(maxlen=LATENCY_WINDOW)       # per rendered gaze (see frame_left)
+        self.latencies_msg: deque = deque(maxlen=LATENCY_WINDOW)   # per gaze message
+        self._arrivals: deque = deque(maxlen=LATENCY_WINDOW)       # (gaze id, arrival) not yet on a frame
+        self._last_left_gaze = 0
         self._stats: dict = {}
 
     # -- configuration --------------------------------------------------------------------------------
@@ -161,6 +167,9 @@ class ViewerSession:
                 self._gaze_id += 1
                 self._gaze_seq = msg.get("seq")
                 self._gaze_t = t_arrival if t_arrival is not None else time.perf_counter()
+                if self.gaze_source == "mouse":
+                    with self._stats_lock:
+                        self._arrivals.append((self._gaze_id, self._gaze_t))
             elif kind == "orbit":
                 self._orbit[0] += msg["dx"]
                 self._orbit[1] += msg["dy"]
@@ -206,6 +215,7 @@ class ViewerSession:
             elif kind == "reset_stats":
                 with self._stats_lock:
                     self.latencies.clear()
+                    self.latencies_msg.clear()
                     self._frame_times.clear()
             self._version += 1
             self._converge_left = CONVERGE_FRAMES
@@ -220,7 +230,7 @@ class ViewerSession:
                 "scenes": list(self._sources), "scene": self.scene, "mode": self.mode, "modes": list(MODES),
                 "overlays": dict(self.overlays), "playing": self.playing, "gaze_source": self.gaze_source,
                 "has_trace": self.trace is not None, "knobs": dict(self.knobs),
-                "knob_info": {k: v.describe() for k, v in KNOBS.items()}, "encoder": jpeg_encoder(),
+                "knob_info": {k: v.describe() for k, v in KNOBS.items()}, "encoder": jpeg_encoder(self.encoder),
             }
 
     def stats_snapshot(self) -> dict:
@@ -228,6 +238,7 @@ class ViewerSession:
         with self._stats_lock:
             s = dict(self._stats)
             lat = np.asarray(self.latencies, dtype=np.float64)
+            lat_msg = np.asarray(self.latencies_msg, dtype=np.float64)
             times = list(self._frame_times)
         s.setdefault("frames", 0)
         s.setdefault("gaze_px", [self.width * 0.5, self.height * 0.5])
@@ -239,17 +250,43 @@ class ViewerSession:
         s["latency_samples"] = int(lat.size)
         s["latency_ms_p50"] = float(np.percentile(lat, 50)) if lat.size else None
         s["latency_ms_p95"] = float(np.percentile(lat, 95)) if lat.size else None
+        s["latency_msg_samples"] = int(lat_msg.size)
+        s["latency_msg_ms_p50"] = float(np.percentile(lat_msg, 50)) if lat_msg.size else None
+        s["latency_msg_ms_p95"] = float(np.percentile(lat_msg, 95)) if lat_msg.size else None
         s["clients"] = self._clients
+        s["encoder"] = self.encoder
         return s
 
-    def record_latency(self, ms: float) -> None:
+    def frame_left(self, meta: dict, t_left: Optional[float] = None) -> None:
+        """A frame has just left for a client (called by the server after the send). Records the gaze-to-frame
+        latencies, both in ms from a gaze message's arrival at the server:
+
+        - ``latencies`` (``latency_ms_*``, the issue's definition): to the first frame rendered with that gaze
+          leaving; only gazes that a frame used count (a gaze replaced by a newer one before the next frame
+          started is never rendered);
+        - ``latencies_msg`` (``latency_msg_ms_*``): every gaze message, to the first frame rendered with it or a
+          newer gaze leaving (what an eye tracker's sample waits until the screen reflects it or a later one).
+        """
+        gid = meta.get("gaze_id", 0)
+        if gid <= self._last_left_gaze:
+            return
+        t = time.perf_counter() if t_left is None else t_left
         with self._stats_lock:
-            self.latencies.append(float(ms))
+            self._last_left_gaze = gid
+            if meta.get("gaze_t") is not None:
+                self.latencies.append((t - meta["gaze_t"]) * 1e3)
+            while self._arrivals and self._arrivals[0][0] <= gid:
+                self.latencies_msg.append((t - self._arrivals.popleft()[1]) * 1e3)
 
     # -- render thread ----------------------------------------------------------------------------------
     def start(self, publish: Callable, publish_error: Optional[Callable] = None) -> None:
         """Start the render thread; ``publish(payload: bytes, meta: dict)`` receives each encoded frame (from
-        that thread), ``publish_error(text)`` each render failure."""
+        that thread), ``publish_error(text)`` each render failure.
+
+        One frame is in flight at a time: the thread takes the newest shared state (gaze, camera, knobs),
+        renders, encodes and calls ``publish``, and only then takes the state for the next frame. ``publish``
+        may block until the frame has left (the server's does, bounded): the send is then part of the frame's
+        cycle, so a gaze waits at most for the frame in flight plus its own, and frames are never queued."""
         self._publish, self._publish_error = publish, publish_error
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="foveawarp-render", daemon=True)
@@ -407,7 +444,7 @@ class ViewerSession:
         st = main.stats
         stats = _frame_stats(st)
         t1 = time.perf_counter()
-        jpeg = encode_jpeg(host.numpy(), self.quality)
+        jpeg = encode_jpeg(host.numpy(), self.quality, self.encoder)
         t2 = time.perf_counter()
         with self._stats_lock:
             self.frames += 1
@@ -471,21 +508,59 @@ def _rotate(v, axis, angle):
 # -- helpers ------------------------------------------------------------------------------------------------
 
 
-def jpeg_encoder() -> str:
-    """Which JPEG encoder the frames use, e.g. "Pillow 13.0.0, libjpeg-turbo 3.2.0"."""
+JPEG_ENCODERS = ("auto", "simplejpeg", "pillow")
+
+
+def _has_simplejpeg() -> bool:
+    try:
+        import simplejpeg  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def resolve_jpeg_encoder(name: str = "auto") -> str:
+    """"simplejpeg" or "pillow" for ``name`` in ``JPEG_ENCODERS`` ("auto": simplejpeg when installed)."""
+    if name not in JPEG_ENCODERS:
+        raise ValueError(f"encoder must be one of {JPEG_ENCODERS}, got {name!r}")
+    if name == "auto":
+        return "simplejpeg" if _has_simplejpeg() else "pillow"
+    if name == "simplejpeg" and not _has_simplejpeg():
+        raise ValueError("encoder 'simplejpeg' needs the simplejpeg package (pip install -e .[viewer])")
+    return name
+
+
+def jpeg_encoder(name: str = "auto") -> str:
+    """Which JPEG encoder the frames use, e.g. "simplejpeg 1.9.0, libjpeg-turbo, 4:2:0" or
+    "Pillow 13.0.0, libjpeg-turbo 3.2.0, 4:2:0"."""
+    name = resolve_jpeg_encoder(name)
+    if name == "simplejpeg":
+        import simplejpeg
+
+        return f"simplejpeg {getattr(simplejpeg, '__version__', '?')}, libjpeg-turbo, 4:2:0"
     import PIL
     from PIL import features
 
     turbo = features.version_feature("libjpeg_turbo") if features.check_feature("libjpeg_turbo") else None
-    return f"Pillow {PIL.__version__}, " + (f"libjpeg-turbo {turbo}" if turbo else "libjpeg")
+    return f"Pillow {PIL.__version__}, " + (f"libjpeg-turbo {turbo}" if turbo else "libjpeg") + ", 4:2:0"
 
 
-def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
-    """(H, W, 3) uint8 -> JPEG bytes (Pillow; its wheels bundle libjpeg-turbo)."""
+def encode_jpeg(rgb: np.ndarray, quality: int, encoder: str = "auto") -> bytes:
+    """(H, W, 3) uint8 -> baseline JPEG bytes, 4:2:0 chroma, no Huffman optimisation.
+
+    simplejpeg (libjpeg-turbo's TurboJPEG API) reads the array in place and releases the GIL for the whole
+    encode, so the event loop thread keeps receiving gazes and sending meanwhile; Pillow (fallback) first copies
+    the pixels into its own image and re-takes the GIL between parts of the encode."""
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    if resolve_jpeg_encoder(encoder) == "simplejpeg":
+        import simplejpeg
+
+        return simplejpeg.encode_jpeg(rgb, quality=int(quality), colorspace="RGB", colorsubsampling="420",
+                                      fastdct=False)
     from PIL import Image
 
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgb), "RGB").save(buf, format="JPEG", quality=int(quality))
+    Image.fromarray(rgb, "RGB").save(buf, format="JPEG", quality=int(quality), subsampling="4:2:0", optimize=False)
     return buf.getvalue()
 
 

@@ -223,6 +223,7 @@
     rows.push(["rays traced", st.rays_traced !== undefined ? Number(st.rays_traced).toLocaleString() : "-"]);
     rows.push(["gaze->frame p50 (server)", ms(serverStats.latency_ms_p50)]);
     rows.push(["gaze->frame p95 (server)", ms(serverStats.latency_ms_p95)]);
+    rows.push(["gaze->frame p95 (all msgs)", ms(serverStats.latency_msg_ms_p95)]);
     rows.push(["gaze->shown p50 (here)", ms(quantile(roundTrips, 0.5))]);
     rows.push(["gaze px", h ? h.gaze.map((v) => v.toFixed(0)).join(", ") : "-"]);
     rows.push(["device", state ? state.device : "-"]);
