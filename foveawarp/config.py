@@ -372,6 +372,9 @@ class ShadingConfig:
 
 
 JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")
+# the reconstruction's Voronoi step: a JFA schedule, or "disc": the exact nearest seed by a distance-ordered scan
+# of the disc that the jitter-block guarantee bounds (one pass)
+VORONOI_VARIANTS = JFA_VARIANTS + ("disc",)
 GBUFFER_MODES = ("full", "sparse")
 
 
@@ -380,7 +383,11 @@ class ReconstructionConfig:
     """Voronoi (JFA) + bounded Sibson reconstruction of the sparse shading buffer.
 
     Attributes:
-        jfa_variant: one of "jfa", "jfa+1", "jfa+2", "1+jfa" (Rong & Tan 2006 variants).
+        jfa_variant: one of "jfa", "jfa+1", "jfa+2", "1+jfa" (Rong & Tan 2006 variants), or "disc": no jump
+            flooding; one pass finds each pixel's exact nearest seed by scanning the offsets of the disc of
+            radius ``(block - 1) sqrt(2)`` (the bound of the jitter-block guarantee) in order of distance. Valid
+            only for masks with the guarantee (the frame loop's always have it); a pixel with no seed in its disc
+            gets none (counted in ``ReconstructStage.unreached``).
         sibson: interpolate with discrete Sibson (False: plain Voronoi / nearest-seed color).
         sibson_window: half window J in pixels of the bounded gather, in [1, 256]; None derives it from the
             foveation block size so that it covers the largest nearest-seed radius the block guarantee allows.
@@ -393,7 +400,7 @@ class ReconstructionConfig:
     bounded_jfa_start: bool = True
 
     def __post_init__(self):
-        check_choice("ReconstructionConfig.jfa_variant", self.jfa_variant, JFA_VARIANTS)
+        check_choice("ReconstructionConfig.jfa_variant", self.jfa_variant, VORONOI_VARIANTS)
         if self.sibson_window is not None:
             check_int_range("ReconstructionConfig.sibson_window", self.sibson_window, 1, 256)
         check_bool("ReconstructionConfig.sibson", self.sibson)

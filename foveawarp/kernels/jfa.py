@@ -94,6 +94,32 @@ def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i),
     return best
 
 
+@wp.func
+def nearest_in_disc(mask: wp.array2d(dtype=wp.uint8), x: int, y: int, offsets: wp.array(dtype=wp.vec2i)) -> wp.vec2i:
+    """Nearest seed of the NON-seed pixel (x, y) by a scan of ``offsets`` (every offset of the disc the block
+    guarantee bounds, sorted by squared length, then dy, then dx): the first seed met is a nearest one, exact
+    (the "disc" variant). (-1, -1) when the disc holds no seed (the guarantee does not hold there)."""
+    h = mask.shape[0]
+    w = mask.shape[1]
+    for k in range(offsets.shape[0]):
+        o = offsets[k]
+        xx = x + o[0]
+        yy = y + o[1]
+        if xx >= 0 and xx < w and yy >= 0 and yy < h:
+            if mask[yy, xx] != wp.uint8(0):
+                return wp.vec2i(xx, yy)
+    return wp.vec2i(NO_SEED, NO_SEED)
+
+
+@wp.func
+def last_pass_seed(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i), x: int, y: int, step: int,
+                   from_mask: int, settled: int, offsets: wp.array(dtype=wp.vec2i)) -> wp.vec2i:
+    """The last pass's nearest seed of a non-seed pixel: the disc scan when ``step`` < 0, else a JFA pass."""
+    if step < 0:
+        return nearest_in_disc(mask, x, y, offsets)
+    return jfa_visit(mask, src, x, y, step, from_mask, settled)
+
+
 @wp.kernel(enable_backward=False)
 def jfa_pass_kernel(
     mask: wp.array2d(dtype=wp.uint8),
@@ -133,6 +159,7 @@ def jfa_last_pass_kernel(
     settled: int,
     color_in: wp.array2d(dtype=wp.vec3),
     color_mode: int,
+    offsets: wp.array(dtype=wp.vec2i),
     nearest: wp.array2d(dtype=wp.vec2i),
     r2_out: wp.array2d(dtype=wp.int32),
     tile_r2: wp.array2d(dtype=wp.int32),
@@ -141,7 +168,7 @@ def jfa_last_pass_kernel(
     max_radius: wp.array(dtype=wp.float32),
     unreached: wp.array(dtype=wp.int32),
 ):
-    """The last pass (``step`` 0 when the schedule is empty), tiled: block b covers the RTILE x RTILE screen
+    """The last pass (``step`` 0 when the schedule is empty; -1: the "disc" variant's scan of ``offsets``), tiled: block b covers the RTILE x RTILE screen
     tile b (row-major over the tile grid); with fewer threads than RTILE^2 (the CPU runs 1) each thread takes
     every block_dim-th pixel of the tile.
 
@@ -171,7 +198,7 @@ def jfa_last_pass_kernel(
                 if color_mode == 2:
                     color_out[y, x] = finite_or_zero(color_in[y, x])
             else:
-                s = jfa_visit(mask, src, x, y, step, from_mask, settled)
+                s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
                 nearest[y, x] = s
                 r2 = int(-1)
                 if s[0] >= 0:
@@ -204,6 +231,7 @@ def jfa_last_pass_bands_kernel(
     settled: int,
     color_in: wp.array2d(dtype=wp.vec3),
     color_mode: int,
+    offsets: wp.array(dtype=wp.vec2i),
     nearest: wp.array2d(dtype=wp.vec2i),
     r2_out: wp.array2d(dtype=wp.int32),
     tile_r2: wp.array2d(dtype=wp.int32),
@@ -233,7 +261,7 @@ def jfa_last_pass_bands_kernel(
                     if color_mode == 2:
                         color_out[y, x] = finite_or_zero(color_in[y, x])
                 else:
-                    s = jfa_visit(mask, src, x, y, step, from_mask, settled)
+                    s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
                     nearest[y, x] = s
                     r2 = int(-1)
                     if s[0] >= 0:

@@ -19,7 +19,9 @@ import warp as wp
 
 from .. import parallel
 from .._util import check_image_size, get_device
-from ..config import JFA_VARIANTS, ReconstructionConfig, check_choice, check_int_range
+import numpy as np
+
+from ..config import VORONOI_VARIANTS, ReconstructionConfig, check_choice, check_int_range
 from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
@@ -36,6 +38,7 @@ __all__ = [
     "ReconstructStage",
     "jfa_steps",
     "jfa_start_step_for_block",
+    "disc_offsets_for_block",
     "max_seed_distance_for_block",
     "sibson_window_for_block",
 ]
@@ -77,6 +80,19 @@ def sibson_window_for_block(block: int) -> int:
     return max(1, math.isqrt(2 * (b - 1) * (b - 1)))
 
 
+def disc_offsets_for_block(block: int) -> np.ndarray:
+    """(N, 2) int32 (dx, dy) offsets of the "disc" variant's scan: every nonzero offset with
+    ``dx^2 + dy^2 <= 2 (block - 1)^2`` (the squared nearest-seed bound of the block guarantee), sorted by squared
+    length, then dy, then dx. Empty for block 1 (every pixel is a seed). ``block`` in [1, 64]."""
+    b = check_int_range("block", block, 1, 64)
+    r2 = 2 * (b - 1) * (b - 1)
+    r = b - 1
+    offs = [(dx, dy) for dy in range(-2 * r, 2 * r + 1) for dx in range(-2 * r, 2 * r + 1)
+            if 0 < dx * dx + dy * dy <= r2]
+    offs.sort(key=lambda o: (o[0] * o[0] + o[1] * o[1], o[1], o[0]))
+    return np.asarray(offs, dtype=np.int32).reshape(-1, 2)
+
+
 def jfa_steps(width: int, height: int, variant: str = "1+jfa", start_step: Optional[int] = None) -> list:
     """The step lengths (pixels) of the JFA passes, in launch order.
 
@@ -85,7 +101,9 @@ def jfa_steps(width: int, height: int, variant: str = "1+jfa", start_step: Optio
     Variants (Rong & Tan 2006): "jfa+1" appends a step-1 pass, "jfa+2" appends steps 2 and 1,
     "1+jfa" prepends a step-1 pass."""
     w, h = check_image_size(width, height)
-    check_choice("variant", variant, JFA_VARIANTS)
+    check_choice("variant", variant, VORONOI_VARIANTS)
+    if variant == "disc":
+        return []  # no jump flooding: the last pass scans the disc
     n = 1
     while n < max(w, h):
         n *= 2
@@ -184,6 +202,9 @@ class ReconstructStage:
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
+        self.disc = config.jfa_variant == "disc"
+        offs = disc_offsets_for_block(self.block) if self.disc else np.zeros((1, 2), np.int32)
+        self._disc_offsets = wp.array(offs if len(offs) else np.zeros((0, 2), np.int32), dtype=wp.vec2i, device=dev)
 
     # -- checks (host-side attribute reads only: no sync, no allocation) --------------------------------------
     def _check(self, name, arr, dtype):
@@ -234,7 +255,9 @@ class ReconstructStage:
                             inputs=[seed_mask, src, int(steps[i]), 1 if i == 0 else 0, settled[i]],
                             outputs=[self.nearest, dst, *self._stats_args()], device=dev)
             src = dst
-        last = [seed_mask, src, int(steps[-1]) if n else 0, 1 if n <= 1 else 0, settled[-1] if n else 1, cin, mode]
+        step_last = -1 if self.disc else (int(steps[-1]) if n else 0)
+        last = [seed_mask, src, step_last, 1 if n <= 1 else 0, settled[-1] if n else 1, cin, mode,
+                self._disc_offsets]
         if self._tile_miss is not None and self.cpu_bands:
             parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.shape, inputs=last,
                             outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, self._tile_miss],
