@@ -8,7 +8,7 @@ Per scene x resolution:
 * timing, per shading ("default"; "ao8" = 8 AO rays per pixel): the reference is ``FrameLoop(policy="full")``
   (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
   the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
-  after warm-up; per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
+  after warm-up, the three loops taking turns frame by frame (so clock and load drift hit them alike); per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
   shading + indirect) stage times;
 * stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
   reference (256 AO rays), and a moving path with history on and off against the converged reference.
@@ -112,28 +112,40 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
     return rec
 
 
-def _timed(loop, scene, w, h, n, warm=8):
-    ms = []
-    for i in range(warm + n):
+def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict) -> dict:
+    """Median synchronized frame ms of each loop, the loops taking turns frame by frame (frame i of every loop
+    renders the same camera, time and gaze), so that clock and load drift hit them alike. ``warm``: frames each
+    loop renders first, untimed (the "auto" loop's include its policy measurement)."""
+    t0_frame = max(warm.values())  # one timeline: each loop's warm-up ends where the timed frames begin
+    for name, loop in loops.items():
+        for i in range(t0_frame - warm[name], t0_frame):
+            t = i / 30.0
+            loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+    ms = {name: [] for name in loops}
+    for i in range(t0_frame, t0_frame + n):
         t = i / 30.0
         cam = scene.camera_at(t)
-        g = gaze_path(i, warm + n, w, h)
-        wp.synchronize_device(loop.device)
-        t0 = time.perf_counter()
-        loop.render(cam, gaze_px=g, time=t)
-        wp.synchronize_device(loop.device)
-        if i >= warm:
-            ms.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(ms)), loop
+        g = gaze_path(i, n, w, h)
+        for name, loop in loops.items():
+            wp.synchronize_device(loop.device)
+            t_start = time.perf_counter()
+            loop.render(cam, gaze_px=g, time=t)
+            wp.synchronize_device(loop.device)
+            ms[name].append((time.perf_counter() - t_start) * 1e3)
+    return {name: float(np.median(v)) for name, v in ms.items()}
 
 
 def timing(fw, scene, w, h, dev, cfg, n):
     out = {}
-    ref_ms, _ = _timed(fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"), scene, w, h, n)
-    fov_ms, fl = _timed(fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated"), scene,
-                        w, h, n)
-    auto = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
-    auto_ms, _ = _timed(auto, scene, w, h, n, warm=2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2)
+    loops = {"full": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"),
+             "foveated": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated"),
+             "auto": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)}
+    auto = loops["auto"]
+    # the auto loop measures both paths over its first frames; its timed frames come after (no re-measurement
+    # falls inside them: POLICY_PERIOD is far longer)
+    warm = {"full": 8, "foveated": 8, "auto": 2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2}
+    med = _timed_interleaved(loops, scene, w, h, n, warm)
+    ref_ms, fov_ms, auto_ms = med["full"], med["foveated"], med["auto"]
     tl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=True, policy="foveated")
     stages = {}
     rates = []
