@@ -54,14 +54,28 @@ class Camera:
         if abs(float(np.dot(f, u / un))) > 1.0 - 1e-9:
             raise ValueError(f"Camera.up {self.up!r} must not be parallel to the view direction {tuple(f)!r}")
 
+    def __getstate__(self):  # pickle / copy without the per-camera caches (basis, Warp structs)
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
+
+    def __setstate__(self, state):
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
+
     # -- frame ---------------------------------------------------------------------------------------
     def basis(self):
-        """(right, up, forward) as float64 unit vectors; right-handed, forward = view direction."""
+        """(right, up, forward) as float64 unit vectors (read-only); right-handed, forward = view direction.
+        Computed once per camera (a frame asks for it several times)."""
+        cached = self.__dict__.get("_basis")
+        if cached is not None:
+            return cached
         f = np.subtract(self.target, self.eye).astype(np.float64)
         f /= np.linalg.norm(f)
         r = np.cross(f, np.asarray(self.up, dtype=np.float64))
         r /= np.linalg.norm(r)
         u = np.cross(r, f)
+        for v in (r, u, f):
+            v.setflags(write=False)
+        object.__setattr__(self, "_basis", (r, u, f))
         return r, u, f
 
     @property
@@ -145,6 +159,10 @@ class Camera:
         from .kernels.camera import CameraParams
 
         width, height = _size(width, height)
+        cache = self.__dict__.setdefault("_params", {})
+        c = cache.get((width, height))
+        if c is not None:
+            return c
         r, u, f = self.basis()
         c = CameraParams()
         c.eye = wp.vec3(*self.eye)
@@ -155,6 +173,7 @@ class Camera:
         c.aspect = float(width) / float(height)
         c.width = int(width)
         c.height = int(height)
+        cache[(width, height)] = c
         return c
 
     def rotation_deg_to(self, other: "Camera") -> float:

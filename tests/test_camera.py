@@ -96,3 +96,26 @@ def test_bad_camera_vectors():
         fw.Camera(eye=(0, float("nan"), 0))
     with pytest.raises(ValueError, match="gaze_px"):
         fw.Camera().gaze_to_dir((float("nan"), 1.0), 10, 10)
+
+
+def test_basis_and_params_are_cached_per_camera_and_pickle_without_them():
+    import copy
+    import pickle
+
+    cam = fw.Camera(eye=(1.0, 2.0, 3.0), target=(0.0, 0.5, 0.0), fov_y_deg=47.0)
+    r, u, f = cam.basis()
+    assert cam.basis()[0] is r  # computed once
+    with pytest.raises(ValueError):
+        r[0] = 5.0  # read-only: a caller cannot corrupt the cache
+    assert cam.params(64, 48) is cam.params(64, 48)
+    assert cam.params(64, 48) is not cam.params(32, 24)
+    # an independent basis from the definition
+    fwd = np.subtract(cam.target, cam.eye) / np.linalg.norm(np.subtract(cam.target, cam.eye))
+    right = np.cross(fwd, cam.up)
+    right /= np.linalg.norm(right)
+    np.testing.assert_allclose(f, fwd, atol=1e-15)
+    np.testing.assert_allclose(r, right, atol=1e-15)
+    for other in (pickle.loads(pickle.dumps(cam)), copy.deepcopy(cam)):
+        assert other == cam and hash(other) == hash(cam)
+        np.testing.assert_array_equal(other.basis()[2], f)
+        assert other.params(64, 48).width == 64
