@@ -152,6 +152,7 @@ def main(argv=None):
     p.add_argument("--rounds", type=int, default=None, help="interleaved rounds (default 3; 1 with --quick)")
     p.add_argument("--scaling-scene", default="cornell")
     p.add_argument("--oversplit", default="1,2,4,8", help="bands per thread to compare at the most threads ('' = skip)")
+    p.add_argument("--stages", action="store_true", help="per-stage ms at 1 and at the most threads")
     args = p.parse_args(argv)
     dev = get_device(args.device or "cpu")
     if args.quick:
@@ -244,6 +245,27 @@ def main(argv=None):
             print("rays", r, flush=True)
     payload["primary_rays"] = rays
 
+    stages = []
+    if dev.is_cpu and args.stages:
+        # where the time goes at 1 and at the most threads: per-stage ms of a timing=True loop (each stage
+        # synchronized), cornell foveated and reference; a stage that does not shrink with threads is serial
+        for t in sorted({1, tmax}):
+            for label, ref in (("foveated", False), ("reference", True)):
+                fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=True, policy="foveated", cpu_threads=t)
+                acc = {}
+                for i in range(warmup + frames):
+                    tt = (i + 1) / 30.0
+                    cam = fl.scene.camera_at(tt)
+                    f = fl.render_reference(cam, time=tt) if ref else fl.render(cam, gaze_px=(w / 2, h / 2), time=tt)
+                    if i >= warmup:
+                        for k, v in f.stats.items():
+                            if k.startswith("ms_"):
+                                acc.setdefault(k[3:], []).append(v)
+                row = {"threads": t, "path": label, **{k: statistics.median(v) for k, v in acc.items()}}
+                stages.append(row)
+                print("stages", {k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+    payload["stages"] = stages
+
     md = f"## CPU device, {w}x{h}, {cores} usable cores, commit-tagged JSON alongside\n\n"
     if scaling:
         md += (f"### Thread scaling ({args.scaling_scene}; median of all {frames * rounds} frames, and best = the "
@@ -267,6 +289,12 @@ def main(argv=None):
         cols = ["scene", "rays", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s", "embree_1t_mrays_s",
                 "warp_per_core_vs_embree", "same_hit_miss", "same_face", "max_rel_t_diff", "embree"]
         md += md_table(rays, [c for c in cols if any(c in r for r in rays)])
+    if stages:
+        md += f"\n### Stage ms ({args.scaling_scene}, timing=True: each stage synchronized)\n\n"
+        keys = []
+        for r in stages:
+            keys += [k for k in r if k not in keys]
+        md += md_table(stages, keys)
     path = write_results("cpu", dev, payload, md, args.out)
     print(md)
     print("wrote", path)
