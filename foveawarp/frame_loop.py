@@ -454,7 +454,8 @@ class FrameLoop:
         smap = self.sampling.sample_map if foveated else self.full_map
         with self._stage("sampling"):
             if foveated:
-                self.sampling.launch(self.gbuffer)
+                # the cache test's previous depth and valid mask: the temporal history's, as last resolved
+                self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled)
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
@@ -468,8 +469,7 @@ class FrameLoop:
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
-                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, self.sampling.depth_prev,
-                                  self.sampling.valid_prev, use_history=history,
+                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background)
         with self._stage("reconstruct"):
             if foveated:
@@ -484,8 +484,6 @@ class FrameLoop:
                 hdr = self.dof_out
         with self._stage("tonemap"):
             self._tonemap(hdr, self.image)
-        if foveated:
-            self.sampling.end_frame(self.gbuffer, self.temporal.filled)
 
     def _run_body(self, key, body) -> str:
         """Run ``body`` eagerly, or (CUDA, graphs on) replay its captured graph for ``key``: the first frame of

@@ -95,13 +95,10 @@ def _setup(rng, h, w, device, stochastic):
             "normal": np.where(rng.random((n, 1)) < 0.85, normal.reshape(n, 3), -normal.reshape(n, 3)),
             "age": rng.integers(0, 20, n).astype(np.int32), "stale": rng.integers(0, 17, n).astype(np.int32),
             "depth": rng.uniform(2.0, 3.0, (h, w)), "valid": (rng.random((h, w)) < 0.9).astype(np.uint8)}
-    # history on the previous slot
-    p = st._cur
-    st._hc[p].assign(prev["color"].astype(np.float32))
-    st._hst[p].assign(prev["stoch"].astype(np.float32))
-    st._hn[p].assign(prev["normal"].astype(np.float32))
-    st._ha[p].assign(prev["age"])
-    st._hs[p].assign(prev["stale"])
+    # the state every run leaves: non-empty history (age > 0) only where the pixel was filled
+    prev["age"] = np.where(prev["valid"].reshape(n) != 0, prev["age"], 0).astype(np.int32)
+    st.set_history(color=prev["color"], stoch=prev["stoch"], normal=prev["normal"], age=prev["age"],
+                   stale=prev["stale"], depth=prev["depth"], filled=prev["valid"])
     ys, xs = np.mgrid[0:h, 0:w]
     uv = np.stack([xs + 0.5 + rng.uniform(-1.5, 1.5, (h, w)), ys + 0.5 + rng.uniform(-1.5, 1.5, (h, w))], -1)
     uv[rng.random((h, w)) < 0.05] = -1e4
@@ -125,22 +122,20 @@ def _setup(rng, h, w, device, stochastic):
         getattr(g, k).assign(np.asarray(a, dtype=getattr(g, k).numpy().dtype if k in ("hit", "moved") else np.float32))
     arrs = {k: wp.array(inp[k], dtype=wp.vec3, device=device) for k in ("fresh", "stoch")}
     smap = wp.array(inp["smap"], dtype=wp.uint8, device=device)
-    dprev = wp.array(prev["depth"].astype(np.float32), dtype=float, device=device)
-    vprev = wp.array(prev["valid"], dtype=wp.uint8, device=device)
     # the reference sees the float32 values the kernel sees
     for k in ("depth", "prev_dist", "uv", "normal", "vel"):
         inp[k] = np.asarray(inp[k], np.float32).astype(np.float64)
     for k in ("color", "stoch", "normal", "depth"):
         prev[k] = np.asarray(prev[k], np.float32).astype(np.float64)
-    return cfg, st, g, inp, prev, arrs, smap, dprev, vprev
+    return cfg, st, g, inp, prev, arrs, smap
 
 
 @pytest.mark.parametrize("stochastic", [False, True])
 @pytest.mark.parametrize("use_history", [False, True])
 def test_resolve_matches_numpy_rule(device, rng, stochastic, use_history):
     h, w = 13, 17
-    cfg, st, g, inp, prev, arrs, smap, dprev, vprev = _setup(rng, h, w, device, stochastic)
-    st.run(smap, g, arrs["fresh"], arrs["stoch"], dprev, vprev, use_history=use_history, stochastic=stochastic,
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+    st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
            background=tuple(BG))
     got, filled = st.color.numpy(), st.filled.numpy()
     ref, rfilled = ref_resolve(inp, prev, cfg, use_history, stochastic)
@@ -153,8 +148,8 @@ def test_resolve_matches_numpy_rule(device, rng, stochastic, use_history):
 
 def test_traced_deterministic_pixels_are_the_fresh_value(device, rng):
     h, w = 13, 17
-    cfg, st, g, inp, prev, arrs, smap, dprev, vprev = _setup(rng, h, w, device, False)
-    st.run(smap, g, arrs["fresh"], arrs["stoch"], dprev, vprev, use_history=True, stochastic=False)
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, False)
+    st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=True, stochastic=False)
     got = st.color.numpy()
     traced = inp["smap"].astype(bool) & inp["hit"].astype(bool)
     np.testing.assert_array_equal(got[traced], inp["fresh"][traced])
@@ -174,11 +169,9 @@ def test_variance_clipping_on_a_step_edge(device):
     hist = np.zeros((h * w, 3), np.float32)
     hist.reshape(h, w, 3)[:, : w // 2] = 0.2  # consistent
     hist.reshape(h, w, 3)[:, w // 2:] = 0.2  # the right half's history is stale: 0.2 instead of 0.8
-    p = st._cur
-    st._hc[p].assign(hist)
-    st._hst[p].assign(hist)
-    st._hn[p].fill_(wp.vec3(0.0, 0.0, 1.0))
-    st._ha[p].fill_(15)
+    st.set_history(color=hist, stoch=hist, normal=np.tile([0.0, 0.0, 1.0], (h * w, 1)),
+                   age=np.full(h * w, 15, np.int32), stale=np.zeros(h * w, np.int32),
+                   depth=np.full((h, w), 2.0), filled=np.ones((h, w), np.uint8))
     g = GBuffer(w, h, device)
     g.hit.fill_(1)
     g.normal.fill_(wp.vec3(0.0, 0.0, 1.0))
@@ -188,8 +181,7 @@ def test_variance_clipping_on_a_step_edge(device):
     g.reproj_uv.assign(np.stack([xs + 0.5, ys + 0.5], -1).astype(np.float32))
     smap = wp.array(np.ones((h, w), np.uint8), dtype=wp.uint8, device=device)
     f = wp.array(fresh, dtype=wp.vec3, device=device)
-    st.run(smap, g, f, f, wp.full((h, w), 2.0, dtype=float, device=device),
-           wp.ones((h, w), dtype=wp.uint8, device=device), use_history=True, stochastic=True)
+    st.run(smap, g, f, f, use_history=True, stochastic=True)
     out = st.color.numpy()
     right = out[2:-2, w // 2 + 2: -2]
     assert right.min() > 0.75, right.min()  # unclipped, 15/16 of a 0.2 history would give ~0.24
