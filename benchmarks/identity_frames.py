@@ -22,7 +22,12 @@ import numpy as np
 CONFIGS = {
     "default": {},
     "ao2": {"shading": {"ao_samples": 2}},
+    # a small fovea (more pixels resolved from history), and a still view that reaches the refresh budget
+    "periphery": {"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}},
+    "periphery-ao2": {"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}, "shading": {"ao_samples": 2}},
+    "still-ao2": {"foveation": {"block": 2}, "temporal": {"max_history_frames": 3}, "shading": {"ao_samples": 2}},
 }
+STILL_FROM = 3  # "still" configs: the camera and gaze stop moving at this frame
 SCENES = ("cornell", "city", "earth")
 
 
@@ -38,6 +43,8 @@ def render_all(device: str, width: int, height: int, frames: int) -> dict:
             loop = fw.FrameLoop(scene, width, height, config=cfg, device=device, timing=False, graph=False,
                                 policy="foveated", cpu_threads=1)
             for i in range(frames):
+                if cname.startswith("still"):
+                    i = min(i, STILL_FROM)
                 t = i / 20.0
                 cam = scene.camera_at(t)
                 if not scene.is_animated:  # a camera that moves (orbit-ish shift of the eye along x)
@@ -45,7 +52,7 @@ def render_all(device: str, width: int, height: int, frames: int) -> dict:
                                     target=cam.target, up=cam.up, fov_y_deg=cam.fov_y_deg)
                 gaze = (width * (0.5 + 0.25 * np.sin(0.7 * i)), height * (0.5 + 0.2 * np.cos(0.5 * i)))
                 f = loop.render(cam, gaze_px=gaze, time=t)
-                key = f"{scene_name}.{cname}.{i}"
+                key = f"{scene_name}.{cname}.{loop.frame_index - 1}"
                 out[key + ".image"] = f.numpy().copy()
                 out[key + ".sparse"] = f.extras["sparse"].numpy().copy()
                 out[key + ".filled"] = f.extras["filled"].numpy().copy()
@@ -53,6 +60,8 @@ def render_all(device: str, width: int, height: int, frames: int) -> dict:
                 out[key + ".cache_hit"] = loop.sampling.cache_hit.numpy().copy()
                 out[key + ".prev_index"] = loop.sampling.prev_index.numpy().copy()
                 out[key + ".rates"] = np.array([f.stats["sampling_rate"], f.stats["cache_hit_rate"]])
+                out[key + ".hit"] = f.gbuffer.hit.numpy().copy()
+                out[key + ".skipped"] = np.array(sorted(f.stats["skipped"]))
     return out
 
 
