@@ -245,3 +245,91 @@ def test_still_stochastic_view_converges_with_progressive_sampling():
     for i in range(4):
         fd = d.render(scene.camera, gaze_px=(64.0, 36.0))
         assert "foveation.min_probability" not in fd.stats["skipped"]
+
+
+# -- storage of the history (issue 14): what the resolve no longer reads must hold by construction ----------------
+
+
+@pytest.mark.parametrize("stochastic", [False, True])
+@pytest.mark.parametrize("use_history", [False, True])
+def test_resolve_leaves_age_only_where_filled(device, rng, stochastic, use_history):
+    """The resolve reads no previous filled mask: a tap with age > 0 counts as filled. Every run must leave
+    age > 0 only where it wrote filled = 1 (any inputs), keep the G-buffer depth as the next previous depth,
+    and hand out its colour history as the frame's colour."""
+    h, w = 13, 17
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+    for _ in range(3):
+        st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
+               background=tuple(BG))
+        hist = st.history()
+        age = hist["age"].reshape(h, w)
+        assert ((age > 0) <= (hist["filled"] != 0)).all()
+        assert (age > 0).any()
+        np.testing.assert_array_equal(hist["depth"], g.depth.numpy())
+        np.testing.assert_array_equal(hist["color"], st.color.numpy())
+        np.testing.assert_array_equal(hist["filled"], st.filled.numpy())
+
+
+def test_frame_loop_history_invariants_in_motion():
+    """Along a moving sequence (deterministic and 2 AO rays, a small fovea so that history is reused): age > 0
+    only where filled, the temporal depth is the frame's G-buffer depth (the next cache test's previous depth),
+    and the frame's sparse colour and filled mask are the history's current slot."""
+    w, h = 96, 64
+    scene = fw.load_scene("cornell")
+    for over in ({}, {"shading": {"ao_samples": 2}}):
+        cfg = fw.Config().with_(foveation={"fovea_deg": 1.0, "falloff_deg": 4.0}, **over)
+        loop = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", cpu_threads=1)
+        reused = 0
+        for i in range(4):
+            cam = scene.camera
+            cam = fw.Camera(eye=(cam.eye[0] + 0.04 * i, cam.eye[1], cam.eye[2]), target=cam.target, up=cam.up,
+                            fov_y_deg=cam.fov_y_deg)
+            f = loop.render(cam, gaze_px=(20.0 + 5 * i, 20.0))
+            hist = loop.temporal.history()
+            filled = hist["filled"] != 0
+            assert ((hist["age"].reshape(h, w) > 0) <= filled).all()
+            np.testing.assert_array_equal(hist["depth"], loop.gbuffer.depth.numpy())
+            np.testing.assert_array_equal(f.extras["sparse"].numpy(), hist["color"])
+            np.testing.assert_array_equal(f.extras["filled"].numpy(), hist["filled"])
+            reused += int((filled & (f.sampling_map.numpy() == 0) & (loop.gbuffer.hit.numpy() != 0)).sum())
+        assert reused > 0  # history was reused, so the invariants were exercised on reprojected pixels
+
+
+def test_shading_kind_change_forgets_history(device, rng):
+    """History written by the deterministic resolve has no stochastic part: the first stochastic run after a
+    deterministic one (and the reverse) resolves as without history, and the history is used again after."""
+    h, w = 13, 17
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, True)
+    load = dict(color=prev["color"], stoch=prev["stoch"], normal=prev["normal"], age=prev["age"],
+                stale=prev["stale"], depth=prev["depth"], filled=prev["valid"])
+    args = (smap, g, arrs["fresh"], arrs["stoch"])
+
+    def run(stage, **kw):
+        stage.run(*args, background=tuple(BG), **kw)
+        return stage.color.numpy().copy()
+
+    fresh_stage = TemporalStage(w, h, cfg, device)
+    without = {k: run(fresh_stage, use_history=False, stochastic=k) for k in (False, True)}
+    with_hist = {}
+    for k in (False, True):
+        s2 = TemporalStage(w, h, cfg, device)
+        s2.set_history(**load)
+        with_hist[k] = run(s2, use_history=True, stochastic=k)
+        assert not np.array_equal(with_hist[k], without[k])  # history matters in this draw
+    for first in (False, True):
+        s3 = TemporalStage(w, h, cfg, device)
+        s3.set_history(**load)
+        run(s3, use_history=True, stochastic=first)
+        s3.set_history(**load)
+        np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), without[not first])
+        s3.set_history(**load)  # same kind again: the history counts
+        np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), with_hist[not first])
+
+
+def test_set_history_rejects_age_without_filled(device):
+    st = TemporalStage(4, 3, fw.TemporalConfig(), device)
+    z = np.zeros(12)
+    with pytest.raises(ValueError, match="filled"):
+        st.set_history(color=np.zeros((12, 3)), stoch=np.zeros((12, 3)), normal=np.zeros((12, 3)),
+                       age=np.ones(12, np.int32), stale=z.astype(np.int32), depth=np.zeros((3, 4)),
+                       filled=np.zeros((3, 4), np.uint8))

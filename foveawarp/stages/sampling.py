@@ -375,7 +375,8 @@ class SamplingStage:
               and a.device == self.device)
         if not ok:
             raise ValueError(f"{name} must be a ({self.height}, {self.width}) {dtype.__name__} wp.array on "
-                             f"{self.device}, got {show(a)} {getattr(a, 'shape', '')} {getattr(a, 'dtype', '')}")
+                             f"{self.device}, got {type(a).__name__} {tuple(getattr(a, 'shape', ()))} "
+                             f"{getattr(getattr(a, 'dtype', None), '__name__', '')}")
         return a
 
     def end_frame(self, gbuffer, valid_mask=None) -> None:
