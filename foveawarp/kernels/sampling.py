@@ -345,7 +345,9 @@ def tile_pass_kernel(
         wp.atomic_add(num_cache_hits, 0, wp.int32(tc[0]))
 
 
-@wp.kernel(enable_backward=False)
+# CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
+# loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
+@wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=48)
 def sampling_map_kernel(
     sp: SamplingParams,
     frame: wp.array(dtype=FrameParams),
