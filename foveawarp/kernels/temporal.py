@@ -26,6 +26,8 @@ class TemporalParams:
     depth_eps_rel: float  # a history tap's depth must match within this fraction of the current depth
     normal_cos_min: float  # ... and its normal within this cosine
     clamp_gamma: float  # variance clipping box half-width, in standard deviations
+    box_radius: int  # the clipping box is over the (2 r + 1)^2 neighbourhood (a runtime value: CUDA does not
+    # unroll the window loop, which took 106 registers per thread instead of 72 on sm_90)
     motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
     min_age_reuse: int  # a moving unsampled pixel reuses history of at least this many accumulated frames
     background: wp.vec3  # radiance of rays that miss
@@ -142,7 +144,7 @@ def _make_resolve_kernel(stochastic: bool):
     ``out_normal`` and ``out_stoch`` (flat) are written only where the history is non-empty (age > 0), the
     only place the next resolve reads them."""
 
-    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 106;
+    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
     # the single kernel this replaces used 136, so an SM held one block of 256 threads)
     @wp.kernel(enable_backward=False, name="resolve_stoch_kernel" if stochastic else "resolve_kernel",
                grid_stride=False)
@@ -242,7 +244,8 @@ def _make_resolve_kernel(stochastic: bool):
                 if wp.static(stochastic):
                     st = fresh_stoch[y, x]
                     if have:
-                        lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
+                        lo, hi, cnt = neighbourhood_box(x, y, tp.box_radius, sample_map, hit, fresh_stoch,
+                                                         tp.clamp_gamma)
                         if cnt >= 3:
                             hs = clip_to_box(hs, lo, hi)
                         m = wp.min(age_h, tp.max_frames - 1)

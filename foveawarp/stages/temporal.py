@@ -24,6 +24,8 @@ __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 # each pixel's own past samples beat an interpolation of this frame's sparse ones. Moving stochastic history
 # is also dropped after max_history_frames / 2 reprojections (its repeated bilinear resampling blurs it).
 STOCHASTIC_MIN_AGE = 4
+# the variance clipping box of stochastic shading is over the 5 x 5 neighbourhood
+CLIP_BOX_RADIUS = 2
 
 
 class TemporalStage:
@@ -143,6 +145,7 @@ class TemporalStage:
         tp.depth_eps_rel = float(c.depth_eps_rel)
         tp.normal_cos_min = float(c.normal_cos_min)
         tp.clamp_gamma = float(c.clamp_gamma)
+        tp.box_radius = CLIP_BOX_RADIUS
         tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
         tp.min_age_reuse = STOCHASTIC_MIN_AGE if stochastic else 1
         tp.background = wp.vec3(*(float(v) for v in background))
