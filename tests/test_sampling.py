@@ -440,6 +440,21 @@ def test_maps_on_request_are_the_frames_own(device, rng):
     assert not np.array_equal(seen[0], seen[1])
 
 
+def test_map_buffers_hand_the_maps_to_another_pass(device, rng):
+    """A pass that writes the maps itself (the sparse G-buffer's) gets them from ``map_buffers``; the
+    properties then return what it wrote, and compute nothing over it after later frames."""
+    g = _textured_gbuffer(W, H, device, rng)
+    cam = fw.Camera(fov_y_deg=50.0)
+    st_ = SamplingStage(W, H, fw.Config(), device=device)
+    prob, sal = st_.map_buffers()
+    for f, gaze in FRAMES:
+        st_.run(g, cam, gaze, f, moving=False, first_frame=True)
+        prob.fill_(0.25 + f)
+        sal.fill_(0.5 + f)
+        assert st_.probability is prob and st_.saliency is sal
+        assert (st_.probability.numpy() == 0.25 + f).all() and (st_.saliency.numpy() == 0.5 + f).all()
+
+
 @pytest.mark.needs_cuda
 def test_launch_replays_as_a_cuda_graph():
     dev = "cuda:0"

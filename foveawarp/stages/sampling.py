@@ -196,6 +196,7 @@ class SamplingStage:
         self._saliency = None
         self._maps_gbuffer = None  # the G-buffer of the last set_frame, and whether the maps are of that frame
         self._maps_current = False
+        self._maps_external = False  # True: another pass writes the maps (``map_buffers``)
         self.sample_map = wp.zeros((h, w), dtype=wp.uint8, device=dev)
         self.cache_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
         self.prev_index = wp.full((h, w), -1, dtype=wp.int32, device=dev)
@@ -349,6 +350,13 @@ class SamplingStage:
         on request)."""
         return self._maps()[1]
 
+    def map_buffers(self) -> tuple:
+        """(probability, saliency) (H, W) float32 arrays for a pass that computes the sampling map itself and
+        writes both maps every frame (the sparse G-buffer's): from this call on, ``probability`` and
+        ``saliency`` return them as that pass wrote them and compute nothing."""
+        self._maps_external = True
+        return self._maps()
+
     def _maps(self) -> tuple:
         """Compute (once per ``set_frame``) and return (probability, saliency): the fused kernel's own code in
         its maps-only mode, so the values are exactly those ``sample_map`` was thresholded with."""
@@ -357,7 +365,7 @@ class SamplingStage:
             self._probability = wp.zeros((h, w), dtype=float, device=dev)
             self._saliency = wp.zeros((h, w), dtype=float, device=dev)
         g = self._maps_gbuffer
-        if g is not None and not self._maps_current:
+        if g is not None and not self._maps_current and not self._maps_external:
             if self._lab_on:
                 parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
             parallel.launch(sampling_map_kernel, dim=(h, w),
