@@ -1,6 +1,10 @@
 """Temporal resolve (thesis A4, with the rule of ``stages.temporal``): fresh values where this frame traced,
 bilinear depth- and normal-validated history elsewhere, and an accumulated (neighbourhood-clamped) history of
-the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh."""
+the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh.
+
+History per pixel (ping-pong, written by each resolve): the colour (also the frame's output), age and staleness
+packed in one int32, the normal and (stochastic shading) the stochastic part where age > 0, the filled mask and
+the G-buffer depth (also the next frame's cache test inputs)."""
 
 import warp as wp
 
