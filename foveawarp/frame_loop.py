@@ -499,7 +499,8 @@ class FrameLoop:
             return
         with self._stage("sampling"):
             if foveated:
-                self.sampling.launch(self.gbuffer)
+                # the cache test's previous depth and valid mask: the temporal history's, as last resolved
+                self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled)
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
@@ -513,8 +514,7 @@ class FrameLoop:
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
-                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, self.sampling.depth_prev,
-                                  self.sampling.valid_prev, use_history=history,
+                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background)
         with self._stage("reconstruct"):
             if foveated:
@@ -529,8 +529,6 @@ class FrameLoop:
                 hdr = self.dof_out
         with self._stage("tonemap"):
             self._tonemap(hdr, self.image)
-        if foveated:
-            self.sampling.end_frame(self.gbuffer, self.temporal.filled)
 
     def _sparse_body(self, smap, strategy: str) -> None:
         """The body of a sparse-G-buffer frame: sampling map from the coarse G-buffer, compaction, primary rays

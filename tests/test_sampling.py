@@ -377,6 +377,84 @@ def test_set_frame_then_launch_equals_run(device):
         assert (a.saliency.numpy() == b.saliency.numpy()).all()
 
 
+def _textured_gbuffer(w, h, device, rng):
+    """Varied albedo, normals and depth (saliency terms active), reprojection within a pixel or so of the own
+    pixel and prev_dist equal to the depth: cache hits wherever the previous frame's depth was the same."""
+    g = _synthetic_gbuffer(w, h, device)
+    g.albedo.assign(rng.random((h, w, 3)).astype(np.float32))
+    n = rng.normal(size=(h, w, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 1.0
+    g.normal.assign((n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32))
+    ys, xs = np.mgrid[0:h, 0:w]
+    uv = np.stack([xs + 0.5 + rng.uniform(-1.2, 1.2, (h, w)), ys + 0.5 + rng.uniform(-1.2, 1.2, (h, w))], -1)
+    g.reproj_uv.assign(uv.astype(np.float32))
+    g.depth.fill_(3.0)
+    g.prev_dist.fill_(3.0)
+    return g
+
+
+def test_launch_with_given_previous_frame_equals_end_frame(device, rng):
+    """``launch(depth_prev=, valid_prev=)`` (FrameLoop passes the temporal history's depth and filled mask)
+    gives the cache test exactly what ``end_frame`` would have kept."""
+    g = _textured_gbuffer(W, H, device, rng)
+    cam = fw.Camera(fov_y_deg=50.0)
+    mask = wp.array((rng.random((H, W)) < 0.7).astype(np.uint8), dtype=wp.uint8, device=device)
+    depth = wp.clone(g.depth)
+    a = SamplingStage(W, H, fw.Config(), device=device)
+    b = SamplingStage(W, H, fw.Config(), device=device)
+    a.run(g, cam, (10.0, 20.0), 0, moving=False, first_frame=True)
+    a.end_frame(g, mask)
+    kw = dict(moving=False, first_frame=False, eye_prev=cam.eye)
+    a.run(g, cam, (30.0, 20.0), 1, **kw)
+    b.set_frame(g, cam, (30.0, 20.0), 1, **kw)
+    b.launch(g, depth_prev=depth, valid_prev=mask)
+    for k in ("sample_map", "cache_hit", "prev_index"):
+        np.testing.assert_array_equal(getattr(a, k).numpy(), getattr(b, k).numpy())
+    hits = a.cache_hit.numpy()
+    assert 0 < hits.sum() < hits.size
+    assert a.stats()["num_cache_hits"] == b.stats()["num_cache_hits"] == int(hits.sum())
+
+
+def test_maps_on_request_are_the_frames_own(device, rng):
+    """The probability and saliency maps are computed on request: after each ``run`` they are that frame's
+    (equal to a stage that ran only that frame), and the frame's sample map is exactly the stratified
+    binarization (``ops.sample_map``) of the reported saliency."""
+    g = _textured_gbuffer(W, H, device, rng)
+    cam = fw.Camera(fov_y_deg=50.0)
+    cfg = fw.Config()
+    st_ = SamplingStage(W, H, cfg, device=device)
+    seen = []
+    for f, gaze in FRAMES:
+        st_.run(g, cam, gaze, f, moving=False, first_frame=True)
+        if f == 1:
+            continue  # a frame whose maps nobody reads
+        one = SamplingStage(W, H, cfg, device=device)
+        one.run(g, cam, gaze, f, moving=False, first_frame=True)
+        p, s = st_.probability.numpy().copy(), st_.saliency.numpy().copy()
+        np.testing.assert_array_equal(p, one.probability.numpy())
+        np.testing.assert_array_equal(s, one.saliency.numpy())
+        assert (s > p).any() and (s >= p).all()  # the gradient terms raise it
+        ref = ops.sample_map(s, block=cfg.foveation.block, frame_index=f, seed=0, device=device)
+        np.testing.assert_array_equal(st_.sample_map.numpy(), ref)
+        seen.append(p)
+    assert not np.array_equal(seen[0], seen[1])
+
+
+def test_map_buffers_hand_the_maps_to_another_pass(device, rng):
+    """A pass that writes the maps itself (the sparse G-buffer's) gets them from ``map_buffers``; the
+    properties then return what it wrote, and compute nothing over it after later frames."""
+    g = _textured_gbuffer(W, H, device, rng)
+    cam = fw.Camera(fov_y_deg=50.0)
+    st_ = SamplingStage(W, H, fw.Config(), device=device)
+    prob, sal = st_.map_buffers()
+    for f, gaze in FRAMES:
+        st_.run(g, cam, gaze, f, moving=False, first_frame=True)
+        prob.fill_(0.25 + f)
+        sal.fill_(0.5 + f)
+        assert st_.probability is prob and st_.saliency is sal
+        assert (st_.probability.numpy() == 0.25 + f).all() and (st_.saliency.numpy() == 0.5 + f).all()
+
+
 @pytest.mark.needs_cuda
 def test_launch_replays_as_a_cuda_graph():
     dev = "cuda:0"

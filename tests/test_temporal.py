@@ -95,13 +95,10 @@ def _setup(rng, h, w, device, stochastic):
             "normal": np.where(rng.random((n, 1)) < 0.85, normal.reshape(n, 3), -normal.reshape(n, 3)),
             "age": rng.integers(0, 20, n).astype(np.int32), "stale": rng.integers(0, 17, n).astype(np.int32),
             "depth": rng.uniform(2.0, 3.0, (h, w)), "valid": (rng.random((h, w)) < 0.9).astype(np.uint8)}
-    # history on the previous slot
-    p = st._cur
-    st._hc[p].assign(prev["color"].astype(np.float32))
-    st._hst[p].assign(prev["stoch"].astype(np.float32))
-    st._hn[p].assign(prev["normal"].astype(np.float32))
-    st._ha[p].assign(prev["age"])
-    st._hs[p].assign(prev["stale"])
+    # the state every run leaves: non-empty history (age > 0) only where the pixel was filled
+    prev["age"] = np.where(prev["valid"].reshape(n) != 0, prev["age"], 0).astype(np.int32)
+    st.set_history(color=prev["color"], stoch=prev["stoch"], normal=prev["normal"], age=prev["age"],
+                   stale=prev["stale"], depth=prev["depth"], filled=prev["valid"])
     ys, xs = np.mgrid[0:h, 0:w]
     uv = np.stack([xs + 0.5 + rng.uniform(-1.5, 1.5, (h, w)), ys + 0.5 + rng.uniform(-1.5, 1.5, (h, w))], -1)
     uv[rng.random((h, w)) < 0.05] = -1e4
@@ -125,22 +122,20 @@ def _setup(rng, h, w, device, stochastic):
         getattr(g, k).assign(np.asarray(a, dtype=getattr(g, k).numpy().dtype if k in ("hit", "moved") else np.float32))
     arrs = {k: wp.array(inp[k], dtype=wp.vec3, device=device) for k in ("fresh", "stoch")}
     smap = wp.array(inp["smap"], dtype=wp.uint8, device=device)
-    dprev = wp.array(prev["depth"].astype(np.float32), dtype=float, device=device)
-    vprev = wp.array(prev["valid"], dtype=wp.uint8, device=device)
     # the reference sees the float32 values the kernel sees
     for k in ("depth", "prev_dist", "uv", "normal", "vel"):
         inp[k] = np.asarray(inp[k], np.float32).astype(np.float64)
     for k in ("color", "stoch", "normal", "depth"):
         prev[k] = np.asarray(prev[k], np.float32).astype(np.float64)
-    return cfg, st, g, inp, prev, arrs, smap, dprev, vprev
+    return cfg, st, g, inp, prev, arrs, smap
 
 
 @pytest.mark.parametrize("stochastic", [False, True])
 @pytest.mark.parametrize("use_history", [False, True])
 def test_resolve_matches_numpy_rule(device, rng, stochastic, use_history):
     h, w = 13, 17
-    cfg, st, g, inp, prev, arrs, smap, dprev, vprev = _setup(rng, h, w, device, stochastic)
-    st.run(smap, g, arrs["fresh"], arrs["stoch"], dprev, vprev, use_history=use_history, stochastic=stochastic,
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+    st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
            background=tuple(BG))
     got, filled = st.color.numpy(), st.filled.numpy()
     ref, rfilled = ref_resolve(inp, prev, cfg, use_history, stochastic)
@@ -153,8 +148,8 @@ def test_resolve_matches_numpy_rule(device, rng, stochastic, use_history):
 
 def test_traced_deterministic_pixels_are_the_fresh_value(device, rng):
     h, w = 13, 17
-    cfg, st, g, inp, prev, arrs, smap, dprev, vprev = _setup(rng, h, w, device, False)
-    st.run(smap, g, arrs["fresh"], arrs["stoch"], dprev, vprev, use_history=True, stochastic=False)
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, False)
+    st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=True, stochastic=False)
     got = st.color.numpy()
     traced = inp["smap"].astype(bool) & inp["hit"].astype(bool)
     np.testing.assert_array_equal(got[traced], inp["fresh"][traced])
@@ -174,11 +169,9 @@ def test_variance_clipping_on_a_step_edge(device):
     hist = np.zeros((h * w, 3), np.float32)
     hist.reshape(h, w, 3)[:, : w // 2] = 0.2  # consistent
     hist.reshape(h, w, 3)[:, w // 2:] = 0.2  # the right half's history is stale: 0.2 instead of 0.8
-    p = st._cur
-    st._hc[p].assign(hist)
-    st._hst[p].assign(hist)
-    st._hn[p].fill_(wp.vec3(0.0, 0.0, 1.0))
-    st._ha[p].fill_(15)
+    st.set_history(color=hist, stoch=hist, normal=np.tile([0.0, 0.0, 1.0], (h * w, 1)),
+                   age=np.full(h * w, 15, np.int32), stale=np.zeros(h * w, np.int32),
+                   depth=np.full((h, w), 2.0), filled=np.ones((h, w), np.uint8))
     g = GBuffer(w, h, device)
     g.hit.fill_(1)
     g.normal.fill_(wp.vec3(0.0, 0.0, 1.0))
@@ -188,8 +181,7 @@ def test_variance_clipping_on_a_step_edge(device):
     g.reproj_uv.assign(np.stack([xs + 0.5, ys + 0.5], -1).astype(np.float32))
     smap = wp.array(np.ones((h, w), np.uint8), dtype=wp.uint8, device=device)
     f = wp.array(fresh, dtype=wp.vec3, device=device)
-    st.run(smap, g, f, f, wp.full((h, w), 2.0, dtype=float, device=device),
-           wp.ones((h, w), dtype=wp.uint8, device=device), use_history=True, stochastic=True)
+    st.run(smap, g, f, f, use_history=True, stochastic=True)
     out = st.color.numpy()
     right = out[2:-2, w // 2 + 2: -2]
     assert right.min() > 0.75, right.min()  # unclipped, 15/16 of a 0.2 history would give ~0.24
@@ -253,3 +245,91 @@ def test_still_stochastic_view_converges_with_progressive_sampling():
     for i in range(4):
         fd = d.render(scene.camera, gaze_px=(64.0, 36.0))
         assert "foveation.min_probability" not in fd.stats["skipped"]
+
+
+# -- storage of the history (issue 14): what the resolve no longer reads must hold by construction ----------------
+
+
+@pytest.mark.parametrize("stochastic", [False, True])
+@pytest.mark.parametrize("use_history", [False, True])
+def test_resolve_leaves_age_only_where_filled(device, rng, stochastic, use_history):
+    """The resolve reads no previous filled mask: a tap with age > 0 counts as filled. Every run must leave
+    age > 0 only where it wrote filled = 1 (any inputs), keep the G-buffer depth as the next previous depth,
+    and hand out its colour history as the frame's colour."""
+    h, w = 13, 17
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+    for _ in range(3):
+        st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
+               background=tuple(BG))
+        hist = st.history()
+        age = hist["age"].reshape(h, w)
+        assert ((age > 0) <= (hist["filled"] != 0)).all()
+        assert (age > 0).any()
+        np.testing.assert_array_equal(hist["depth"], g.depth.numpy())
+        np.testing.assert_array_equal(hist["color"], st.color.numpy())
+        np.testing.assert_array_equal(hist["filled"], st.filled.numpy())
+
+
+def test_frame_loop_history_invariants_in_motion():
+    """Along a moving sequence (deterministic and 2 AO rays, a small fovea so that history is reused): age > 0
+    only where filled, the temporal depth is the frame's G-buffer depth (the next cache test's previous depth),
+    and the frame's sparse colour and filled mask are the history's current slot."""
+    w, h = 96, 64
+    scene = fw.load_scene("cornell")
+    for over in ({}, {"shading": {"ao_samples": 2}}):
+        cfg = fw.Config().with_(foveation={"fovea_deg": 1.0, "falloff_deg": 4.0}, **over)
+        loop = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", cpu_threads=1)
+        reused = 0
+        for i in range(4):
+            cam = scene.camera
+            cam = fw.Camera(eye=(cam.eye[0] + 0.04 * i, cam.eye[1], cam.eye[2]), target=cam.target, up=cam.up,
+                            fov_y_deg=cam.fov_y_deg)
+            f = loop.render(cam, gaze_px=(20.0 + 5 * i, 20.0))
+            hist = loop.temporal.history()
+            filled = hist["filled"] != 0
+            assert ((hist["age"].reshape(h, w) > 0) <= filled).all()
+            np.testing.assert_array_equal(hist["depth"], loop.gbuffer.depth.numpy())
+            np.testing.assert_array_equal(f.extras["sparse"].numpy(), hist["color"])
+            np.testing.assert_array_equal(f.extras["filled"].numpy(), hist["filled"])
+            reused += int((filled & (f.sampling_map.numpy() == 0) & (loop.gbuffer.hit.numpy() != 0)).sum())
+        assert reused > 0  # history was reused, so the invariants were exercised on reprojected pixels
+
+
+def test_shading_kind_change_forgets_history(device, rng):
+    """History written by the deterministic resolve has no stochastic part: the first stochastic run after a
+    deterministic one (and the reverse) resolves as without history, and the history is used again after."""
+    h, w = 13, 17
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, True)
+    load = dict(color=prev["color"], stoch=prev["stoch"], normal=prev["normal"], age=prev["age"],
+                stale=prev["stale"], depth=prev["depth"], filled=prev["valid"])
+    args = (smap, g, arrs["fresh"], arrs["stoch"])
+
+    def run(stage, **kw):
+        stage.run(*args, background=tuple(BG), **kw)
+        return stage.color.numpy().copy()
+
+    fresh_stage = TemporalStage(w, h, cfg, device)
+    without = {k: run(fresh_stage, use_history=False, stochastic=k) for k in (False, True)}
+    with_hist = {}
+    for k in (False, True):
+        s2 = TemporalStage(w, h, cfg, device)
+        s2.set_history(**load)
+        with_hist[k] = run(s2, use_history=True, stochastic=k)
+        assert not np.array_equal(with_hist[k], without[k])  # history matters in this draw
+    for first in (False, True):
+        s3 = TemporalStage(w, h, cfg, device)
+        s3.set_history(**load)
+        run(s3, use_history=True, stochastic=first)
+        s3.set_history(**load)
+        np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), without[not first])
+        s3.set_history(**load)  # same kind again: the history counts
+        np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), with_hist[not first])
+
+
+def test_set_history_rejects_age_without_filled(device):
+    st = TemporalStage(4, 3, fw.TemporalConfig(), device)
+    z = np.zeros(12)
+    with pytest.raises(ValueError, match="filled"):
+        st.set_history(color=np.zeros((12, 3)), stoch=np.zeros((12, 3)), normal=np.zeros((12, 3)),
+                       age=np.ones(12, np.int32), stale=z.astype(np.int32), depth=np.zeros((3, 4)),
+                       filled=np.zeros((3, 4), np.uint8))

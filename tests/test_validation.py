@@ -712,6 +712,11 @@ arg("stages", "SamplingStage.end_frame", lambda **kw: _sampling().end_frame(**{"
     "valid_mask", f"({H}, {W}) uint8", [(np.ones((H, W), np.uint8), "ndarray")])
 arg("stages", "SamplingStage.end_frame", lambda **kw: _sampling().end_frame(**kw), {}, "gbuffer", "GBuffer",
     [("gb", "'gb'")])
+for _n, _dt, _other in (("depth_prev", wp.float32, wp.uint8), ("valid_prev", wp.uint8, wp.float32)):
+    arg("stages", "SamplingStage.launch", lambda **kw: _sampling().launch(**{"gbuffer": _loop().gbuffer, **kw}), {},
+        _n, f"({H}, {W}) {_dt.__name__} wp.array", [(_warr((2, 2), _dt), "(2, 2)"), (_warr((H, W), _other),
+                                                                                   _other.__name__),
+                                                     (np.ones((H, W), np.float32), "ndarray")])
 arg("stages", "SamplingStage.launch", lambda **kw: _sampling().launch(**kw), {}, "gbuffer", "GBuffer",
     [("gb", "'gb'")])
 arg("stages", "SamplingStage.launch", lambda **kw: _sampling().launch(**kw), {}, "gbuffer", f"{W} x {H}",

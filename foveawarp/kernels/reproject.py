@@ -29,16 +29,26 @@ def cache_lookup(
     """Flat index ``iy * width + ix`` of the previous pixel on a cache hit, -1 on a miss."""
     h = depth_prev.shape[0]
     w = depth_prev.shape[1]
+    # the previous pixel's values are loaded before the tests, so the two loads do not wait on each other:
+    # at uv clamped to the screen (in bounds for any uv, NaN and infinities included; on screen the same pixel)
+    u = wp.min(uv[0], float(w - 1))
+    if not (u >= 0.0):
+        u = 0.0
+    v = wp.min(uv[1], float(h - 1))
+    if not (v >= 0.0):
+        v = 0.0
+    ix = int(wp.floor(u))
+    iy = int(wp.floor(v))
+    valid = valid_prev[iy, ix]
+    dprev = depth_prev[iy, ix]
     if hit == wp.uint8(0):
         return -1
     # written so that NaN coordinates fail too
     if not (uv[0] >= 0.0 and uv[0] < float(w) and uv[1] >= 0.0 and uv[1] < float(h)):
         return -1
-    ix = wp.min(int(wp.floor(uv[0])), w - 1)
-    iy = wp.min(int(wp.floor(uv[1])), h - 1)
-    if valid_prev[iy, ix] == wp.uint8(0):
+    if valid == wp.uint8(0):
         return -1
-    x = depth_prev[iy, ix] - dist_prev  # thesis eq. 4
+    x = dprev - dist_prev  # thesis eq. 4
     if wp.abs(x) < eps_rel * depth:
         return iy * w + ix
     return -1

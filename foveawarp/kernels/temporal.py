@@ -1,6 +1,10 @@
 """Temporal resolve (thesis A4, with the rule of ``stages.temporal``): fresh values where this frame traced,
 bilinear depth- and normal-validated history elsewhere, and an accumulated (neighbourhood-clamped) history of
-the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh."""
+the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh.
+
+History per pixel (ping-pong, written by each resolve): the colour (also the frame's output), age and staleness
+packed in one int32, the normal and (stochastic shading) the stochastic part where age > 0, the filled mask and
+the G-buffer depth (also the next frame's cache test inputs)."""
 
 import warp as wp
 
@@ -11,19 +15,41 @@ from .sampling import FrameParams
 SNAP_PX = wp.constant(1.0 / 128.0)
 
 
+# history state per pixel, packed in one int32: age (frames accumulated, 0 = empty) in the low bits, staleness
+# (frames reprojected without a refresh) above; both <= TemporalConfig.max_history_frames <= 1024
+META_SHIFT = wp.constant(16)
+META_AGE_MASK = wp.constant(0xFFFF)
+
+
 @wp.struct
 class TemporalParams:
     """Constants of the resolve (from ``TemporalConfig``) and the frame's switches."""
 
     max_frames: int  # history length: running mean over at most this many frames; stale limit
     use_history: int  # 0: first frame, cut, or history disabled
-    stochastic: int  # 1: the shading has Monte Carlo terms (``fresh_stoch`` holds them)
     depth_eps_rel: float  # a history tap's depth must match within this fraction of the current depth
     normal_cos_min: float  # ... and its normal within this cosine
     clamp_gamma: float  # variance clipping box half-width, in standard deviations
+    box_radius: int  # the clipping box is over the (2 r + 1)^2 neighbourhood (a runtime value: CUDA does not
+    # unroll the window loop, which took 106 registers per thread instead of 72 on sm_90)
     motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
     min_age_reuse: int  # a moving unsampled pixel reuses history of at least this many accumulated frames
     background: wp.vec3  # radiance of rays that miss
+
+
+@wp.func
+def pack_meta(age: int, stale: int) -> wp.int32:
+    return wp.int32(age | (stale << META_SHIFT))
+
+
+@wp.func
+def meta_age(m: wp.int32) -> int:
+    return int(m) & META_AGE_MASK
+
+
+@wp.func
+def meta_stale(m: wp.int32) -> int:
+    return int(m) >> META_SHIFT
 
 
 @wp.func
@@ -51,16 +77,16 @@ def bilinear_taps(uv: wp.vec2, w: int, h: int):
 
 @wp.func
 def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth: float, tp: TemporalParams,
-           depth_prev: wp.array2d(dtype=float), valid_prev: wp.array2d(dtype=wp.uint8),
-           normal_prev: wp.array(dtype=wp.vec3), age_prev: wp.array(dtype=wp.int32)) -> int:
-    """1 when history tap (tx, ty) holds a colour of the same surface: on screen, filled last frame, the depth
-    the point had there (``dist_prev``) within ``depth_eps_rel * depth``, the normal within ``normal_cos_min``."""
+           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array(dtype=wp.vec3),
+           meta_prev: wp.array(dtype=wp.int32)) -> int:
+    """1 when history tap (tx, ty) holds a colour of the same surface: on screen, non-empty history (age > 0,
+    which implies it was filled last frame: the resolve writes age > 0 only together with filled = 1), the
+    depth the point had there (``dist_prev``) within ``depth_eps_rel * depth``, the normal within
+    ``normal_cos_min``."""
     if tx < 0 or ty < 0 or tx >= w or ty >= h:
         return 0
-    if valid_prev[ty, tx] == wp.uint8(0):
-        return 0
     i = ty * w + tx
-    if age_prev[i] <= 0:
+    if meta_age(meta_prev[i]) <= 0:
         return 0
     if not (wp.abs(depth_prev[ty, tx] - dist_prev) < tp.depth_eps_rel * depth):
         return 0
@@ -111,131 +137,160 @@ def neighbourhood_box(x: int, y: int, radius: int, sample_map: wp.array2d(dtype=
     return mu - sd * gamma, mu + sd * gamma, cnt
 
 
-@wp.kernel(enable_backward=False)
-def resolve_kernel(
-    tp: TemporalParams,
-    sample_map: wp.array2d(dtype=wp.uint8),
-    hit: wp.array2d(dtype=wp.uint8),
-    normal: wp.array2d(dtype=wp.vec3),
-    depth: wp.array2d(dtype=float),
-    reproj_uv: wp.array2d(dtype=wp.vec2),
-    prev_dist: wp.array2d(dtype=float),
-    velocity: wp.array2d(dtype=wp.vec2),
-    moved: wp.array2d(dtype=wp.uint8),
-    fresh: wp.array2d(dtype=wp.vec3),
-    fresh_stoch: wp.array2d(dtype=wp.vec3),
-    depth_prev: wp.array2d(dtype=float),
-    valid_prev: wp.array2d(dtype=wp.uint8),
-    hist_color_prev: wp.array(dtype=wp.vec3),
-    hist_stoch_prev: wp.array(dtype=wp.vec3),
-    hist_normal_prev: wp.array(dtype=wp.vec3),
-    hist_age_prev: wp.array(dtype=wp.int32),
-    hist_stale_prev: wp.array(dtype=wp.int32),
-    out_color: wp.array2d(dtype=wp.vec3),
-    out_filled: wp.array2d(dtype=wp.uint8),
-    hist_color: wp.array(dtype=wp.vec3),
-    hist_stoch: wp.array(dtype=wp.vec3),
-    hist_normal: wp.array(dtype=wp.vec3),
-    hist_age: wp.array(dtype=wp.int32),
-    hist_stale: wp.array(dtype=wp.int32),
-    row0: int,
-):
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    w = out_color.shape[1]
-    h = out_color.shape[0]
-    i = y * w + x
-    zero = wp.vec3(0.0, 0.0, 0.0)
-    sampled = sample_map[y, x] != wp.uint8(0)
-    n = normal[y, x]
-    # what this pixel shows and keeps: colour, stochastic part, age, staleness, filled (written once, below)
-    col = zero
-    st = zero
-    age = int(0)
-    stale = int(0)
-    filled = wp.uint8(0)
-    if hit[y, x] == wp.uint8(0):
-        # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
-        col = tp.background
-        filled = wp.uint8(1)
-    elif sampled and tp.stochastic == 0:
-        # deterministic shading: the fresh value is the answer; history would only add error
-        col = fresh[y, x]
-        age = 1
-        filled = wp.uint8(1)
-    else:
-        # bilinear history at the reprojected position, each tap validated by depth and normal
-        wsum = float(0.0)
-        hc = zero
-        hs = zero
-        age_h = int(1 << 30)
-        stale_h = int(0)
-        uv = reproj_uv[y, x]
-        if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
-            x0, y0, fx, fy = bilinear_taps(uv, w, h)
-            d = depth[y, x]
-            dp = prev_dist[y, x]
-            for k in range(4):
-                tx = x0 + (k & 1)
-                ty = y0 + (k >> 1)
-                wx = fx
-                if (k & 1) == 0:
-                    wx = 1.0 - fx
-                wy = fy
-                if (k >> 1) == 0:
-                    wy = 1.0 - fy
-                wt = wx * wy
-                if wt > 0.0:
-                    if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, valid_prev, hist_normal_prev,
-                              hist_age_prev) != 0:
-                        j = ty * w + tx
-                        wsum += wt
-                        hc += hist_color_prev[j] * wt
-                        if tp.stochastic != 0:
-                            hs += hist_stoch_prev[j] * wt
-                        age_h = wp.min(age_h, hist_age_prev[j])
-                        stale_h = wp.max(stale_h, hist_stale_prev[j])
-        have = wsum > 1.0e-3
-        if have:
-            hc = hc / wsum
-            hs = hs / wsum
-        if sampled:
-            # stochastic shading: fresh deterministic part + accumulated, neighbourhood-clipped stochastic part
+def _make_resolve_kernel(stochastic: bool):
+    """The resolve, specialised at compile time on the shading kind (``stochastic``: the shading has Monte
+    Carlo terms, ``fresh_stoch`` holds them). The deterministic kernel (the default shading) has no
+    stochastic history, no neighbourhood box and no clipping, and reads the velocity only where the rule
+    needs it; both kernels are this one body, so the rule stands once.
+
+    Outputs: ``out_color`` (flat) is both the frame's resolved colour and the colour history; ``out_filled``,
+    ``out_depth`` (the G-buffer depth, kept as the next frame's previous depth); ``out_meta`` (age, stale);
+    ``out_normal`` and ``out_stoch`` (flat) are written only where the history is non-empty (age > 0), the
+    only place the next resolve reads them."""
+
+    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
+    # the single kernel this replaces used 136, so an SM held one block of 256 threads)
+    @wp.kernel(enable_backward=False, name="resolve_stoch_kernel" if stochastic else "resolve_kernel",
+               grid_stride=False)
+    def resolve(
+        tp: TemporalParams,
+        sample_map: wp.array2d(dtype=wp.uint8),
+        hit: wp.array2d(dtype=wp.uint8),
+        normal: wp.array2d(dtype=wp.vec3),
+        depth: wp.array2d(dtype=float),
+        reproj_uv: wp.array2d(dtype=wp.vec2),
+        prev_dist: wp.array2d(dtype=float),
+        velocity: wp.array2d(dtype=wp.vec2),
+        moved: wp.array2d(dtype=wp.uint8),
+        fresh: wp.array2d(dtype=wp.vec3),
+        fresh_stoch: wp.array2d(dtype=wp.vec3),
+        depth_prev: wp.array2d(dtype=float),
+        normal_prev: wp.array(dtype=wp.vec3),
+        meta_prev: wp.array(dtype=wp.int32),
+        color_prev: wp.array(dtype=wp.vec3),
+        stoch_prev: wp.array(dtype=wp.vec3),
+        out_color: wp.array(dtype=wp.vec3),
+        out_filled: wp.array2d(dtype=wp.uint8),
+        out_depth: wp.array2d(dtype=float),
+        out_normal: wp.array(dtype=wp.vec3),
+        out_meta: wp.array(dtype=wp.int32),
+        out_stoch: wp.array(dtype=wp.vec3),
+        row0: int,
+    ):
+        y, x = wp.tid()
+        y += row0  # band offset (foveawarp.parallel)
+        w = out_filled.shape[1]
+        h = out_filled.shape[0]
+        i = y * w + x
+        zero = wp.vec3(0.0, 0.0, 0.0)
+        d = depth[y, x]
+        out_depth[y, x] = d
+        # what this pixel shows and keeps: colour, stochastic part, age, staleness, filled (written once, below)
+        n = zero
+        col = zero
+        st = zero
+        age = int(0)
+        stale = int(0)
+        filled = wp.uint8(0)
+        sampled = sample_map[y, x] != wp.uint8(0)
+        if hit[y, x] == wp.uint8(0):
+            # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
+            col = tp.background
+            filled = wp.uint8(1)
+        elif wp.static(not stochastic) and sampled:
+            # deterministic shading: the fresh value is the answer; history would only add error
+            n = normal[y, x]
             col = fresh[y, x]
-            st = fresh_stoch[y, x]
             age = 1
-            if have:
-                lo, hi, cnt = neighbourhood_box(x, y, 2, sample_map, hit, fresh_stoch, tp.clamp_gamma)
-                if cnt >= 3:
-                    hs = clip_to_box(hs, lo, hi)
-                m = wp.min(age_h, tp.max_frames - 1)
-                alpha = 1.0 / float(m + 1)
-                alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
-                alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
-                s_acc = hs + (st - hs) * alpha
-                col = col - st + s_acc
-                st = s_acc
-                age = m + 1
             filled = wp.uint8(1)
         else:
-            still = wp.length(velocity[y, x]) <= 0.5
-            young_ok = age_h >= tp.min_age_reuse or still
-            stale_max = tp.max_frames
-            if tp.stochastic != 0 and not still:
-                stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
-            if have and stale_h + 1 < stale_max and moved[y, x] == wp.uint8(0) and young_ok:
-                col = hc
-                st = hs
-                age = age_h
-                stale = stale_h + 1
+            n = normal[y, x]
+            # bilinear history at the reprojected position, each tap validated by depth and normal
+            wsum = float(0.0)
+            hc = zero
+            hs = zero
+            age_h = int(1 << 30)
+            stale_h = int(0)
+            uv = reproj_uv[y, x]
+            if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
+                x0, y0, fx, fy = bilinear_taps(uv, w, h)
+                dp = prev_dist[y, x]
+                for k in range(4):
+                    tx = x0 + (k & 1)
+                    ty = y0 + (k >> 1)
+                    wx = fx
+                    if (k & 1) == 0:
+                        wx = 1.0 - fx
+                    wy = fy
+                    if (k >> 1) == 0:
+                        wy = 1.0 - fy
+                    wt = wx * wy
+                    if wt > 0.0:
+                        if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, normal_prev, meta_prev) != 0:
+                            j = ty * w + tx
+                            mj = meta_prev[j]
+                            wsum += wt
+                            hc += color_prev[j] * wt
+                            if wp.static(stochastic):
+                                hs += stoch_prev[j] * wt
+                            age_h = wp.min(age_h, meta_age(mj))
+                            stale_h = wp.max(stale_h, meta_stale(mj))
+            have = wsum > 1.0e-3
+            if have:
+                hc = hc / wsum
+                if wp.static(stochastic):
+                    hs = hs / wsum
+            if sampled:
+                # stochastic shading (the deterministic kernel took the branch above): fresh deterministic
+                # part + accumulated, neighbourhood-clipped stochastic part
+                col = fresh[y, x]
+                age = 1
+                if wp.static(stochastic):
+                    st = fresh_stoch[y, x]
+                    if have:
+                        lo, hi, cnt = neighbourhood_box(x, y, tp.box_radius, sample_map, hit, fresh_stoch,
+                                                         tp.clamp_gamma)
+                        if cnt >= 3:
+                            hs = clip_to_box(hs, lo, hi)
+                        m = wp.min(age_h, tp.max_frames - 1)
+                        alpha = 1.0 / float(m + 1)
+                        alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
+                        alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
+                        s_acc = hs + (st - hs) * alpha
+                        col = col - st + s_acc
+                        st = s_acc
+                        age = m + 1
                 filled = wp.uint8(1)
-    out_color[y, x] = col
-    out_filled[y, x] = filled
-    hist_color[i] = col
-    hist_stoch[i] = st
-    hist_normal[i] = n
-    hist_age[i] = age
-    hist_stale[i] = stale
+            elif have:
+                if moved[y, x] == wp.uint8(0):
+                    # still (screen motion <= half a pixel): read only where the rule depends on it
+                    still = True
+                    young_ok = age_h >= tp.min_age_reuse
+                    if wp.static(stochastic) or not young_ok:
+                        still = wp.length(velocity[y, x]) <= 0.5
+                    young_ok = young_ok or still
+                    stale_max = tp.max_frames
+                    if wp.static(stochastic) and not still:
+                        stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
+                    if stale_h + 1 < stale_max and young_ok:
+                        col = hc
+                        st = hs
+                        age = age_h
+                        stale = stale_h + 1
+                        filled = wp.uint8(1)
+        out_color[i] = col
+        out_filled[y, x] = filled
+        out_meta[i] = pack_meta(age, stale)
+        if age > 0:
+            out_normal[i] = n
+            if wp.static(stochastic):
+                out_stoch[i] = st
+
+    return resolve
+
+
+resolve_kernel = _make_resolve_kernel(False)
+resolve_stoch_kernel = _make_resolve_kernel(True)
 
 
 @wp.func
@@ -247,8 +302,7 @@ def _frac(v: float) -> float:
 def refresh_thin_kernel(
     cache_hit: wp.array2d(dtype=wp.uint8),
     prev_index: wp.array2d(dtype=wp.int32),
-    hist_age_prev: wp.array(dtype=wp.int32),
-    hist_stale_prev: wp.array(dtype=wp.int32),
+    meta_prev: wp.array(dtype=wp.int32),
     frame_params: wp.array(dtype=FrameParams),
     fraction: float,
     keep_stale: int,
@@ -268,11 +322,12 @@ def refresh_thin_kernel(
     pi = prev_index[y, x]
     if pi < 0:
         return
-    if hist_age_prev[pi] <= 0:
+    m = meta_prev[pi]
+    if meta_age(m) <= 0:
         return
-    if hist_stale_prev[pi] >= keep_stale:
+    if meta_stale(m) >= keep_stale:
         return
-    if hist_age_prev[pi] < keep_young:  # stochastic shading: still converging
+    if meta_age(m) < keep_young:  # stochastic shading: still converging
         return
     fp = frame_params[0]
     shift = _frac(float(fp.rot) * 0.6180339887 + fp.phase)

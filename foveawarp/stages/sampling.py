@@ -148,6 +148,10 @@ class SamplingStage:
         probability: float32, thesis eq. 2 foveation probability p(w) in [xi, 1] (1 when foveation is off).
         saliency: float32, thesis eq. 3 ``clip(max(dA, dN, V, p) * F_DoF, xi, 1)``: the per-pixel sampling
             probability that ``sample_map`` follows (long-run rate exactly ``saliency`` in full tiles).
+            These two are computed on request (nothing in a frame reads them): reading either property
+            launches one pass that writes both, from the frame values of the last ``set_frame`` and the
+            G-buffer given to it as it is at the time of reading (in ``FrameLoop``, read them before the next
+            ``render`` or ``render_reference``). The values are those the frame's ``sample_map`` thresholds.
         sample_map: uint8, 1 where a ray is traced this frame; every aligned block x block tile holds >= 1.
         cache_hit: uint8, 1 where the reprojected history passes the cache test (0 everywhere when skipped).
         prev_index: int32, flat index ``y * W + x`` of the previous-frame pixel on a cache hit, else -1.
@@ -188,13 +192,17 @@ class SamplingStage:
         self.frame_params = wp.zeros(1, dtype=FrameParams, device=dev)
         self._lab_on = bool(config.foveation.enabled and config.saliency.use_albedo)
         self.lab = wp.zeros((h, w) if self._lab_on else (1, 1), dtype=wp.vec3, device=dev)
-        self.probability = wp.zeros((h, w), dtype=float, device=dev)
-        self.saliency = wp.zeros((h, w), dtype=float, device=dev)
+        self._probability = None  # allocated on the first request (see ``probability``)
+        self._saliency = None
+        self._maps_gbuffer = None  # the G-buffer of the last set_frame, and whether the maps are of that frame
+        self._maps_current = False
+        self._maps_external = False  # True: another pass writes the maps (``map_buffers``)
         self.sample_map = wp.zeros((h, w), dtype=wp.uint8, device=dev)
         self.cache_hit = wp.zeros((h, w), dtype=wp.uint8, device=dev)
         self.prev_index = wp.full((h, w), -1, dtype=wp.int32, device=dev)
         self.depth_prev = wp.zeros((h, w), dtype=float, device=dev)
         self.valid_prev = wp.zeros((h, w), dtype=wp.uint8, device=dev)
+        self._dummy_map = wp.zeros((1, 1), dtype=float, device=dev)  # the frame pass writes no maps
         self.num_samples = wp.zeros(1, dtype=wp.int32, device=dev)
         self.num_cache_hits = wp.zeros(1, dtype=wp.int32, device=dev)
         self.skipped: dict = {}
@@ -293,32 +301,91 @@ class SamplingStage:
         rot, phase = frame_rotation(fi, self.block)
         gx, gy = clamp_gaze(gaze, w, h)
         self.skipped = skipped
+        self._maps_gbuffer, self._maps_current = gbuffer, False
         wp.launch(frame_setup_kernel, dim=1,
                   inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope, self.params.mar_fovea_deg,
                           NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg), focus_mode, focus,
                           gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache, rot, phase, xi],
                   outputs=[self.frame_params], device=self.device)
 
-    def launch(self, gbuffer) -> None:
+    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None) -> None:
         """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.
 
         Every argument is fixed (buffers and constants; the per-frame values are read from
         ``self.frame_params``), so on CUDA this can be captured once in a graph and replayed after each
         ``set_frame`` as long as the G-buffer arrays stay the same objects.
+
+        Args:
+            gbuffer: the current :class:`GBuffer` (the one given to ``set_frame``).
+            depth_prev, valid_prev: the previous frame's depth (float) and valid-colour mask (uint8), (H, W)
+                wp.arrays on this device, for the cache test; None (default): this stage's own ``depth_prev``
+                and ``valid_prev`` (kept by ``end_frame``). ``FrameLoop`` passes the temporal history's
+                ``depth`` and ``filled``, which the resolve already holds, instead of copying them.
         """
         w, h = self.width, self.height
         g, dev = self._check_gbuffer(gbuffer), self.device
+        dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
+        vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
         if self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
         parallel.launch(sampling_map_kernel, dim=(h, w),
                         inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
-                                g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev, self.valid_prev],
-                        outputs=[self.probability, self.saliency, self.sample_map, self.cache_hit, self.prev_index],
+                                g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp, 0],
+                        outputs=[self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index],
                         device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev)
+
+    # -- probability and saliency maps, on request ---------------------------------------------------------------
+    @property
+    def probability(self) -> wp.array:
+        """(H, W) float32: the eq. 2 foveation probability of the last ``set_frame`` (computed on request)."""
+        return self._maps()[0]
+
+    @property
+    def saliency(self) -> wp.array:
+        """(H, W) float32: the eq. 3 saliency (the sampling probability) of the last ``set_frame`` (computed
+        on request)."""
+        return self._maps()[1]
+
+    def map_buffers(self) -> tuple:
+        """(probability, saliency) (H, W) float32 arrays for a pass that computes the sampling map itself and
+        writes both maps every frame (the sparse G-buffer's): from this call on, ``probability`` and
+        ``saliency`` return them as that pass wrote them and compute nothing."""
+        self._maps_external = True
+        return self._maps()
+
+    def _maps(self) -> tuple:
+        """Compute (once per ``set_frame``) and return (probability, saliency): the fused kernel's own code in
+        its maps-only mode, so the values are exactly those ``sample_map`` was thresholded with."""
+        w, h, dev = self.width, self.height, self.device
+        if self._probability is None:
+            self._probability = wp.zeros((h, w), dtype=float, device=dev)
+            self._saliency = wp.zeros((h, w), dtype=float, device=dev)
+        g = self._maps_gbuffer
+        if g is not None and not self._maps_current and not self._maps_external:
+            if self._lab_on:
+                parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+            parallel.launch(sampling_map_kernel, dim=(h, w),
+                            inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
+                                    g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev,
+                                    self.valid_prev, 1],
+                            outputs=[self._probability, self._saliency, self.sample_map, self.cache_hit,
+                                     self.prev_index],
+                            device=dev)
+            self._maps_current = True
+        return self._probability, self._saliency
+
+    def _check_prev(self, name: str, a, dtype):
+        ok = (isinstance(a, wp.array) and a.dtype == dtype and tuple(a.shape) == (self.height, self.width)
+              and a.device == self.device)
+        if not ok:
+            raise ValueError(f"{name} must be a ({self.height}, {self.width}) {dtype.__name__} wp.array on "
+                             f"{self.device}, got {type(a).__name__} {tuple(getattr(a, 'shape', ()))} "
+                             f"{getattr(getattr(a, 'dtype', None), '__name__', '')}")
+        return a
 
     def end_frame(self, gbuffer, valid_mask=None) -> None:
         """Keep this frame's depth and valid-color mask (uint8 (H, W) wp.array; None: the G-buffer hit mask)

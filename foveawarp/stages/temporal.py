@@ -7,7 +7,13 @@ import warp as wp
 
 from .. import parallel
 from ..config import TemporalConfig
-from ..kernels.temporal import TemporalParams, refresh_thin_kernel, resolve_kernel
+from ..kernels.temporal import (
+    META_SHIFT,
+    TemporalParams,
+    refresh_thin_kernel,
+    resolve_kernel,
+    resolve_stoch_kernel,
+)
 
 __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 
@@ -18,6 +24,8 @@ __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 # each pixel's own past samples beat an interpolation of this frame's sparse ones. Moving stochastic history
 # is also dropped after max_history_frames / 2 reprojections (its repeated bilinear resampling blurs it).
 STOCHASTIC_MIN_AGE = 4
+# the variance clipping box of stochastic shading is over the 5 x 5 neighbourhood
+CLIP_BOX_RADIUS = 2
 
 
 class TemporalStage:
@@ -48,70 +56,126 @@ class TemporalStage:
       frame's samples is closer than any reprojected colour.
     * **Otherwise**: empty (not a seed); the reconstruction fills it.
 
-    ``color`` (H, W) vec3 (linear radiance) and ``filled`` (H, W) uint8 (the reconstruction's seeds) are the
-    outputs of each ``run``, which then swaps the history.
+    Outputs of each ``run`` (then the current slot of the ping-pong history; each ``run`` writes the other slot
+    and swaps): ``color`` (H, W) vec3, the linear radiance, which is also the colour history; ``filled``
+    (H, W) uint8, the reconstruction's seeds; ``depth`` (H, W) float, the G-buffer depth of the frame. The
+    next frame's cache test reads ``filled`` and ``depth`` as its previous valid mask and depth
+    (``SamplingStage.launch``), so they need no copy. Hold no reference to them across frames: the next
+    ``run`` but one overwrites them.
+
+    The shading kind (``stochastic``) picks a compile-time specialisation of the resolve: the deterministic
+    one keeps no stochastic history. A ``run`` or ``refresh`` whose ``stochastic`` differs from the previous
+    one forgets the history first (``reset``): history written without a stochastic part is never used as
+    if it had one.
     """
 
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
         self.width, self.height, self.config, self.device = width, height, config, device
         n = width * height
-        self.color = wp.zeros((height, width), dtype=wp.vec3, device=device)
-        self.filled = wp.zeros((height, width), dtype=wp.uint8, device=device)
-        self._hc = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
-        self._hst = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
-        self._hn = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
-        self._ha = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
-        self._hs = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]
+        shape = (height, width)
+        # the colour history is (H, W) (the stage's output) and is handed to the kernels as a flat view
+        self._color = [wp.zeros(shape, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._color_flat = [a.flatten() for a in self._color]
+        self._filled = [wp.zeros(shape, dtype=wp.uint8, device=device) for _ in range(2)]
+        self._depth = [wp.zeros(shape, dtype=float, device=device) for _ in range(2)]
+        self._normal = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._stoch = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._meta = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]  # age | stale << 16
         self._cur = 0
-
-    def reset(self) -> None:
-        """Forget all history (camera cut, resize of the content)."""
-        for a in self._ha:
-            a.zero_()
+        self._stochastic = None  # shading kind of the last run/refresh (None: none yet)
 
     @property
-    def age(self):
-        """(H*W,) int32: frames accumulated in the current history (0 = empty)."""
-        return self._ha[self._cur]
+    def color(self) -> wp.array:
+        """(H, W) vec3: the last resolved frame's radiance (the current colour history)."""
+        return self._color[self._cur]
+
+    @property
+    def filled(self) -> wp.array:
+        """(H, W) uint8: 1 where the last resolved frame has a colour (the reconstruction's seeds)."""
+        return self._filled[self._cur]
+
+    @property
+    def depth(self) -> wp.array:
+        """(H, W) float: the G-buffer depth of the last resolved frame (the next frame's previous depth)."""
+        return self._depth[self._cur]
+
+    def reset(self) -> None:
+        """Forget all history (camera cut, resize of the content, change of the shading kind)."""
+        for a in self._meta:
+            a.zero_()
+
+    def _check_kind(self, stochastic: bool) -> None:
+        if self._stochastic is not None and self._stochastic != stochastic:
+            self.reset()
+        self._stochastic = stochastic
+
+    def history(self) -> dict:
+        """Host copies of the current history (debugging and tests; reads the device): color (H, W, 3),
+        filled (H, W), depth (H, W), and flat (H*W, ...) normal, stoch, age, stale. ``normal`` and ``stoch``
+        are meaningful only where age > 0."""
+        c = self._cur
+        meta = self._meta[c].numpy()
+        return {"color": self._color[c].numpy(), "filled": self._filled[c].numpy(), "depth": self._depth[c].numpy(),
+                "normal": self._normal[c].numpy(), "stoch": self._stoch[c].numpy(),
+                "age": meta & ((1 << META_SHIFT) - 1), "stale": meta >> META_SHIFT}
+
+    def set_history(self, *, color, stoch, normal, age, stale, depth, filled) -> None:
+        """Load the current history from host arrays (tests): shapes as ``history()`` returns them. ``age > 0``
+        must imply ``filled`` (as every ``run`` leaves it; the resolve relies on it)."""
+        import numpy as np
+
+        age = np.asarray(age, np.int32)
+        stale = np.asarray(stale, np.int32)
+        filled = np.asarray(filled, np.uint8)
+        if ((age.reshape(-1) > 0) & (filled.reshape(-1) == 0)).any():
+            raise ValueError("set_history: age > 0 must imply filled (the resolve reads no filled mask)")
+        c = self._cur
+        self._color[c].assign(np.asarray(color, np.float32).reshape(self.height, self.width, 3))
+        self._stoch[c].assign(np.asarray(stoch, np.float32).reshape(-1, 3))
+        self._normal[c].assign(np.asarray(normal, np.float32).reshape(-1, 3))
+        self._meta[c].assign((age | (stale << META_SHIFT)).reshape(-1))
+        self._depth[c].assign(np.asarray(depth, np.float32).reshape(self.height, self.width))
+        self._filled[c].assign(filled.reshape(self.height, self.width))
 
     def params(self, *, use_history: bool, stochastic: bool, background=(0.0, 0.0, 0.0)) -> TemporalParams:
         c = self.config
         tp = TemporalParams()
         tp.max_frames = int(c.max_history_frames)
         tp.use_history = 1 if (use_history and c.enabled) else 0
-        tp.stochastic = 1 if stochastic else 0
         tp.depth_eps_rel = float(c.depth_eps_rel)
         tp.normal_cos_min = float(c.normal_cos_min)
         tp.clamp_gamma = float(c.clamp_gamma)
+        tp.box_radius = CLIP_BOX_RADIUS
         tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
         tp.min_age_reuse = STOCHASTIC_MIN_AGE if stochastic else 1
         tp.background = wp.vec3(*(float(v) for v in background))
         return tp
 
-    def run(self, sample_map, gbuffer, fresh, fresh_stoch, depth_prev, valid_prev, *, use_history: bool = True,
-            stochastic: bool = False, background=(0.0, 0.0, 0.0)) -> None:
-        """Resolve one frame (the rule in the class docstring).
+    def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
+            background=(0.0, 0.0, 0.0)) -> None:
+        """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
             sample_map: (H, W) uint8, 1 where ``fresh`` was traced this frame.
-            gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, velocity).
+            gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, velocity, moved).
             fresh: (H, W) vec3 radiance at the traced pixels.
             fresh_stoch: (H, W) vec3, the stochastic part of ``fresh`` (read only when ``stochastic``).
-            depth_prev, valid_prev: the previous frame's depth (metres) and filled mask, (H, W).
             use_history: False on the first frame and after a cut.
             stochastic: whether the shading has Monte Carlo terms.
             background: radiance of rays that miss (linear RGB).
         """
+        stochastic = bool(stochastic)
+        self._check_kind(stochastic)
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
         parallel.launch(
-            resolve_kernel,
+            resolve_stoch_kernel if stochastic else resolve_kernel,
             dim=(self.height, self.width),
             inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
-                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch, depth_prev,
-                    valid_prev, self._hc[prev], self._hst[prev], self._hn[prev], self._ha[prev], self._hs[prev]],
-            outputs=[self.color, self.filled, self._hc[cur], self._hst[cur], self._hn[cur], self._ha[cur],
-                     self._hs[cur]],
+                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch,
+                    self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev], self._stoch[prev]],
+            outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
+                     self._stoch[cur]],
             device=self.device,
         )
         self.swap()
@@ -127,10 +191,11 @@ class TemporalStage:
         static, converged view: samples with usable history are kept with probability ``fraction``; those
         without history, or unrefreshed for half of ``max_history_frames`` or more, and (``stochastic``) those
         whose accumulation is not yet full, are always kept. Call before ``run`` of the same frame."""
+        self._check_kind(bool(stochastic))
         prev = self._cur
         keep_stale = max(1, int(self.config.max_history_frames) // 2)
         keep_young = int(self.config.max_history_frames) if stochastic else 0
         wp.launch(refresh_thin_kernel, dim=(self.height, self.width),
-                  inputs=[cache_hit, prev_index, self._ha[prev], self._hs[prev], frame_params, float(fraction),
+                  inputs=[cache_hit, prev_index, self._meta[prev], frame_params, float(fraction),
                           keep_stale, keep_young],
                   outputs=[sample_map, num_samples], device=self.device)
