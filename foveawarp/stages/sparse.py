@@ -84,7 +84,7 @@ class SparseGBufferStage:
         parallel.launch(sparse_sampling_kernel, dim=(self.height, self.width),
                         inputs=[sampling.params, sampling.frame_params, sampling.ranks, self.coarse_saliency,
                                 self.cell],
-                        outputs=[sampling.probability, sampling.saliency, sampling.sample_map], device=dev)
+                        outputs=[*sampling.map_buffers(), sampling.sample_map], device=dev)
         launch_tile_pass(sampling.ranks, sampling.params, sampling.frame_params, sampling.tiles, sampling.sample_map,
                          sampling.cache_hit, sampling.num_samples, sampling.num_cache_hits, dev)
 
