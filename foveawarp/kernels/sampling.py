@@ -156,6 +156,27 @@ def foveation_prob(e_deg: float, mar_slope: float, mar_fovea_deg: float, w_min_d
     return wp.clamp(1.0 - (w - w_min_deg) / w_far_deg, xi, 1.0)
 
 
+@wp.func
+def pixel_probability(x: int, y: int, w: int, h: int, sp: SamplingParams, fp: FrameParams) -> float:
+    """Thesis eq. 2 at pixel (x, y)'s centre for this frame's gaze (with the full-rate fovea)."""
+    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+    return foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
+
+
+@wp.func
+def saliency_velocity(fp: FrameParams, velocity: wp.vec2, position: wp.vec3, uv: wp.vec2) -> wp.vec2:
+    """The screen velocity of the V term: the G-buffer's, or with ``fp.object_velocity`` the object's own
+    motion (where the point would be in the previous frame had it not moved, minus where it was; camera
+    motion removed)."""
+    v = velocity
+    if fp.object_velocity != 0:
+        v = wp.vec2(0.0, 0.0)
+        pr = camera_project(fp.cam_prev, position)
+        if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
+            v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
+    return v
+
+
 # -- binarization -------------------------------------------------------------------------------------------
 
 
@@ -391,8 +412,7 @@ def sampling_map_kernel(
     p = float(1.0)
     s = float(1.0)
     if sp.foveation != 0:
-        e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
-        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
+        p = pixel_probability(x, y, w, h, sp, fp)
         s = p
         # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
         # remaining terms cannot change it (the fovea skips them). The terms' inputs are read as soon as p < 1
@@ -407,14 +427,7 @@ def sampling_map_kernel(
             if sp.use_normal != 0:
                 gn = sobel_vec3(normal, x, y)
             if hit_px != wp.uint8(0) and fp.use_velocity != 0:
-                v = velocity[y, x]
-                if fp.object_velocity != 0:
-                    # object motion only: where the point would be in the previous frame had it not moved,
-                    # minus where it was
-                    v = wp.vec2(0.0, 0.0)
-                    pr = camera_project(fp.cam_prev, position[y, x])
-                    if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
-                        v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
+                v = saliency_velocity(fp, velocity[y, x], position[y, x], uv)
         if sp.use_albedo != 0 and s < 1.0:
             s = wp.max(s, wp.min(sp.albedo_gain * ga, 1.0))
         if sp.use_normal != 0 and s < 1.0:

@@ -14,10 +14,10 @@ cell's centre point.
 
 import warp as wp
 
-from .camera import CameraParams, camera_project
-from .gbuffer import NO_REPROJ, trace_primary
+from .camera import CameraParams
+from .gbuffer import trace_primary
 from .saliency import linear_rgb_to_lab, sobel_max_channel, sobel_vec3
-from .sampling import FrameParams, SamplingParams, dither_sample, eccentricity_at, foveation_prob
+from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
 
 
@@ -115,14 +115,7 @@ def coarse_saliency_kernel(
     if sp.use_normal != 0 and s < 1.0:
         s = wp.max(s, wp.min(sp.normal_gain * sobel_vec3(normal, x, y), 1.0))
     if hit[y, x] != wp.uint8(0) and fp.use_velocity != 0 and s < 1.0:
-        v = velocity[y, x]
-        if fp.object_velocity != 0:
-            # object motion only (as the full mode): the point's previous place had it not moved, minus its place
-            v = wp.vec2(0.0, 0.0)
-            uv = reproj_uv[y, x]
-            pr = camera_project(fp.cam_prev, position[y, x])
-            if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
-                v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
+        v = saliency_velocity(fp, velocity[y, x], position[y, x], reproj_uv[y, x])
         s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
     out[y, x] = s
 
@@ -149,8 +142,7 @@ def sparse_sampling_kernel(
     p = float(1.0)
     s = float(1.0)
     if sp.foveation != 0:
-        e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
-        p = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
+        p = pixel_probability(x, y, w, h, sp, fp)
         s = p
         if s < 1.0:
             cy = wp.min(y / cell, coarse_saliency.shape[0] - 1)
