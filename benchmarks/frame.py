@@ -335,10 +335,11 @@ def plot(records, folder, name, dev):
         ax.legend(fontsize=5)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({wp.get_device(dev).alias})",
+    alias = dev if isinstance(dev, str) else wp.get_device(dev).alias  # a string: redraw from a JSON elsewhere
+    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias})",
                  fontsize=9)
     fig.tight_layout()
-    tag = "cuda" if wp.get_device(dev).is_cuda else "cpu"
+    tag = "cuda" if alias.startswith("cuda") else "cpu"
     fig.savefig(folder / f"{name}-{tag}.png", dpi=110)
 
 
