@@ -459,6 +459,10 @@ class IndirectConfig:
         refine_min_ratio: clusters seen under radius / distance at or below this are never split (their
             estimated error is at most ``ratio / (1 - ratio)`` of their bound; the test needs no square root),
             in [0, 1]; 0 lets every cluster be tested.
+        refine_min_radius: clusters whose bounding radius is at or below this many distance clamps
+            (``d_min_rel`` x the extent) are never split: below the clamp the irradiance form varies little
+            across them, and it keeps the refinement's depth independent of ``rsm_size``, in [0, 1000]; 0 lets
+            every cluster be split.
     """
 
     rsm_size: int = 256
@@ -472,6 +476,7 @@ class IndirectConfig:
     refine_threshold: float = 0.02
     refine_budget: int = 256
     refine_min_ratio: float = 0.25
+    refine_min_radius: float = 0.0
 
     def __post_init__(self):
         check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
@@ -488,6 +493,7 @@ class IndirectConfig:
         check_range("IndirectConfig.refine_threshold", self.refine_threshold, 0.0, 1.0e6, lo_open=True)
         check_int_range("IndirectConfig.refine_budget", self.refine_budget, 0, 65536)
         check_range("IndirectConfig.refine_min_ratio", self.refine_min_ratio, 0.0, 1.0)
+        check_range("IndirectConfig.refine_min_radius", self.refine_min_radius, 0.0, 1.0e3)
 
 
 @dataclass(frozen=True)

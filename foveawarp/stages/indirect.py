@@ -43,6 +43,7 @@ from ..kernels.lighttree import (
     indirect_full_kernel,
     indirect_list_kernel,
     indirect_points_kernel,
+    pack_nodes_kernel,
     pyramid_level_kernel,
     rsm_kernel,
 )
@@ -207,6 +208,13 @@ class IndirectStage:
 
         self.list_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self.list_node = wp.zeros(1, dtype=wp.int32, device=dev)
+        tree = method in ("lighttree", "traverse")
+        n_nodes = total if tree else 1
+        self.node_a = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)  # packed nodes for the gather
+        self.node_b = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)
+        self.node_c = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)
+        self.cut_a = wp.zeros(1, dtype=wp.vec4, device=dev)
+        self.cut_b = wp.zeros(1, dtype=wp.vec4, device=dev)
         if method == "lighttree":
             cap = 1 << (2 * self.limit_level)  # a cut is a partition of the leaves into nodes of level <= limit
             n_flags = level_offset(self.limit_level + 1) - level_offset(self.start_level)
@@ -217,6 +225,8 @@ class IndirectStage:
             self.list_normal = wp.zeros(cap, dtype=wp.vec3, device=dev)
             self.list_spread2 = wp.zeros(cap, dtype=float, device=dev)
             self.list_node = wp.zeros(cap, dtype=wp.int32, device=dev)
+            self.cut_a = wp.zeros(cap, dtype=wp.vec4, device=dev)
+            self.cut_b = wp.zeros(cap, dtype=wp.vec4, device=dev)
         elif method == "exact":
             self.list_flux, self.list_pos, self.list_normal, self.list_spread2 = leaf[0], leaf[1], leaf[2], leaf[5]
             self.list_count.fill_(n * n)
@@ -247,17 +257,19 @@ class IndirectStage:
         ip.list_flux, ip.list_pos, ip.list_normal = self.list_flux, self.list_pos, self.list_normal
         ip.tree_spread2, ip.tree_radius = self.tree_spread2, self.tree_radius
         ip.list_spread2, ip.list_node = self.list_spread2, self.list_node
+        ip.node_a, ip.node_b, ip.node_c = self.node_a, self.node_b, self.node_c
+        ip.cut_a, ip.cut_b = self.cut_a, self.cut_b
         ip.list_count = self.list_count
         ip.use_tree = 1 if method == "traverse" else 0
         ip.start_level = self.start_level
         ip.limit_level = self.limit_level
         ip.leaf_level = self.leaf_level
-        tree = method in ("lighttree", "traverse")
         ip.extended = 1 if tree else 0
         ip.radius_scale2 = float(config.cluster_radius_scale) ** 2 if tree else 0.0
         ip.refine_threshold = float(config.refine_threshold)
         ip.refine_budget = int(config.refine_budget) if tree else 0
         ip.refine_ratio2 = float(config.refine_min_ratio) ** 2
+        ip.refine_min_radius = float(config.refine_min_radius) * d_min
         # a receiver whose estimate is below 1e-6 of the total flux per extent^2 splits as if it were that
         ip.floor_per_flux = 1.0e-6 / max(ext * ext, 1.0e-30)
         ip.d_min2 = max(d_min * d_min, 1.0e-30)
@@ -373,6 +385,10 @@ class IndirectStage:
                 wp.launch(pyramid_level_kernel, dim=1 << (2 * lv),
                           inputs=[*self._levels[lv + 1], self.depth_tol, float(self.config.normal_threshold)],
                           outputs=list(self._levels[lv]), device=dev)
+            wp.launch(pack_nodes_kernel, dim=self.node_a.shape[0],
+                      inputs=[self.tree_flux, self.tree_pos, self.tree_normal, self.tree_valid, self.tree_spread2,
+                              self.tree_radius, self.params.radius_scale2],
+                      outputs=[self.node_a, self.node_b, self.node_c], device=dev)
         if self.method == "lighttree":
             nf = self._flags.shape[0]
             wp.launch(cut_flags_kernel, dim=nf, inputs=[self.tree_valid, self.tree_flux, self.start_level,
@@ -380,9 +396,9 @@ class IndirectStage:
             wp.utils.array_scan(self._flags, self._slots, inclusive=False)
             wp.launch(cut_scatter_kernel, dim=nf,
                       inputs=[self._flags, self._slots, level_offset(self.start_level), self.tree_flux,
-                              self.tree_pos, self.tree_normal, self.tree_spread2],
+                              self.tree_pos, self.tree_normal, self.tree_spread2, self.node_a, self.node_b],
                       outputs=[self.list_flux, self.list_pos, self.list_normal, self.list_spread2, self.list_node,
-                               self.list_count], device=dev)
+                               self.cut_a, self.cut_b, self.list_count], device=dev)
         elif self.method == "sampled":
             wp.launch(gather_samples_kernel, dim=self.samples,
                       inputs=[self._texels, self.sample_weight, leaf[0], leaf[1], leaf[2]],
