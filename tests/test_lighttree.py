@@ -378,6 +378,16 @@ def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_th
                 assert abs(got["spread2"][i, j] - s2) <= 1e-4 * scale2 + 1e-9, (lv, i, j)
                 assert got["radius"][i, j] >= rad * (1 - 1e-4) - 1e-6, (lv, i, j)
                 assert got["spread2"][i, j] <= got["radius"][i, j] ** 2 * (1 + 1e-4) + 1e-9
+                if start <= lv < leaf:  # the exact bounding radius (tight_radius_kernel), not just a bound
+                    assert got["radius"][i, j] <= rad * (1 + 1e-4) + 1e-5, (lv, i, j)
+    # the gather's packed node words hold the same node data
+    na, nb, nc = (a.numpy().astype(np.float64) for a in (st_.node_a, st_.node_b, st_.node_c))
+    np.testing.assert_array_equal(na[:, :3], st_.tree_pos.numpy())
+    np.testing.assert_array_equal(na[:, 3], st_.tree_radius.numpy())
+    np.testing.assert_array_equal(nb[:, :3], st_.tree_flux.numpy())
+    np.testing.assert_allclose(nb[:, 3], scale ** 2 * st_.tree_spread2.numpy().astype(np.float64), rtol=1e-6)
+    np.testing.assert_array_equal(nc[:, :3], st_.tree_normal.numpy())
+    np.testing.assert_array_equal(nc[:, 3], (st_.tree_valid.numpy() != 0).astype(np.float64))
     amb = any(levels[lv]["amb"].any() for lv in range(leaf + 1))
     cut = _np_cut(levels, start, limit)
     np.testing.assert_allclose(st_.cut_numpy()["flux"].sum(0), flux.sum((0, 1)), rtol=1e-4, atol=1e-5)
@@ -791,8 +801,9 @@ def _random_room(rng):
 
 @settings(max_examples=8, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), threshold=st.sampled_from([0.02, 0.05, 0.2]),
-       budget=st.sampled_from([4, 32, 256]), trav=st.sampled_from(["cut", "per-receiver"]))
-def test_refinement_never_increases_the_error(seed, threshold, budget, trav):
+       budget=st.sampled_from([4, 32, 256]), trav=st.sampled_from(["cut", "per-receiver"]),
+       min_radius=st.sampled_from([0.0, 0.5, 2.0]))
+def test_refinement_never_increases_the_error(seed, threshold, budget, trav, min_radius):
     """On generated rooms (random boxes, colours and spot light), receivers on the floor and the walls: the
     relative L2 error against the exact sum with per-receiver refinement is not above the error of the same
     extended-emitter cut without it, within 0.5% of that error. Not a theorem: a partly refined cluster can
@@ -818,8 +829,30 @@ def test_refinement_never_increases_the_error(seed, threshold, budget, trav):
     e0 = _rel(ops.indirect_light_tree(ds, X, Nn, alb, config=IndirectConfig(**base, refine_budget=0),
                                       traversal=trav), exact)
     e1 = _rel(ops.indirect_light_tree(ds, X, Nn, alb, config=IndirectConfig(
-        **base, refine_threshold=threshold, refine_budget=budget), traversal=trav), exact)
+        **base, refine_threshold=threshold, refine_budget=budget, refine_min_radius=min_radius),
+        traversal=trav), exact)
     assert e1 <= e0 * 1.005 + 1e-7, (e0, e1)
+
+
+def test_min_radius_stops_refinement(cornell, device):
+    """refine_min_radius: with every cluster narrower than the limit nothing is split (the result equals the
+    unrefined cut's, both traversals); with a limit below the narrowest split-worthy cluster it changes
+    nothing (equals refine_min_radius 0); in between it leaves the error against the exact sum between the
+    two (within 0.5%)."""
+    _, P, N, A, _ = _cornell_receivers(cornell, device)
+    base = dict(rsm_size=32, start_level=1, limit_level=3, refine_threshold=0.005, refine_budget=4096,
+                refine_min_ratio=0.1)
+    exact = ops.indirect_vpl_exact(cornell, P, N, A, config=IndirectConfig(**base), device=device)
+    for trav in ("cut", "per-receiver"):
+        run = lambda **kw: ops.indirect_light_tree(cornell, P, N, A, config=IndirectConfig(**{**base, **kw}),  # noqa: E731
+                                                   traversal=trav, device=device)
+        none = run(refine_budget=0)
+        full = run()
+        np.testing.assert_array_equal(run(refine_min_radius=1000.0), none)
+        np.testing.assert_array_equal(run(refine_min_radius=1e-6), full)
+        assert _rel(full, exact) < 0.5 * _rel(none, exact)  # the refinement matters here
+        mid = _rel(run(refine_min_radius=1.0), exact)
+        assert _rel(full, exact) * 0.995 <= mid <= _rel(none, exact) * 1.005, (trav, mid)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it
 ``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
 Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
 cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver
-(``cluster_error``: the strict bound ``cluster_bound`` times ``min(1, radius / gap)``) exceeds
+(``cluster_error``: the strict bound ``cluster_bound`` times ``min(1, radius / gap)^2``) exceeds
 ``refine_threshold`` times the receiver's coarse estimate (``split_threshold``) is replaced by its four
 children, recursively, until the receiver's budget of splits is spent.
 """
@@ -305,6 +305,28 @@ def pyramid_level_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def tight_radius_kernel(
+    flux: wp.array(dtype=wp.vec3),
+    pos: wp.array(dtype=wp.vec3),
+    min_level: int,
+    leaf_level: int,
+    radius: wp.array(dtype=float),
+):
+    """The exact bounding radius ``max |x_vpl - x_node|`` over each node's emitting VPLs, for the nodes of levels
+    ``min_level .. leaf_level - 1`` (zeroed before): one thread per leaf, an atomic max into each ancestor.
+    The children-sphere bound of ``pyramid_level_kernel`` loosens with every level (at RSM 512^2 its median
+    at level 7 is 1.5x the 256^2 one for the same texels' worth of surface); this one does not."""
+    k = wp.tid()
+    leaf = level_offset(leaf_level) + k
+    if flux_weight(flux[leaf]) <= 0.0:
+        return
+    p = pos[leaf]
+    for lv in range(min_level, leaf_level):
+        node = level_offset(lv) + (k >> (2 * (leaf_level - lv)))
+        wp.atomic_max(radius, node, wp.length(p - pos[node]))
+
+
+@wp.kernel(enable_backward=False)
 def pack_nodes_kernel(
     flux: wp.array(dtype=wp.vec3),
     pos: wp.array(dtype=wp.vec3),
@@ -486,15 +508,18 @@ def cluster_error_d(e: wp.vec3, r2: float, n: wp.vec3, w: float, radius: float, 
     if wp.dot(n, e) + radius <= 0.0:
         return 0.0
     gap = wp.max(wp.sqrt(r2) - radius, wp.sqrt(d_min2))
-    return w / (gap * gap) * wp.min(1.0, radius / gap)
+    q = wp.min(1.0, radius / gap)
+    return w / (gap * gap) * (q * q)
 
 
 @wp.func
 def cluster_error(x: wp.vec3, n: wp.vec3, w: float, c: wp.vec3, radius: float, d_min2: float) -> float:
-    """First-order estimate of the error of using the cluster at (x, n): ``cluster_bound`` times
-    ``min(1, radius / gap)``, ``gap = max(|c - x| - radius, d_min)``. Over the cluster's sphere ``1/r^2`` and
-    the cosines change by a relative ``O(radius / gap)``, so a far cluster is split only when it is both bright
-    and wide; a receiver inside the sphere gets the full bound (the refinement's split rule)."""
+    """Second-order estimate of the error of using the cluster at (x, n): ``cluster_bound`` times
+    ``min(1, radius / gap)^2``, ``gap = max(|c - x| - radius, d_min)``. The cluster sits at its VPLs'
+    flux-weighted centre, so the first-order terms of the VPL sum about that centre cancel and what is left
+    of the error is ``O((radius / gap)^2)`` of the cluster's contribution: a far cluster is split only when it
+    is both bright and wide; a receiver inside the sphere gets the full bound (the refinement's split rule).
+    (A first-order ``radius / gap`` rule split about 15% more clusters on cornell for the same error.)"""
     e = c - x
     return cluster_error_d(e, wp.dot(e, e), n, w, radius, d_min2)
 

@@ -45,6 +45,7 @@ from ..kernels.lighttree import (
     indirect_points_kernel,
     pack_nodes_kernel,
     pyramid_level_kernel,
+    tight_radius_kernel,
     rsm_kernel,
 )
 from ..kernels.shade import LightParams
@@ -385,6 +386,11 @@ class IndirectStage:
                 wp.launch(pyramid_level_kernel, dim=1 << (2 * lv),
                           inputs=[*self._levels[lv + 1], self.depth_tol, float(self.config.normal_threshold)],
                           outputs=list(self._levels[lv]), device=dev)
+            lo = min(self.start_level, self.leaf_level)
+            self.tree_radius[level_offset(lo):level_offset(self.leaf_level)].zero_()
+            wp.launch(tight_radius_kernel, dim=self.rsm_size * self.rsm_size,
+                      inputs=[self.tree_flux, self.tree_pos, lo, self.leaf_level], outputs=[self.tree_radius],
+                      device=dev)
             wp.launch(pack_nodes_kernel, dim=self.node_a.shape[0],
                       inputs=[self.tree_flux, self.tree_pos, self.tree_normal, self.tree_valid, self.tree_spread2,
                               self.tree_radius, self.params.radius_scale2],
