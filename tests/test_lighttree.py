@@ -768,13 +768,13 @@ def test_error_bound_holds_and_receivers_inside_clusters_are_bounded(cornell, de
 
 
 def test_full_refinement_is_the_exact_sum(cornell, device):
-    """With a vanishing split threshold, no minimum angular size and an unlimited budget every cluster a
-    receiver can see is opened
+    """With a vanishing split threshold, no minimum angular size or radius and an unlimited budget every
+    cluster a receiver can see is opened
     down to its VPLs, whose extended form is the point form: the tree equals the exact sum (rtol 1e-4, both
     the cut gather and the per-receiver traversal)."""
     _, P, N, A, _ = _cornell_receivers(cornell, device)
     cfg = IndirectConfig(rsm_size=32, start_level=1, limit_level=3, refine_threshold=1e-9, refine_budget=65536,
-                         refine_min_ratio=0.0)
+                         refine_min_ratio=0.0, refine_min_radius=0.0)
     exact = ops.indirect_vpl_exact(cornell, P, N, A, config=cfg, device=device)
     assert np.abs(exact).max() > 0
     for trav in ("cut", "per-receiver"):
