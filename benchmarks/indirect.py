@@ -57,25 +57,28 @@ from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_re
 
 # (label, IndirectConfig overrides); the first is the default config
 VARIANTS = {
-    # start 4, limit 6, extended emitters (scale 1.0), refinement t0.08 (second-order error), min angular size
+    # start 4, limit 7, extended emitters (scale 1.0), refinement t0.32 (second-order error), min angular size
     # 0.25, min radius 0.5 d_min, budget 512
     "default": {},
     "point L4 (paper)": dict(start_level=3, limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
     "extended L4": dict(start_level=3, limit_level=4, refine_budget=0),
-    "extended L6": dict(refine_budget=0),
-    "refine t0.16": dict(refine_threshold=0.16),
-    "refine t0.04": dict(refine_threshold=0.04),
-    "refine t0.02": dict(refine_threshold=0.02),
-    # the previous default's settings (t0.02, budget 256, no minimum radius), with today's split rule
-    "t0.02 b256 mr0 (previous)": dict(refine_threshold=0.02, refine_budget=256, refine_min_radius=0.0),
-    "L7 refine t0.08": dict(limit_level=7),
+    "extended L6": dict(limit_level=6, refine_budget=0),
+    "extended L7": dict(refine_budget=0),
+    "L6 refine t0.08": dict(limit_level=6, refine_threshold=0.08),
+    "L7 refine t0.64": dict(refine_threshold=0.64),
+    "L7 refine t0.16": dict(refine_threshold=0.16),
+    # the previous default's settings (limit 6, t0.02, budget 256, no minimum radius), with today's split rule
+    "L6 t0.02 b256 mr0 (previous)": dict(limit_level=6, refine_threshold=0.02, refine_budget=256,
+                                         refine_min_radius=0.0),
     # calibration only (not in the default set)
-    "refine r0.35": dict(refine_min_ratio=0.35),
-    "refine mr1": dict(refine_min_radius=1.0),
-    "extended L6 s1.5": dict(cluster_radius_scale=1.5, refine_budget=0),
+    "L6 refine t0.02": dict(limit_level=6, refine_threshold=0.02),
+    "L6 refine t0.16": dict(limit_level=6, refine_threshold=0.16),
+    "L7 refine r0.35": dict(refine_min_ratio=0.35),
+    "L7 refine mr1": dict(refine_min_radius=1.0),
+    "extended L6 s1.5": dict(limit_level=6, cluster_radius_scale=1.5, refine_budget=0),
 }
-DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "refine t0.16", "refine t0.04",
-                    "refine t0.02", "t0.02 b256 mr0 (previous)", "L7 refine t0.08")
+DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "extended L7", "L6 refine t0.08",
+                    "L7 refine t0.64", "L7 refine t0.16", "L6 t0.02 b256 mr0 (previous)")
 QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L6")
 
 

@@ -442,11 +442,13 @@ class IndirectConfig:
         normal_threshold: minimum dot(n_child, n_avg) for a valid cluster, in [-1, 1]; paper 0.9.
         start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes; no cluster is coarser),
             >= 0. Default 4 (16 x 16 nodes); the paper's 8 x 8 nodes is 3.
-        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 6 (64 x 64
-            nodes; the paper's fastest setting is 4, its "limit level 6" counting from the 512^2 leaves up). The
-            default (start 4, limit 6, extended emitters of scale 1.0, refinement at threshold 0.08, minimum
-            angular size 0.25 and minimum radius 0.5 d_min, at most 512 splits) is the Pareto choice of
-            ``benchmarks/indirect.py`` (README, "Indirect light").
+        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 7 (128 x 128
+            nodes, 1,300-1,800 clusters in the cut of the benchmark scenes; the paper's fastest setting is 4, its
+            "limit level 6" counting from the 512^2 leaves up). The level is absolute: the same cut of the
+            surfaces at every ``rsm_size`` >= 128 (a smaller RSM needs a lower limit). The default (start 4,
+            limit 7, extended emitters of scale 1.0, refinement at threshold 0.32, minimum angular size 0.25 and
+            minimum radius 0.5 d_min, at most 512 splits) is the Pareto choice of ``benchmarks/indirect.py``
+            (README, "Indirect light").
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
         cluster_radius_scale: a cluster of the tree methods is an extended emitter of radius
@@ -473,11 +475,11 @@ class IndirectConfig:
     depth_threshold: float = 0.05
     normal_threshold: float = 0.9
     start_level: int = 4
-    limit_level: int = 6
+    limit_level: int = 7
     d_min_rel: float = 0.02
     strength: float = 1.0
     cluster_radius_scale: float = 1.0
-    refine_threshold: float = 0.08
+    refine_threshold: float = 0.32
     refine_budget: int = 512
     refine_min_ratio: float = 0.25
     refine_min_radius: float = 0.5

@@ -26,7 +26,12 @@ it is valid (or on the limit level) and its parent is not" selects exactly the n
 at: a partition of the VPLs.
 
 Extent. Every node also stores ``spread2``, the flux-weighted mean squared distance of its VPLs from its
-centre, and ``radius``, a sphere about the centre holding all of them (0 for a single VPL).
+centre, and ``radius``, a sphere about the centre holding all of them (0 for a single VPL): from the
+children's spheres in ``pyramid_level_kernel``, then, for the levels the gather uses (start level and
+finer), the exact largest distance of a lit VPL from the centre (``tight_radius_kernel``).
+Packed nodes. The gather reads each node as three 16-byte words (``pack_nodes_kernel``): (centre, radius),
+(flux, emitter a^2), (normal, valid); the cut list keeps the first two the same way. One visit of the
+per-receiver descent is then three independent loads instead of a chain of seven.
 
 Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4), for point VPLs ("exact", "sampled"):
 ``E(x) = 1/pi * sum_c Phi_c max(0, n_c.(x - x_c)) max(0, n.(x_c - x)) / max(|x - x_c|^2, d_min^2)^2`` and
@@ -39,10 +44,11 @@ The tree methods evaluate a cluster as an EXTENDED emitter (``cluster_term``): t
 spherical lights): the point form for a single VPL, within ``a^2 / |d|^2`` of it far away, and at most
 ``Phi / max(a^2, d_min^2)`` on or inside the cluster, so a wide cluster is no point singularity.
 Per-receiver refinement (Lightcuts-style, ``refine_budget > 0``): starting from the view-independent cut, a
-cluster seen under ``radius / distance > refine_min_ratio`` whose estimated error at the receiver
-(``cluster_error``: the strict bound ``cluster_bound`` times ``min(1, radius / gap)^2``) exceeds
-``refine_threshold`` times the receiver's coarse estimate (``split_threshold``) is replaced by its four
-children, recursively, until the receiver's budget of splits is spent.
+cluster wider than ``refine_min_radius`` (a multiple of ``d_min``), seen under ``radius / distance >
+refine_min_ratio``, whose estimated error at the receiver (``cluster_error``: the strict bound
+``cluster_bound`` times ``min(1, radius / gap)^2``) exceeds ``refine_threshold`` times the receiver's coarse
+estimate (``split_threshold``) is replaced by its four children, recursively, until the receiver's budget of
+splits is spent (``wants_split``).
 """
 
 import warp as wp

@@ -11,9 +11,11 @@ Methods (``method=``):
         are the same for every receiver: they are extracted ONCE per build (flags per node of the levels
         start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list,
         each cluster an extended emitter (``IndirectConfig.cluster_radius_scale``); with
-        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters whose
-        estimated error exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's
-        subtree), up to ``refine_budget`` splits (``kernels/lighttree.py``).
+        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters wider than
+        ``refine_min_radius`` x d_min, seen under more than ``refine_min_ratio``, whose estimated error
+        exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's subtree), up to
+        ``refine_budget`` splits (``kernels/lighttree.py``). The build also packs every node into three
+        16-byte words for the gather and takes the exact bounding radius of the nodes it may split.
     "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel), with the same
         emitters and split rule. Without refinement it gives the same clusters and result as "lighttree" up
         to float summation order; with it, a receiver whose budget runs out may have split other clusters
