@@ -933,3 +933,66 @@ def test_invalid_arguments(cornell):
     stage = IndirectStage(ds, cfg)
     with pytest.raises(ValueError, match="flux"):
         stage.load_rsm(np.zeros((4, 4, 3)), np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.zeros((8, 8)))
+
+
+@wp.kernel
+def _error_kernel(x: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), w: wp.array(dtype=float),
+                  c: wp.array(dtype=wp.vec3), r: wp.array(dtype=float), d_min2: float,
+                  out: wp.array2d(dtype=float)):
+    i, k = wp.tid()
+    out[i, k] = lighttree.cluster_error(x[i], n[i], w[k], c[k], r[k], d_min2)
+
+
+def test_split_error_estimate_is_second_order(cornell, device):
+    """cluster_error against brute force over the leaves under each cluster of a cornell cut: it equals the NumPy
+    form ``w / max(|c - x| - r, d_min)^2 * min(1, r / gap)^2`` (0 behind the receiver), never exceeds
+    cluster_bound, and where the receiver is at least two radii (and two d_min) from the cluster's sphere the
+    true error of the extended emitter (|cluster term - exact VPL sum|, flux-weight units) is mostly below it
+    (median below a quarter of it, above it in under 15% of the pairs)."""
+    _, P, N, A, _ = _cornell_receivers(cornell, device)
+    cfg = IndirectConfig(rsm_size=64, start_level=2, limit_level=4, refine_budget=0)
+    ds = _cpu_dscene(cornell)
+    st_ = IndirectStage(ds, cfg, method="lighttree")
+    st_.update()
+    cut = st_.cut_numpy()
+    nodes = st_.list_node.numpy()[:len(cut["flux"])]
+    radius = st_.tree_radius.numpy()[nodes].astype(np.float64)
+    lo = int(sum(4 ** lv for lv in range(st_.leaf_level)))
+    lf, lp, ln = (arr.numpy()[lo:].astype(np.float64) for arr in (st_.tree_flux, st_.tree_pos, st_.tree_normal))
+    X, Nn = P.astype(np.float64), N.astype(np.float64)
+    d_min = cfg.d_min_rel * ds.extent
+    k = len(nodes)
+    f3 = lambda a: wp.array(np.asarray(a, np.float32), dtype=wp.vec3, device="cpu")  # noqa: E731
+    f1 = lambda a: wp.array(np.asarray(a, np.float32), dtype=float, device="cpu")  # noqa: E731
+    args = [f3(X), f3(Nn), f1(cut["flux"].sum(1)), f3(cut["position"]), f1(radius), float(d_min * d_min)]
+    err = wp.zeros((len(X), k), dtype=float, device="cpu")
+    bnd = wp.zeros((len(X), k), dtype=float, device="cpu")
+    wp.launch(_error_kernel, dim=(len(X), k), inputs=args, outputs=[err], device="cpu")
+    wp.launch(_bound_kernel, dim=(len(X), k), inputs=args, outputs=[bnd], device="cpu")
+    err, bnd = err.numpy().astype(np.float64), bnd.numpy().astype(np.float64)
+    e = cut["position"][None].astype(np.float64) - X[:, None]
+    dist = np.linalg.norm(e, axis=-1)
+    gap = np.maximum(dist - radius[None], d_min)
+    ref = cut["flux"].sum(1)[None] / gap ** 2 * np.minimum(1.0, radius[None] / gap) ** 2
+    ref = np.where((e * Nn[:, None]).sum(-1) + radius[None] > 0, ref, 0.0)
+    np.testing.assert_allclose(err, ref, rtol=1e-4, atol=1e-6 * ref.max())
+    assert np.all(err <= bnd * (1 + 1e-5) + 1e-12)
+    a2 = cfg.cluster_radius_scale ** 2 * cut["spread2"].astype(np.float64)
+    far = (dist - radius[None]) >= 2.0 * np.maximum(radius[None], d_min)
+    ratios = []
+    for c in range(k):
+        rows = np.flatnonzero(far[:, c] & (err[:, c] > 0))
+        if rows.size == 0 or radius[c] == 0:
+            continue
+        leaves = _node_leaves(st_, int(nodes[c]))
+        one = np.ones((rows.size, 3))
+        exact = _np_gather(X[rows], Nn[rows], one, lf[leaves], lp[leaves], ln[leaves], d_min).sum(1)
+        term = _np_gather(X[rows], Nn[rows], one, cut["flux"][c:c + 1], cut["position"][c:c + 1],
+                          cut["normal"][c:c + 1], d_min, a2=a2[c:c + 1]).sum(1)
+        ratios.append(np.abs(term - exact) * np.pi ** 2 / err[rows, c])
+    ratios = np.concatenate(ratios)
+    assert ratios.size > 1000
+    # a split heuristic, not a bound (cosine clamping and normal spread leave first-order terms at grazing
+    # receivers): on this cut (rsm 64, 40x30 receivers) the true error is below the estimate in 91% of the
+    # far pairs, median 0.06 of it
+    assert np.median(ratios) < 0.25 and (ratios > 1.0).mean() < 0.15, (np.median(ratios), (ratios > 1.0).mean())
