@@ -208,6 +208,8 @@ class IndirectStage:
                                                              self.tree_depth, self.tree_valid, self.tree_spread2,
                                                              self.tree_radius)))
         leaf = self._levels[self.leaf_level]
+        self._tight_radius = self.tree_radius[level_offset(min(self.start_level, self.leaf_level)):
+                                              level_offset(self.leaf_level)]
 
         self.list_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self.list_node = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -388,11 +390,10 @@ class IndirectStage:
                 wp.launch(pyramid_level_kernel, dim=1 << (2 * lv),
                           inputs=[*self._levels[lv + 1], self.depth_tol, float(self.config.normal_threshold)],
                           outputs=list(self._levels[lv]), device=dev)
-            lo = min(self.start_level, self.leaf_level)
-            self.tree_radius[level_offset(lo):level_offset(self.leaf_level)].zero_()
+            self._tight_radius.zero_()  # the levels start .. leaf - 1, re-taken exactly from the leaves
             wp.launch(tight_radius_kernel, dim=self.rsm_size * self.rsm_size,
-                      inputs=[self.tree_flux, self.tree_pos, lo, self.leaf_level], outputs=[self.tree_radius],
-                      device=dev)
+                      inputs=[self.tree_flux, self.tree_pos, min(self.start_level, self.leaf_level), self.leaf_level],
+                      outputs=[self.tree_radius], device=dev)
             wp.launch(pack_nodes_kernel, dim=self.node_a.shape[0],
                       inputs=[self.tree_flux, self.tree_pos, self.tree_normal, self.tree_valid, self.tree_spread2,
                               self.tree_radius, self.params.radius_scale2],
