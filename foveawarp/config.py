@@ -443,7 +443,7 @@ class IndirectConfig:
         start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes; no cluster is coarser),
             >= 0. Default 4 (16 x 16 nodes); the paper's 8 x 8 nodes is 3.
         limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 7 (128 x 128
-            nodes, 1,300-1,800 clusters in the cut of the benchmark scenes; the paper's fastest setting is 4, its
+            nodes, 1,490-2,010 clusters in the cut of the benchmark scenes; the paper's fastest setting is 4, its
             "limit level 6" counting from the 512^2 leaves up). The level is absolute: the same cut of the
             surfaces at every ``rsm_size`` >= 128 (a smaller RSM needs a lower limit). The default (start 4,
             limit 7, extended emitters of scale 1.0, refinement at threshold 0.32, minimum angular size 0.25 and

@@ -388,6 +388,10 @@ def test_pyramid_property_random_rsm(cornell, n, zero_frac, depth_thr, normal_th
     np.testing.assert_allclose(nb[:, 3], scale ** 2 * st_.tree_spread2.numpy().astype(np.float64), rtol=1e-6)
     np.testing.assert_array_equal(nc[:, :3], st_.tree_normal.numpy())
     np.testing.assert_array_equal(nc[:, 3], (st_.tree_valid.numpy() != 0).astype(np.float64))
+    kc = st_.cluster_count()
+    cn = st_.list_node.numpy()[:kc]
+    for cut_w, node_w in ((st_.cut_a, na), (st_.cut_b, nb), (st_.cut_c, nc)):  # the cut's copies of its nodes
+        np.testing.assert_array_equal(cut_w.numpy()[:kc].astype(np.float64), node_w[cn])
     amb = any(levels[lv]["amb"].any() for lv in range(leaf + 1))
     cut = _np_cut(levels, start, limit)
     np.testing.assert_allclose(st_.cut_numpy()["flux"].sum(0), flux.sum((0, 1)), rtol=1e-4, atol=1e-5)

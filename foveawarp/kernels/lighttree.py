@@ -30,7 +30,7 @@ centre, and ``radius``, a sphere about the centre holding all of them (0 for a s
 children's spheres in ``pyramid_level_kernel``, then, for the levels the gather uses (start level and
 finer), the exact largest distance of a lit VPL from the centre (``tight_radius_kernel``).
 Packed nodes. The gather reads each node as three 16-byte words (``pack_nodes_kernel``): (centre, radius),
-(flux, emitter a^2), (normal, valid); the cut list keeps the first two the same way. One visit of the
+(flux, emitter a^2), (normal, valid); the cut list keeps them the same way. One visit of the
 per-receiver descent is then three independent loads instead of a chain of seven.
 
 Shading (RSM irradiance form, visibility ignored, ALGORITHMS.md C.4), for point VPLs ("exact", "sampled"):
@@ -77,8 +77,9 @@ class IndirectParams:
     node_a: wp.array(dtype=wp.vec4)  # tree methods, per pyramid node: (centre, bounding radius)
     node_b: wp.array(dtype=wp.vec4)  # (flux, emitter a^2 = radius_scale2 x spread2)
     node_c: wp.array(dtype=wp.vec4)  # (normal, 1 when valid else 0)
-    cut_a: wp.array(dtype=wp.vec4)  # "lighttree": the cut's entries, packed as node_a / node_b
+    cut_a: wp.array(dtype=wp.vec4)  # "lighttree": the cut's entries, packed as node_a / node_b / node_c
     cut_b: wp.array(dtype=wp.vec4)
+    cut_c: wp.array(dtype=wp.vec4)
     list_count: wp.array(dtype=wp.int32)
     use_tree: int  # 1: descend the tree per receiver; 0: sum the list[0:list_count[0]]
     start_level: int
@@ -407,6 +408,7 @@ def cut_scatter_kernel(
     spread2: wp.array(dtype=float),
     node_a: wp.array(dtype=wp.vec4),
     node_b: wp.array(dtype=wp.vec4),
+    node_c: wp.array(dtype=wp.vec4),
     out_flux: wp.array(dtype=wp.vec3),
     out_pos: wp.array(dtype=wp.vec3),
     out_normal: wp.array(dtype=wp.vec3),
@@ -414,6 +416,7 @@ def cut_scatter_kernel(
     out_node: wp.array(dtype=wp.int32),
     out_a: wp.array(dtype=wp.vec4),
     out_b: wp.array(dtype=wp.vec4),
+    out_c: wp.array(dtype=wp.vec4),
     out_count: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
@@ -430,6 +433,7 @@ def cut_scatter_kernel(
         out_node[s] = base + g
         out_a[s] = node_a[base + g]
         out_b[s] = node_b[base + g]
+        out_c[s] = node_c[base + g]
 
 
 @wp.kernel(enable_backward=False)
@@ -655,7 +659,8 @@ def gather_list(ip: IndirectParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
     for k in range(count):
         ca = ip.cut_a[k]
         cb = ip.cut_b[k]
-        np_ = ip.list_normal[k]
+        cc = ip.cut_c[k]
+        np_ = wp.vec3(cc[0], cc[1], cc[2])
         d = x - wp.vec3(ca[0], ca[1], ca[2])
         r2 = wp.dot(d, d)
         opened = int(0)

@@ -220,6 +220,7 @@ class IndirectStage:
         self.node_c = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)
         self.cut_a = wp.zeros(1, dtype=wp.vec4, device=dev)
         self.cut_b = wp.zeros(1, dtype=wp.vec4, device=dev)
+        self.cut_c = wp.zeros(1, dtype=wp.vec4, device=dev)
         if method == "lighttree":
             cap = 1 << (2 * self.limit_level)  # a cut is a partition of the leaves into nodes of level <= limit
             n_flags = level_offset(self.limit_level + 1) - level_offset(self.start_level)
@@ -232,6 +233,7 @@ class IndirectStage:
             self.list_node = wp.zeros(cap, dtype=wp.int32, device=dev)
             self.cut_a = wp.zeros(cap, dtype=wp.vec4, device=dev)
             self.cut_b = wp.zeros(cap, dtype=wp.vec4, device=dev)
+            self.cut_c = wp.zeros(cap, dtype=wp.vec4, device=dev)
         elif method == "exact":
             self.list_flux, self.list_pos, self.list_normal, self.list_spread2 = leaf[0], leaf[1], leaf[2], leaf[5]
             self.list_count.fill_(n * n)
@@ -263,7 +265,7 @@ class IndirectStage:
         ip.tree_spread2, ip.tree_radius = self.tree_spread2, self.tree_radius
         ip.list_spread2, ip.list_node = self.list_spread2, self.list_node
         ip.node_a, ip.node_b, ip.node_c = self.node_a, self.node_b, self.node_c
-        ip.cut_a, ip.cut_b = self.cut_a, self.cut_b
+        ip.cut_a, ip.cut_b, ip.cut_c = self.cut_a, self.cut_b, self.cut_c
         ip.list_count = self.list_count
         ip.use_tree = 1 if method == "traverse" else 0
         ip.start_level = self.start_level
@@ -405,9 +407,10 @@ class IndirectStage:
             wp.utils.array_scan(self._flags, self._slots, inclusive=False)
             wp.launch(cut_scatter_kernel, dim=nf,
                       inputs=[self._flags, self._slots, level_offset(self.start_level), self.tree_flux,
-                              self.tree_pos, self.tree_normal, self.tree_spread2, self.node_a, self.node_b],
+                              self.tree_pos, self.tree_normal, self.tree_spread2, self.node_a, self.node_b,
+                              self.node_c],
                       outputs=[self.list_flux, self.list_pos, self.list_normal, self.list_spread2, self.list_node,
-                               self.cut_a, self.cut_b, self.list_count], device=dev)
+                               self.cut_a, self.cut_b, self.cut_c, self.list_count], device=dev)
         elif self.method == "sampled":
             wp.launch(gather_samples_kernel, dim=self.samples,
                       inputs=[self._texels, self.sample_weight, leaf[0], leaf[1], leaf[2]],
