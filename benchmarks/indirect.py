@@ -57,22 +57,28 @@ from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_re
 
 # (label, IndirectConfig overrides); the first is the default config
 VARIANTS = {
-    "default": {},  # start 4, limit 6, extended emitters (scale 1.0), refinement t0.02 b256
+    # start 4, limit 7, extended emitters (scale 1.0), refinement t0.32 (second-order error), min angular size
+    # 0.25, min radius 0.5 d_min, budget 512
+    "default": {},
     "point L4 (paper)": dict(start_level=3, limit_level=4, cluster_radius_scale=0.0, refine_budget=0),
     "extended L4": dict(start_level=3, limit_level=4, refine_budget=0),
-    "extended L6": dict(refine_budget=0),
-    "L5 refine t0.02 b256": dict(limit_level=5),
-    "L6 refine t0.02 b64": dict(refine_budget=64),
-    "L6 refine t0.01 b1024": dict(refine_threshold=0.01, refine_budget=1024),
-    "extended L6 s1.5": dict(cluster_radius_scale=1.5, refine_budget=0),
-    "L7 refine t0.02 b256": dict(limit_level=7),
+    "extended L6": dict(limit_level=6, refine_budget=0),
+    "extended L7": dict(refine_budget=0),
+    "L6 refine t0.08": dict(limit_level=6, refine_threshold=0.08),
+    "L7 refine t0.64": dict(refine_threshold=0.64),
+    "L7 refine t0.16": dict(refine_threshold=0.16),
+    # the previous default's settings (limit 6, t0.02, budget 256, no minimum radius), with today's split rule
+    "L6 t0.02 b256 mr0 (previous)": dict(limit_level=6, refine_threshold=0.02, refine_budget=256,
+                                         refine_min_radius=0.0),
     # calibration only (not in the default set)
-    "default n0.97": dict(normal_threshold=0.97),
-    "default r0.15": dict(refine_min_ratio=0.15),
-    "default s0.7": dict(cluster_radius_scale=0.7),
+    "L6 refine t0.02": dict(limit_level=6, refine_threshold=0.02),
+    "L6 refine t0.16": dict(limit_level=6, refine_threshold=0.16),
+    "L7 refine r0.35": dict(refine_min_ratio=0.35),
+    "L7 refine mr1": dict(refine_min_radius=1.0),
+    "extended L6 s1.5": dict(limit_level=6, cluster_radius_scale=1.5, refine_budget=0),
 }
-DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "L5 refine t0.02 b256",
-                    "L6 refine t0.02 b64", "L6 refine t0.01 b1024", "extended L6 s1.5", "L7 refine t0.02 b256")
+DEFAULT_VARIANTS = ("default", "point L4 (paper)", "extended L4", "extended L6", "extended L7", "L6 refine t0.08",
+                    "L7 refine t0.64", "L7 refine t0.16", "L6 t0.02 b256 mr0 (previous)")
 QUICK_VARIANTS = ("default", "point L4 (paper)", "extended L6")
 
 
@@ -368,7 +374,8 @@ def bench(name, n, args, dev, pool, sizes):
             row["samples"] = kw["samples"]
         else:
             row["config"] = {k: getattr(cfg, k) for k in ("start_level", "limit_level", "cluster_radius_scale",
-                                                          "refine_threshold", "refine_budget", "refine_min_ratio")}
+                                                          "refine_threshold", "refine_budget", "refine_min_ratio",
+                                                          "refine_min_radius")}
         rows.append(row)
 
     samp = [r for r in rows if r["kind"] == "sampled"]
@@ -441,6 +448,8 @@ def main(argv=None):
     p.add_argument("--workers", type=int, default=None, help="metric worker processes (default: cores, <= 8)")
     p.add_argument("--seed", type=int, default=0, help="Poisson-disk pattern seed")
     p.add_argument("--no-graphs", action="store_true", help="no CUDA graph replay")
+    p.add_argument("--name", default="indirect",
+                   help="output name: <name>-{cpu,cuda}.json/.md and <name>-side-by-side-{cpu,cuda}.png")
     args = p.parse_args(argv)
     if args.frames < 2:
         raise SystemExit("--frames must be >= 2")
@@ -477,12 +486,12 @@ def main(argv=None):
             md += md_table(r["comparisons"], ccols) + "\n"
         payload = {"quick": bool(args.quick), "flip_available": have_flip, "size": list(size),
                    "eval_size": list(esize), "complete": bool(final), "results": results}
-        path = write_results("indirect", dev, payload, md, out=args.out)
+        path = write_results(args.name, dev, payload, md, out=args.out)
         if panels:
             import imageio.v3 as iio
 
             folder = Path(args.out) if args.out else RESULTS
-            png = folder / f"indirect-side-by-side-{'cuda' if cuda else 'cpu'}.png"
+            png = folder / f"{args.name}-side-by-side-{'cuda' if cuda else 'cpu'}.png"
             iio.imwrite(png, side_by_side(panels))
             if final:
                 print(f"wrote {png}")

@@ -461,10 +461,13 @@ class IndirectConfig:
         normal_threshold: minimum dot(n_child, n_avg) for a valid cluster, in [-1, 1]; paper 0.9.
         start_level: quad-tree level where traversal starts (level L has 2^L x 2^L nodes; no cluster is coarser),
             >= 0. Default 4 (16 x 16 nodes); the paper's 8 x 8 nodes is 3.
-        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 6 (64 x 64
-            nodes; the paper's fastest setting is 4, its "limit level 6" counting from the 512^2 leaves up). The
-            default (start 4, limit 6, extended emitters of scale 1.0, refinement at threshold 0.02 with a budget
-            of 256 splits) is the Pareto choice of ``benchmarks/indirect.py`` (README, "Indirect light").
+        limit_level: level whose nodes count as valid, in [start_level, log2(rsm_size)]. Default 7 (128 x 128
+            nodes, 1,490-2,010 clusters in the cut of the benchmark scenes; the paper's fastest setting is 4, its
+            "limit level 6" counting from the 512^2 leaves up). The level is absolute: the same cut of the
+            surfaces at every ``rsm_size`` >= 128 (a smaller RSM needs a lower limit). The default (start 4,
+            limit 7, extended emitters of scale 1.0, refinement at threshold 0.32, minimum angular size 0.25 and
+            minimum radius 0.5 d_min, at most 512 splits) is the Pareto choice of ``benchmarks/indirect.py``
+            (README, "Indirect light").
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
         cluster_radius_scale: a cluster of the tree methods is an extended emitter of radius
@@ -474,23 +477,31 @@ class IndirectConfig:
             above ``refine_min_ratio`` is split when its estimated error exceeds this fraction of the receiver's
             coarse estimate (``kernels.lighttree.gather_list``), in (0, 1e6].
         refine_budget: the most splits per receiver (each replaces a cluster by its four children); 0 turns
-            refinement off, in [0, 65536].
+            refinement off, in [0, 65536]. A safety cap: the cut is refined in list order (coarse clusters
+            first), so a receiver that runs out leaves its later (often nearer) clusters unsplit; the default
+            is rarely reached (by fewer than 0.5% of cornell's receivers at RSM 256^2 and 512^2) and the cost
+            is set by the threshold, angular size and minimum radius.
         refine_min_ratio: clusters seen under radius / distance at or below this are never split (their
             estimated error is at most ``ratio / (1 - ratio)`` of their bound; the test needs no square root),
             in [0, 1]; 0 lets every cluster be tested.
+        refine_min_radius: clusters whose bounding radius is at or below this many distance clamps
+            (``d_min_rel`` x the extent) are never split: below the clamp the irradiance form varies little
+            across them, and it keeps the refinement's depth independent of ``rsm_size``, in [0, 1000]; 0 lets
+            every cluster be split.
     """
 
     rsm_size: int = 256
     depth_threshold: float = 0.05
     normal_threshold: float = 0.9
     start_level: int = 4
-    limit_level: int = 6
+    limit_level: int = 7
     d_min_rel: float = 0.02
     strength: float = 1.0
     cluster_radius_scale: float = 1.0
-    refine_threshold: float = 0.02
-    refine_budget: int = 256
+    refine_threshold: float = 0.32
+    refine_budget: int = 512
     refine_min_ratio: float = 0.25
+    refine_min_radius: float = 0.5
 
     def __post_init__(self):
         check_int_range("IndirectConfig.rsm_size", self.rsm_size, 8, 2048)
@@ -507,6 +518,7 @@ class IndirectConfig:
         check_range("IndirectConfig.refine_threshold", self.refine_threshold, 0.0, 1.0e6, lo_open=True)
         check_int_range("IndirectConfig.refine_budget", self.refine_budget, 0, 65536)
         check_range("IndirectConfig.refine_min_ratio", self.refine_min_ratio, 0.0, 1.0)
+        check_range("IndirectConfig.refine_min_radius", self.refine_min_radius, 0.0, 1.0e3)
 
 
 @dataclass(frozen=True)

@@ -11,9 +11,11 @@ Methods (``method=``):
         are the same for every receiver: they are extracted ONCE per build (flags per node of the levels
         start..limit, an exclusive scan, a scatter: deterministic order) and every receiver sums that list,
         each cluster an extended emitter (``IndirectConfig.cluster_radius_scale``); with
-        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters whose
-        estimated error exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's
-        subtree), up to ``refine_budget`` splits (``kernels/lighttree.py``).
+        ``IndirectConfig.refine_budget > 0`` each receiver also splits, in list order, the clusters wider than
+        ``refine_min_radius`` x d_min, seen under more than ``refine_min_ratio``, whose estimated error
+        exceeds ``refine_threshold`` x its estimate (a stackless descent of that cluster's subtree), up to
+        ``refine_budget`` splits (``kernels/lighttree.py``). The build also packs every node into three
+        16-byte words for the gather and takes the exact bounding radius of the nodes it may split.
     "traverse": the paper's per-receiver traversal (a stackless Morton-order descent per pixel), with the same
         emitters and split rule. Without refinement it gives the same clusters and result as "lighttree" up
         to float summation order; with it, a receiver whose budget runs out may have split other clusters
@@ -43,7 +45,9 @@ from ..kernels.lighttree import (
     indirect_full_kernel,
     indirect_list_kernel,
     indirect_points_kernel,
+    pack_nodes_kernel,
     pyramid_level_kernel,
+    tight_radius_kernel,
     rsm_kernel,
 )
 from ..kernels.shade import LightParams
@@ -204,9 +208,19 @@ class IndirectStage:
                                                              self.tree_depth, self.tree_valid, self.tree_spread2,
                                                              self.tree_radius)))
         leaf = self._levels[self.leaf_level]
+        self._tight_radius = self.tree_radius[level_offset(min(self.start_level, self.leaf_level)):
+                                              level_offset(self.leaf_level)]
 
         self.list_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self.list_node = wp.zeros(1, dtype=wp.int32, device=dev)
+        tree = method in ("lighttree", "traverse")
+        n_nodes = total if tree else 1
+        self.node_a = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)  # packed nodes for the gather
+        self.node_b = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)
+        self.node_c = wp.zeros(n_nodes, dtype=wp.vec4, device=dev)
+        self.cut_a = wp.zeros(1, dtype=wp.vec4, device=dev)
+        self.cut_b = wp.zeros(1, dtype=wp.vec4, device=dev)
+        self.cut_c = wp.zeros(1, dtype=wp.vec4, device=dev)
         if method == "lighttree":
             cap = 1 << (2 * self.limit_level)  # a cut is a partition of the leaves into nodes of level <= limit
             n_flags = level_offset(self.limit_level + 1) - level_offset(self.start_level)
@@ -217,6 +231,9 @@ class IndirectStage:
             self.list_normal = wp.zeros(cap, dtype=wp.vec3, device=dev)
             self.list_spread2 = wp.zeros(cap, dtype=float, device=dev)
             self.list_node = wp.zeros(cap, dtype=wp.int32, device=dev)
+            self.cut_a = wp.zeros(cap, dtype=wp.vec4, device=dev)
+            self.cut_b = wp.zeros(cap, dtype=wp.vec4, device=dev)
+            self.cut_c = wp.zeros(cap, dtype=wp.vec4, device=dev)
         elif method == "exact":
             self.list_flux, self.list_pos, self.list_normal, self.list_spread2 = leaf[0], leaf[1], leaf[2], leaf[5]
             self.list_count.fill_(n * n)
@@ -247,17 +264,19 @@ class IndirectStage:
         ip.list_flux, ip.list_pos, ip.list_normal = self.list_flux, self.list_pos, self.list_normal
         ip.tree_spread2, ip.tree_radius = self.tree_spread2, self.tree_radius
         ip.list_spread2, ip.list_node = self.list_spread2, self.list_node
+        ip.node_a, ip.node_b, ip.node_c = self.node_a, self.node_b, self.node_c
+        ip.cut_a, ip.cut_b, ip.cut_c = self.cut_a, self.cut_b, self.cut_c
         ip.list_count = self.list_count
         ip.use_tree = 1 if method == "traverse" else 0
         ip.start_level = self.start_level
         ip.limit_level = self.limit_level
         ip.leaf_level = self.leaf_level
-        tree = method in ("lighttree", "traverse")
         ip.extended = 1 if tree else 0
         ip.radius_scale2 = float(config.cluster_radius_scale) ** 2 if tree else 0.0
         ip.refine_threshold = float(config.refine_threshold)
         ip.refine_budget = int(config.refine_budget) if tree else 0
         ip.refine_ratio2 = float(config.refine_min_ratio) ** 2
+        ip.refine_min_radius = float(config.refine_min_radius) * d_min
         # a receiver whose estimate is below 1e-6 of the total flux per extent^2 splits as if it were that
         ip.floor_per_flux = 1.0e-6 / max(ext * ext, 1.0e-30)
         ip.d_min2 = max(d_min * d_min, 1.0e-30)
@@ -373,6 +392,14 @@ class IndirectStage:
                 wp.launch(pyramid_level_kernel, dim=1 << (2 * lv),
                           inputs=[*self._levels[lv + 1], self.depth_tol, float(self.config.normal_threshold)],
                           outputs=list(self._levels[lv]), device=dev)
+            self._tight_radius.zero_()  # the levels start .. leaf - 1, re-taken exactly from the leaves
+            wp.launch(tight_radius_kernel, dim=self.rsm_size * self.rsm_size,
+                      inputs=[self.tree_flux, self.tree_pos, min(self.start_level, self.leaf_level), self.leaf_level],
+                      outputs=[self.tree_radius], device=dev)
+            wp.launch(pack_nodes_kernel, dim=self.node_a.shape[0],
+                      inputs=[self.tree_flux, self.tree_pos, self.tree_normal, self.tree_valid, self.tree_spread2,
+                              self.tree_radius, self.params.radius_scale2],
+                      outputs=[self.node_a, self.node_b, self.node_c], device=dev)
         if self.method == "lighttree":
             nf = self._flags.shape[0]
             wp.launch(cut_flags_kernel, dim=nf, inputs=[self.tree_valid, self.tree_flux, self.start_level,
@@ -380,9 +407,10 @@ class IndirectStage:
             wp.utils.array_scan(self._flags, self._slots, inclusive=False)
             wp.launch(cut_scatter_kernel, dim=nf,
                       inputs=[self._flags, self._slots, level_offset(self.start_level), self.tree_flux,
-                              self.tree_pos, self.tree_normal, self.tree_spread2],
+                              self.tree_pos, self.tree_normal, self.tree_spread2, self.node_a, self.node_b,
+                              self.node_c],
                       outputs=[self.list_flux, self.list_pos, self.list_normal, self.list_spread2, self.list_node,
-                               self.list_count], device=dev)
+                               self.cut_a, self.cut_b, self.cut_c, self.list_count], device=dev)
         elif self.method == "sampled":
             wp.launch(gather_samples_kernel, dim=self.samples,
                       inputs=[self._texels, self.sample_weight, leaf[0], leaf[1], leaf[2]],
