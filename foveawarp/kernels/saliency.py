@@ -55,14 +55,15 @@ def sobel_max_channel(a00: wp.vec3, a01: wp.vec3, a02: wp.vec3, a10: wp.vec3, a1
 
 
 @wp.func
+def clamped_neighbours(x: int, y: int, w: int, h: int):
+    """(x - 1, x + 1, y - 1, y + 1) clamped to a w x h image: the 3x3 stencil's edge-replicated taps."""
+    return wp.max(x - 1, 0), wp.min(x + 1, w - 1), wp.max(y - 1, 0), wp.min(y + 1, h - 1)
+
+
+@wp.func
 def sobel_vec3(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
     """Sobel gradient magnitude at (x, y) of a 3-channel image, max over the channels (edge-clamped)."""
-    h = a.shape[0]
-    w = a.shape[1]
-    xm = wp.max(x - 1, 0)
-    xp = wp.min(x + 1, w - 1)
-    ym = wp.max(y - 1, 0)
-    yp = wp.min(y + 1, h - 1)
+    xm, xp, ym, yp = clamped_neighbours(x, y, a.shape[1], a.shape[0])
     return sobel_max_channel(a[ym, xm], a[ym, x], a[ym, xp], a[y, xm], a[y, xp], a[yp, xm], a[yp, x], a[yp, xp])
 
 

@@ -16,7 +16,7 @@ import warp as wp
 
 from .camera import CameraParams
 from .gbuffer import trace_primary
-from .saliency import linear_rgb_to_lab, sobel_max_channel, sobel_vec3
+from .saliency import clamped_neighbours, linear_rgb_to_lab, sobel_max_channel, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
 
@@ -81,12 +81,7 @@ def coarse_gbuffer_kernel(
 def sobel_lab(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
     """Sobel magnitude (max over channels, edge-clamped) of the CIE-Lab conversion of linear albedo ``a``; each
     tap converted in place (the coarse grid is small, so no prepass)."""
-    h = a.shape[0]
-    w = a.shape[1]
-    xm = wp.max(x - 1, 0)
-    xp = wp.min(x + 1, w - 1)
-    ym = wp.max(y - 1, 0)
-    yp = wp.min(y + 1, h - 1)
+    xm, xp, ym, yp = clamped_neighbours(x, y, a.shape[1], a.shape[0])
     return sobel_max_channel(linear_rgb_to_lab(a[ym, xm]), linear_rgb_to_lab(a[ym, x]), linear_rgb_to_lab(a[ym, xp]),
                              linear_rgb_to_lab(a[y, xm]), linear_rgb_to_lab(a[y, xp]), linear_rgb_to_lab(a[yp, xm]),
                              linear_rgb_to_lab(a[yp, x]), linear_rgb_to_lab(a[yp, xp]))
