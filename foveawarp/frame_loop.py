@@ -535,16 +535,15 @@ class FrameLoop:
         and shading of the sampled pixels, indirect light, reconstruction from the samples alone, tone map."""
         with self._stage("sampling"):
             self.sparse.sample(self.sampling)
+        # the sampled pixels' primary rays need a flat list: the row and masked strategies compact one too
+        list_strategy = strategy if strategy in ("scan", "tile") else "scan"
         with self._stage("reorder"):
-            # the sampled pixels' primary rays need a flat list: the row and masked strategies compact one too
-            self.reorder.run(smap, strategy=strategy if strategy in ("scan", "tile") else "scan")
+            self.reorder.run(smap, strategy=list_strategy)
         with self._stage("shade"):
             self.sparse.trace_shade(self.gbuffer, self.shade, self.reorder.work, self.reorder.count, self.radiance,
                                     self.radiance_stoch)
         with self._stage("indirect"):
-            if self.indirect is not None:
-                self.indirect.run_list(self.gbuffer, self.reorder.work, self.reorder.count, self.radiance,
-                                       self.width)
+            self._indirect(smap, list_strategy)
         with self._stage("reconstruct"):
             self.reconstruct.run(self.radiance, smap, self.recon)
         with self._stage("tonemap"):

@@ -120,6 +120,30 @@ def last_pass_seed(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.ve
     return jfa_visit(mask, src, x, y, step, from_mask, settled)
 
 
+@wp.func
+def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i), x: int, y: int, step: int,
+                    from_mask: int, settled: int, color_in: wp.array2d(dtype=wp.vec3), color_mode: int,
+                    offsets: wp.array(dtype=wp.vec2i), nearest: wp.array2d(dtype=wp.vec2i),
+                    r2_out: wp.array2d(dtype=wp.int32), color_out: wp.array2d(dtype=wp.vec3)) -> int:
+    """The last pass at pixel (x, y), shared by the tiled and the band kernels: writes its outputs there and
+    returns its r_q^2 (>= 0), -1 for a non-seed pixel without a seed, -2 for a seed."""
+    if mask[y, x] != wp.uint8(0):
+        if from_mask != 0:
+            nearest[y, x] = wp.vec2i(x, y)
+        if color_mode == 2:
+            color_out[y, x] = finite_or_zero(color_in[y, x])
+        return -2
+    s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
+    nearest[y, x] = s
+    r2 = int(-1)
+    if s[0] >= 0:
+        r2 = seed_dist2(x, y, s)
+    r2_out[y, x] = r2
+    if color_mode != 0:
+        color_out[y, x] = voronoi_color(color_in, s)
+    return r2
+
+
 @wp.kernel(enable_backward=False)
 def jfa_pass_kernel(
     mask: wp.array2d(dtype=wp.uint8),
@@ -192,23 +216,11 @@ def jfa_last_pass_kernel(
         y = ty * RTILE + ly
         x = tx * RTILE + (k - ly * RTILE)
         if y < h and x < w:
-            if mask[y, x] != wp.uint8(0):
-                if from_mask != 0:
-                    nearest[y, x] = wp.vec2i(x, y)
-                if color_mode == 2:
-                    color_out[y, x] = finite_or_zero(color_in[y, x])
-            else:
-                s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
-                nearest[y, x] = s
-                r2 = int(-1)
-                if s[0] >= 0:
-                    r2 = seed_dist2(x, y, s)
-                    r2max = wp.max(r2max, r2)
-                else:
-                    missing += 1
-                r2_out[y, x] = r2
-                if color_mode != 0:
-                    color_out[y, x] = voronoi_color(color_in, s)
+            r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest,
+                                 r2_out, color_out)
+            r2max = wp.max(r2max, r2)
+            if r2 == -1:
+                missing += 1
     # cooperative block reductions: every thread of the block reaches them
     tmax = wp.tile_max(wp.tile(r2max))
     tmiss = wp.tile_sum(wp.tile(missing))
@@ -255,23 +267,11 @@ def jfa_last_pass_bands_kernel(
         for lx in range(RTILE):
             x = tx * RTILE + lx
             if y < h and x < w:
-                if mask[y, x] != wp.uint8(0):
-                    if from_mask != 0:
-                        nearest[y, x] = wp.vec2i(x, y)
-                    if color_mode == 2:
-                        color_out[y, x] = finite_or_zero(color_in[y, x])
-                else:
-                    s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
-                    nearest[y, x] = s
-                    r2 = int(-1)
-                    if s[0] >= 0:
-                        r2 = seed_dist2(x, y, s)
-                        r2max = wp.max(r2max, r2)
-                    else:
-                        missing += 1
-                    r2_out[y, x] = r2
-                    if color_mode != 0:
-                        color_out[y, x] = voronoi_color(color_in, s)
+                r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
+                                     nearest, r2_out, color_out)
+                r2max = wp.max(r2max, r2)
+                if r2 == -1:
+                    missing += 1
     tile_r2[ty, tx] = r2max
     tile_miss[ty, tx] = missing
 
