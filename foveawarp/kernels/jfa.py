@@ -262,16 +262,19 @@ def jfa_last_pass_bands_kernel(
     w = mask.shape[1]
     r2max = int(0)
     missing = int(0)
-    for ly in range(RTILE):
+    # one flat loop over the tile, row-major: RTILE^2 = 256 iterations is above Warp's unroll limit, so the
+    # per-pixel step is emitted once (two nested 16-iteration loops were unrolled into 256 inlined copies,
+    # which NVRTC took minutes to compile for CUDA, where this kernel never runs)
+    for k in range(RTILE * RTILE):
+        ly = k // RTILE
         y = ty * RTILE + ly
-        for lx in range(RTILE):
-            x = tx * RTILE + lx
-            if y < h and x < w:
-                r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
-                                     nearest, r2_out, color_out)
-                r2max = wp.max(r2max, r2)
-                if r2 == -1:
-                    missing += 1
+        x = tx * RTILE + (k - ly * RTILE)
+        if y < h and x < w:
+            r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
+                                 nearest, r2_out, color_out)
+            r2max = wp.max(r2max, r2)
+            if r2 == -1:
+                missing += 1
     tile_r2[ty, tx] = r2max
     tile_miss[ty, tx] = missing
 
