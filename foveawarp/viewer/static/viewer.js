@@ -221,13 +221,13 @@
     rows.push(["sampling rate", pct(st.sampling_rate)]);
     rows.push(["cache hits", pct(st.cache_hit_rate)]);
     rows.push(["rays traced", st.rays_traced !== undefined ? Number(st.rays_traced).toLocaleString() : "-"]);
-    rows.push(["gaze->frame p50 (server)", ms(serverStats.latency_ms_p50)]);
-    rows.push(["gaze->frame p95 (server)", ms(serverStats.latency_ms_p95)]);
-    rows.push(["gaze->frame p95 (all msgs)", ms(serverStats.latency_msg_ms_p95)]);
+    rows.push(["gaze->frame p50 (srv)", ms(serverStats.latency_ms_p50)]);
+    rows.push(["gaze->frame p95 (srv)", ms(serverStats.latency_ms_p95)]);
+    rows.push(["gaze->frame p95 (msgs)", ms(serverStats.latency_msg_ms_p95)]);
     rows.push(["gaze->shown p50 (here)", ms(quantile(roundTrips, 0.5))]);
     rows.push(["gaze px", h ? h.gaze.map((v) => v.toFixed(0)).join(", ") : "-"]);
     rows.push(["device", state ? state.device : "-"]);
-    rows.push(["encoder", state && state.encoder ? state.encoder.replace("Pillow ", "PIL ") : "-"]);
+    rows.push(["encoder", state && state.encoder ? state.encoder.replace("Pillow ", "PIL ").split(",")[0] : "-"]);
     const box = $("stats");
     box.textContent = "";
     for (const [a, b] of rows) {
