@@ -205,10 +205,13 @@ def main(argv=None):
     payload["oversplit_sweep"] = oversplit
     variants = []
     if dev.is_cpu and tmax > 1:
-        # the reorder compaction (tile kernels) runs on one thread; "none" shades every pixel's mask entry instead
+        # the reorder compaction (tile kernels) runs on one thread; "none" (the CPU's "auto") shades every pixel's
+        # mask entry instead; "disc": one exact nearest-seed launch instead of the JFA passes
         loops = {}
-        for label, cfg in (("reorder=tile (default)", fw.Config()),
-                           ("reorder=none", fw.Config().with_(reorder={"strategy": "none"}))):
+        for label, cfg in (("default (reorder auto = none on the CPU)", fw.Config()),
+                           ("reorder=tile", fw.Config().with_(reorder={"strategy": "tile"})),
+                           ("jfa_variant=disc", fw.Config().with_(reconstruction={"jfa_variant": "disc"})),
+                           ("jfa_variant=1+jfa", fw.Config().with_(reconstruction={"jfa_variant": "1+jfa"}))):
             loops[label] = (fw.FrameLoop(args.scaling_scene, w, h, config=cfg, device=dev, timing=False,
                                          policy="foveated", cpu_threads=tmax), False)
         m = interleaved(loops, frames, warmup, rounds)

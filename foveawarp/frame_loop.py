@@ -16,7 +16,7 @@ from . import parallel
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
-from .config import Config, check_bool, check_choice, check_int_range, show
+from .config import Config, check_bool, check_choice, check_int_range, resolve_reorder_strategy, show
 from .kernels.shade import ShadeParams
 from .scene import DeviceScene, Scene, load_scene
 from .stages.gbuffer import GBufferStage
@@ -148,7 +148,7 @@ class FrameLoop:
         # 37.41 dB, 38.99 vs 38.96 dB) with 25 instead of up to 81 taps; an explicit sibson_window wins
         window = SPARSE_SIBSON_WINDOW if (self.sparse_gbuffer and cfg.reconstruction.sibson_window is None) else None
         self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev,
-                                            window=window)
+                                            window=window, guaranteed=True)  # the sample maps hold the guarantee
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         if self.sparse_gbuffer:
             from .stages.sparse import SparseGBufferStage
@@ -362,7 +362,7 @@ class FrameLoop:
             skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
             skipped["temporal"] = "sparse G-buffer: no per-pixel history (the reconstruction fills every gap)"
-        strategy = cfg.reorder.strategy if foveated else "full"
+        strategy = resolve_reorder_strategy(cfg.reorder.strategy, self.device) if foveated else "full"
         tc = cfg.temporal
         still_boost = (foveated and not sparse and history and not moving and tc.enabled and tc.still_min_probability > 0.0
                        and self._stochastic_shading() and self._static_frames < tc.max_history_frames)

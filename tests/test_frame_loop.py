@@ -306,3 +306,26 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     assert paths[2 * n:] == [cheaper] * 3
     if cheaper == "full":
         assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]
+
+
+def test_auto_reorder_strategy_resolves_per_device(device):
+    """ReorderConfig.strategy "auto" (the default) runs "tile" on CUDA and "none" on the CPU; the image equals the
+    explicit strategy's, and the resolved name is what stats report."""
+    from foveawarp.config import resolve_reorder_strategy
+
+    assert fw.Config().reorder.strategy == "auto"
+    want = "tile" if device.startswith("cuda") else "none"
+    assert resolve_reorder_strategy("auto", device) == want
+    for s in STRATEGIES:
+        assert resolve_reorder_strategy(s, device) == s
+    with pytest.raises(ValueError, match="ReorderConfig.strategy"):
+        resolve_reorder_strategy("fastest", device)
+    scene = fw.load_scene("cornell")
+    imgs = {}
+    for s in ("auto", want):
+        loop = _loop(scene, device, reorder={"strategy": s})
+        for i in range(2):
+            f = loop.render(scene.camera_at(i / 30), gaze_px=(40.0 + 3 * i, 30.0))
+        assert f.stats["strategy"] == want
+        imgs[s] = f.numpy().copy()
+    np.testing.assert_array_equal(imgs["auto"], imgs[want])

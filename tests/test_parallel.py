@@ -231,3 +231,40 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads):
                                                             st.voronoi_color, st.max_radius, st.max_radius_sq,
                                                             st.unreached, out)]
         assert got[True] == got[False], density
+
+
+@pytest.mark.parametrize("size", [(33, 19), (64, 48), (5, 3), (1, 1)])
+@pytest.mark.parametrize("block", [1, 4, 8])
+def test_tile_pass_bands_equals_tiled(every_band, rng, size, block):
+    """The CPU's band form of the sampling tile pass (per-tile counts, then a one-thread sum) writes exactly what
+    the tiled kernel (block sums + atomics) writes: the guaranteed samples and both counters, which also equal a
+    NumPy count of the resulting maps; every aligned tile ends with a sample."""
+    from foveawarp.config import Config, FoveationConfig
+    from foveawarp.ops.sampling import _frame
+    from foveawarp.stages.sampling import dither_ranks, launch_tile_pass, sampling_params
+
+    w, h = size
+    tiles = ((h + block - 1) // block, (w + block - 1) // block)
+    sp = sampling_params(Config(foveation=FoveationConfig(block=block)), w, h, 7)
+    frame, _, _ = _frame(w, h, (0.0, 0.0), 60.0, wp.get_device(DEV), frame_index=3, block=block)
+    ranks = wp.array(dither_ranks(block), dtype=wp.int32, device=DEV)
+    for density in (0.0, 0.02, 0.3):
+        s0 = (rng.random((h, w)) < density).astype(np.uint8)
+        c0 = (rng.random((h, w)) < 0.5).astype(np.uint8)
+        got = {}
+        for threads in (1, 3):
+            sample = wp.array(s0, dtype=wp.uint8, device=DEV)
+            hit = wp.array(c0, dtype=wp.uint8, device=DEV)
+            n = wp.full(1, 5, dtype=wp.int32, device=DEV)  # the pass adds to the counters
+            nc = wp.full(1, 2, dtype=wp.int32, device=DEV)
+            with parallel.cpu_threads(threads):
+                launch_tile_pass(ranks, sp, frame, tiles, sample, hit, n, nc, wp.get_device(DEV))
+            got[threads] = (sample.numpy(), int(n.numpy()[0]), int(nc.numpy()[0]))
+        (m1, n1, c1), (m3, n3, c3) = got[1], got[3]
+        np.testing.assert_array_equal(m3, m1)
+        assert (n3, c3) == (n1, c1)
+        assert n1 == 5 + int(m1.sum()) and c1 == 2 + int(c0.sum())
+        np.testing.assert_array_equal(m1 >= s0, True)  # only adds samples
+        for ty in range(tiles[0]):
+            for tx in range(tiles[1]):
+                assert m1[ty * block:(ty + 1) * block, tx * block:(tx + 1) * block].any(), (ty, tx)

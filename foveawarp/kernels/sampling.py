@@ -312,6 +312,42 @@ def threshold_kernel(
                                      fp.rot, fp.phase)
 
 
+@wp.func
+def tile_guarantee(ty: int, tx: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
+                   frame: wp.array(dtype=FrameParams), sample: wp.array2d(dtype=wp.uint8),
+                   cache_hit: wp.array2d(dtype=wp.uint8)) -> wp.vec2i:
+    """Aligned tile (ty, tx): (samples, cache hits) in it, after a tile with no sample (only partial tiles at
+    the right/bottom edges can have none) gets its lowest-rank pixel sampled (written to ``sample``)."""
+    n = int(0)
+    nc = int(0)
+    k = sp.block
+    x0 = tx * k
+    y0 = ty * k
+    x1 = wp.min(x0 + k, sample.shape[1])
+    y1 = wp.min(y0 + k, sample.shape[0])
+    for yy in range(y0, y1):
+        for xx in range(x0, x1):
+            if sample[yy, xx] != wp.uint8(0):
+                n = n + 1
+            if cache_hit[yy, xx] != wp.uint8(0):
+                nc = nc + 1
+    if n == 0:
+        rot = frame[0].rot
+        best = sp.num_ranks
+        bx = x0
+        by = y0
+        for yy in range(y0, y1):
+            for xx in range(x0, x1):
+                r = dither_rank(xx, yy, ranks, sp, rot)
+                if r < best:
+                    best = r
+                    bx = xx
+                    by = yy
+        sample[by, bx] = wp.uint8(1)
+        n = 1
+    return wp.vec2i(n, nc)
+
+
 @wp.kernel(enable_backward=False)
 def tile_pass_kernel(
     ranks: wp.array2d(dtype=wp.int32),
@@ -324,46 +360,56 @@ def tile_pass_kernel(
     num_cache_hits: wp.array(dtype=wp.int32),
 ):
     """Launched with ``wp.launch_tiled``: one thread per aligned tile (tile ``b * block_dim + lane`` in raster
-    order). Counts samples and cache hits; a tile with no sample (only partial tiles at the right/bottom edges
-    can have none) gets its lowest-rank pixel sampled. Counts are summed over the thread block first, so the
-    counters see one atomic add per block instead of one per tile."""
+    order) runs ``tile_guarantee``. Counts are summed over the thread block first, so the counters see one
+    atomic add per block instead of one per tile."""
     b, lane = wp.tid()
     i = b * wp.block_dim() + lane
     n = int(0)
     nc = int(0)
     if i < num_tiles_y * sp.tiles_x:
         ty = i // sp.tiles_x
-        tx = i - ty * sp.tiles_x
-        k = sp.block
-        x0 = tx * k
-        y0 = ty * k
-        x1 = wp.min(x0 + k, sample.shape[1])
-        y1 = wp.min(y0 + k, sample.shape[0])
-        for yy in range(y0, y1):
-            for xx in range(x0, x1):
-                if sample[yy, xx] != wp.uint8(0):
-                    n = n + 1
-                if cache_hit[yy, xx] != wp.uint8(0):
-                    nc = nc + 1
-        if n == 0:
-            rot = frame[0].rot
-            best = sp.num_ranks
-            bx = x0
-            by = y0
-            for yy in range(y0, y1):
-                for xx in range(x0, x1):
-                    r = dither_rank(xx, yy, ranks, sp, rot)
-                    if r < best:
-                        best = r
-                        bx = xx
-                        by = yy
-            sample[by, bx] = wp.uint8(1)
-            n = 1
+        c = tile_guarantee(ty, i - ty * sp.tiles_x, ranks, sp, frame, sample, cache_hit)
+        n = c[0]
+        nc = c[1]
     tn = wp.tile_sum(wp.tile(n))
     tc = wp.tile_sum(wp.tile(nc))
     if lane == 0:
         wp.atomic_add(num_samples, 0, wp.int32(tn[0]))
         wp.atomic_add(num_cache_hits, 0, wp.int32(tc[0]))
+
+
+@wp.kernel(enable_backward=False)
+def tile_pass_bands_kernel(
+    ranks: wp.array2d(dtype=wp.int32),
+    sp: SamplingParams,
+    frame: wp.array(dtype=FrameParams),
+    sample: wp.array2d(dtype=wp.uint8),
+    cache_hit: wp.array2d(dtype=wp.uint8),
+    tile_counts: wp.array2d(dtype=wp.vec2i),
+    row0: int,
+):
+    """``tile_pass_kernel`` for the CPU's band-parallel launches (``foveawarp.parallel``): thread (ty, tx) runs
+    ``tile_guarantee`` on tile (ty, tx) and writes its (samples, cache hits) to ``tile_counts`` (no atomics);
+    ``tile_counts_sum_kernel`` then adds them to the counters."""
+    ty, tx = wp.tid()
+    ty += row0  # band offset (foveawarp.parallel)
+    tile_counts[ty, tx] = tile_guarantee(ty, tx, ranks, sp, frame, sample, cache_hit)
+
+
+@wp.kernel(enable_backward=False)
+def tile_counts_sum_kernel(tile_counts: wp.array2d(dtype=wp.vec2i), num_samples: wp.array(dtype=wp.int32),
+                           num_cache_hits: wp.array(dtype=wp.int32)):
+    """One thread: add the per-tile counts of ``tile_pass_bands_kernel`` to the counters (integer sums: equal
+    to the tiled kernel's atomic adds)."""
+    n = int(0)
+    nc = int(0)
+    for ty in range(tile_counts.shape[0]):
+        for tx in range(tile_counts.shape[1]):
+            c = tile_counts[ty, tx]
+            n += c[0]
+            nc += c[1]
+    num_samples[0] = num_samples[0] + n
+    num_cache_hits[0] = num_cache_hits[0] + nc
 
 
 # CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride

@@ -21,7 +21,7 @@ from .. import parallel
 from .._util import check_image_size, get_device
 import numpy as np
 
-from ..config import VORONOI_VARIANTS, ReconstructionConfig, check_choice, check_int_range
+from ..config import VORONOI_VARIANTS, ReconstructionConfig, check_choice, check_int_range, resolve_voronoi_variant
 from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
@@ -99,9 +99,11 @@ def jfa_steps(width: int, height: int, variant: str = "1+jfa", start_step: Optio
     Full JFA: N/2, N/4, ..., 1 with N = max(width, height) rounded up to a power of two (no pass when N = 1).
     ``start_step`` (>= 1) replaces N/2 when smaller; each next step is ``ceil(k / 2)``, down to 1.
     Variants (Rong & Tan 2006): "jfa+1" appends a step-1 pass, "jfa+2" appends steps 2 and 1,
-    "1+jfa" prepends a step-1 pass."""
+    "1+jfa" prepends a step-1 pass; "auto" is "1+jfa"; "disc" has none."""
     w, h = check_image_size(width, height)
     check_choice("variant", variant, VORONOI_VARIANTS)
+    if variant == "auto":  # no guarantee known here (see resolve_voronoi_variant)
+        variant = "1+jfa"
     if variant == "disc":
         return []  # no jump flooding: the last pass scans the disc
     n = 1
@@ -160,7 +162,7 @@ class ReconstructStage:
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
-                 start_step: Optional[int] = None):
+                 start_step: Optional[int] = None, guaranteed: bool = False):
         self.width, self.height = check_image_size(width, height)
         if config is None:
             config = ReconstructionConfig()
@@ -180,7 +182,9 @@ class ReconstructStage:
             self.start_step = check_int_range("start_step", start_step, 1, 16384)
         else:
             self.start_step = jfa_start_step_for_block(self.block) if config.bounded_jfa_start else None
-        self.steps = jfa_steps(self.width, self.height, config.jfa_variant, self.start_step)
+        # the Voronoi step run ("auto" resolved: "disc" needs the block guarantee, which ``guaranteed`` promises)
+        self.variant = resolve_voronoi_variant(config.jfa_variant, self.device, bool(guaranteed))
+        self.steps = jfa_steps(self.width, self.height, self.variant, self.start_step)
 
         shape = (self.height, self.width)
         dev = self.device
@@ -202,7 +206,7 @@ class ReconstructStage:
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
-        self.disc = config.jfa_variant == "disc"
+        self.disc = self.variant == "disc"
         offs = disc_offsets_for_block(self.block) if self.disc else np.zeros((1, 2), np.int32)
         self._disc_offsets = wp.array(offs if len(offs) else np.zeros((0, 2), np.int32), dtype=wp.vec2i, device=dev)
 

@@ -6,7 +6,7 @@ import numpy as np
 import warp as wp
 
 from .._util import check_image_size, get_device
-from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, show
+from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, resolve_reorder_strategy, show
 from ..kernels.reorder import (
     block_scan_kernel,
     compact_count_kernel,
@@ -40,7 +40,8 @@ def morton_tile_order(tiles_x: int, tiles_y: int) -> np.ndarray:
 
 
 class ReorderStage:
-    """Compaction buffers for one image size; ``run(mask)`` fills them for ``config.strategy``.
+    """Compaction buffers for one image size; ``run(mask)`` fills them for ``config.strategy`` ("auto" resolved
+    for the device: "tile" on CUDA, "none" on the CPU).
 
     Outputs (device arrays, valid after ``run``):
       - "scan" / "tile": ``work`` (N,) int32 flat indices y * W + x, ``count`` (1,) int32;
@@ -84,12 +85,14 @@ class ReorderStage:
 
     @property
     def strategy(self) -> str:
-        return self.config.strategy
+        """The configured strategy with "auto" resolved for the stage's device."""
+        return resolve_reorder_strategy(self.config.strategy, self.device)
 
     def run(self, mask, strategy: str | None = None) -> None:
         """Compact ``mask`` ((H, W) uint8 wp.array on the stage's device, nonzero = sampled) with ``strategy``
         (default: the config's). Launches only (no host reads of the mask)."""
-        s = self.config.strategy if strategy is None else check_choice("strategy", strategy, REORDER_STRATEGIES)
+        s = resolve_reorder_strategy(self.config.strategy if strategy is None
+                                     else check_choice("strategy", strategy, REORDER_STRATEGIES), self.device)
         if (not isinstance(mask, wp.array) or mask.dtype != wp.uint8
                 or tuple(mask.shape) != (self.height, self.width) or mask.device != self.device):
             raise ValueError(f"mask must be a ({self.height}, {self.width}) uint8 wp.array on {self.device}, got "

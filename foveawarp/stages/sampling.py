@@ -21,6 +21,8 @@ from ..kernels.sampling import (
     SamplingParams,
     frame_setup_kernel,
     sampling_map_kernel,
+    tile_counts_sum_kernel,
+    tile_pass_bands_kernel,
     tile_pass_kernel,
 )
 
@@ -118,8 +120,18 @@ def sampling_params(config: Config, width: int, height: int, seed: int = 0) -> S
 
 
 def launch_tile_pass(ranks, params: SamplingParams, frame_params, tiles: tuple, sample_map, cache_hit, num_samples,
-                     num_cache_hits, device) -> None:
-    """The tile guarantee + counters pass over ``tiles`` = (tiles_y, tiles_x) aligned tiles."""
+                     num_cache_hits, device, tile_counts=None) -> None:
+    """The tile guarantee + counters pass over ``tiles`` = (tiles_y, tiles_x) aligned tiles. On the CPU with
+    more than one thread: band-parallel per-tile counts into ``tile_counts`` ((tiles_y, tiles_x) vec2i scratch;
+    allocated here when None), then a one-thread sum (the same counts as the tiled kernel's atomics)."""
+    if device.is_cpu and parallel.current_cpu_threads() > 1:
+        if tile_counts is None:
+            tile_counts = wp.empty(tiles, dtype=wp.vec2i, device=device)
+        parallel.launch(tile_pass_bands_kernel, dim=tiles, inputs=[ranks, params, frame_params, sample_map, cache_hit],
+                        outputs=[tile_counts], device=device, min_band_items=128)  # a tile item = block^2 pixels
+        wp.launch(tile_counts_sum_kernel, dim=1, inputs=[tile_counts], outputs=[num_samples, num_cache_hits],
+                  device=device)
+        return
     threads = TILE_PASS_THREADS if device.is_cuda else 1
     n = tiles[0] * tiles[1]
     wp.launch_tiled(tile_pass_kernel, dim=[(n + threads - 1) // threads],
@@ -205,6 +217,8 @@ class SamplingStage:
         self._dummy_map = wp.zeros((1, 1), dtype=float, device=dev)  # the frame pass writes no maps
         self.num_samples = wp.zeros(1, dtype=wp.int32, device=dev)
         self.num_cache_hits = wp.zeros(1, dtype=wp.int32, device=dev)
+        # per-tile (samples, cache hits) of the CPU's band-parallel tile pass (see ``launch_tile_pass``)
+        self.tile_counts = wp.zeros(self.tiles if dev.is_cpu else (1, 1), dtype=wp.vec2i, device=dev)
         self.skipped: dict = {}
         self._no_cam = CameraParams()
         self._zero = wp.vec3(0.0, 0.0, 0.0)
@@ -336,7 +350,7 @@ class SamplingStage:
                         outputs=[self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index],
                         device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
-                         self.num_samples, self.num_cache_hits, dev)
+                         self.num_samples, self.num_cache_hits, dev, self.tile_counts)
 
     # -- probability and saliency maps, on request ---------------------------------------------------------------
     @property

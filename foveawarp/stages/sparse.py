@@ -86,7 +86,8 @@ class SparseGBufferStage:
                                 self.cell],
                         outputs=[*sampling.map_buffers(), sampling.sample_map], device=dev)
         launch_tile_pass(sampling.ranks, sampling.params, sampling.frame_params, sampling.tiles, sampling.sample_map,
-                         sampling.cache_hit, sampling.num_samples, sampling.num_cache_hits, dev)
+                         sampling.cache_hit, sampling.num_samples, sampling.num_cache_hits, dev,
+                         sampling.tile_counts)
 
     def trace_shade(self, gbuffer: GBuffer, shade, work, count, out, out_stoch) -> None:
         """Trace and shade the flat pixel indices ``work[0:count[0]]`` (``shade``: a :class:`ShadeStage` whose
