@@ -82,9 +82,7 @@ def _copy(a) -> np.ndarray:
 def render_sequence(fw, device, s: dict) -> dict:
     """Render the sequence of settings ``s`` in a fresh scene and FrameLoop on ``device``; every array by name."""
     scene = fw.load_scene(s["scene"], motion=True) if s["motion"] else fw.load_scene(s["scene"])
-    # the Voronoi step pinned: its "auto" default differs by device ("disc" on the CPU, "1+jfa" on CUDA), and the
-    # comparison is of the same algorithm on both
-    cfg = fw.Config().with_(shading={"ao_samples": int(s["ao_samples"])}, reconstruction={"jfa_variant": "1+jfa"})
+    cfg = fw.Config().with_(shading={"ao_samples": int(s["ao_samples"])})
     w, h = int(s["width"]), int(s["height"])
     loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, timing=False, policy="foveated")
     out = {}

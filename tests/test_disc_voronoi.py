@@ -120,17 +120,16 @@ def test_frame_loop_with_the_disc_variant_stays_close_to_jfa():
     assert psnr(imgs["1+jfa"], imgs["disc"]) > 40.0
 
 
-def test_auto_variant_resolves_per_device_and_guarantee(device):
-    """jfa_variant "auto" (the default) runs "disc" in a FrameLoop on the CPU (its masks hold the block
-    guarantee), "1+jfa" on CUDA and in a ReconstructStage on its own (arbitrary masks); the FrameLoop's image
-    equals the explicit variant's."""
+def test_auto_variant_resolves_by_guarantee(device):
+    """jfa_variant "auto" (the default) runs "disc" in a FrameLoop (its masks hold the block guarantee) and
+    "1+jfa" in a ReconstructStage on its own (arbitrary masks); the FrameLoop's image equals the explicit
+    variant's."""
     import foveawarp as fw
     from foveawarp.config import JFA_VARIANTS, resolve_voronoi_variant
     from foveawarp.stages.reconstruct import ReconstructStage, jfa_steps
 
-    cpu = not device.startswith("cuda")
     assert fw.Config().reconstruction.jfa_variant == "auto"
-    assert resolve_voronoi_variant("auto", device, True) == ("disc" if cpu else "1+jfa")
+    assert resolve_voronoi_variant("auto", device, True) == "disc"
     assert resolve_voronoi_variant("auto", device, False) == "1+jfa"
     for v in JFA_VARIANTS + ("disc",):
         assert resolve_voronoi_variant(v, device, True) == v
@@ -138,14 +137,13 @@ def test_auto_variant_resolves_per_device_and_guarantee(device):
         resolve_voronoi_variant("voronoi", device, True)
     assert jfa_steps(64, 48, "auto") == jfa_steps(64, 48, "1+jfa")
     assert ReconstructStage(32, 24, device=device).variant == "1+jfa"
-    want = "disc" if cpu else "1+jfa"
     scene = fw.load_scene("cornell")
     imgs = {}
-    for v in ("auto", want):
+    for v in ("auto", "disc"):
         loop = fw.FrameLoop(scene, 80, 48, config=fw.Config().with_(reconstruction={"jfa_variant": v}),
                             device=device)
         for i in range(2):
             f = loop.render(scene.camera_at(i / 30), gaze_px=(30.0 + 4 * i, 20.0))
-        assert loop.reconstruct.variant == want
+        assert loop.reconstruct.variant == "disc"
         imgs[v] = f.numpy().copy()
-    np.testing.assert_array_equal(imgs["auto"], imgs[want])
+    np.testing.assert_array_equal(imgs["auto"], imgs["disc"])
