@@ -42,17 +42,19 @@ class Camera:
         object.__setattr__(self, "up", _vec3("Camera.up", self.up))
         check_range("Camera.fov_y_deg", self.fov_y_deg, 0.0, 180.0, lo_open=True, hi_open=True)
         object.__setattr__(self, "fov_y_deg", float(self.fov_y_deg))
-        f = np.subtract(self.target, self.eye)
-        n = float(np.linalg.norm(f))
+        # plain float math on 3-tuples: a camera is made every frame, and NumPy's per-call cost on 3-vectors
+        # (np.cross, np.linalg.norm) made Camera(...) + params() ~0.16 ms of host time per frame
+        f = _sub3(self.target, self.eye)
+        n = _norm3(f)
         if not n > 0.0 or not math.isfinite(n):
             raise ValueError(f"Camera.target must differ from Camera.eye (both {self.eye!r})")
-        f = f / n
-        u = np.asarray(self.up, dtype=np.float64)
-        un = float(np.linalg.norm(u))
+        f = (f[0] / n, f[1] / n, f[2] / n)
+        u = self.up
+        un = _norm3(u)
         if not un > 0.0:
             raise ValueError(f"Camera.up must be a non-zero vector, got {self.up!r}")
-        if abs(float(np.dot(f, u / un))) > 1.0 - 1e-9:
-            raise ValueError(f"Camera.up {self.up!r} must not be parallel to the view direction {tuple(f)!r}")
+        if abs(f[0] * (u[0] / un) + f[1] * (u[1] / un) + f[2] * (u[2] / un)) > 1.0 - 1e-9:
+            raise ValueError(f"Camera.up {self.up!r} must not be parallel to the view direction {f!r}")
 
     def __getstate__(self):  # pickle / copy without the per-camera caches (basis, Warp structs)
         return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
@@ -68,13 +70,19 @@ class Camera:
         cached = self.__dict__.get("_basis")
         if cached is not None:
             return cached
-        f = np.subtract(self.target, self.eye).astype(np.float64)
-        f /= np.linalg.norm(f)
-        r = np.cross(f, np.asarray(self.up, dtype=np.float64))
-        r /= np.linalg.norm(r)
-        u = np.cross(r, f)
+        f = _sub3(self.target, self.eye)
+        n = _norm3(f)
+        f = (f[0] / n, f[1] / n, f[2] / n)
+        r = _cross3(f, self.up)
+        n = _norm3(r)
+        r = (r[0] / n, r[1] / n, r[2] / n)
+        u = _cross3(r, f)
+        out = []
         for v in (r, u, f):
-            v.setflags(write=False)
+            a = np.array(v, dtype=np.float64)
+            a.setflags(write=False)
+            out.append(a)
+        r, u, f = out
         object.__setattr__(self, "_basis", (r, u, f))
         return r, u, f
 
@@ -183,6 +191,19 @@ class Camera:
         _, _, f0 = self.basis()
         _, _, f1 = other.basis()
         return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(f0, f1))))))
+
+
+def _sub3(a, b) -> tuple:
+    return (float(a[0]) - float(b[0]), float(a[1]) - float(b[1]), float(a[2]) - float(b[2]))
+
+
+def _norm3(a) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def _cross3(a, b) -> tuple:
+    """a x b with NumPy's formula (np.cross), in float64."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 def _check_gaze(gaze_px) -> tuple:

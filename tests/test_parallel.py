@@ -268,3 +268,51 @@ def test_tile_pass_bands_equals_tiled(every_band, rng, size, block):
         for ty in range(tiles[0]):
             for tx in range(tiles[1]):
                 assert m1[ty * block:(ty + 1) * block, tx * block:(tx + 1) * block].any(), (ty, tx)
+
+
+@wp.struct
+class _RelaunchParams:
+    scale: float
+    offset: wp.vec3
+
+
+@wp.kernel(enable_backward=False)
+def _relaunch_kernel(a: wp.array(dtype=wp.vec3), p: _RelaunchParams, k: int, out: wp.array(dtype=wp.vec3),
+                     row0: int):
+    i = wp.tid() + row0
+    out[i] = a[i] * p.scale + p.offset + wp.vec3(float(k), 0.0, 0.0)
+
+
+@wp.kernel(enable_backward=False)
+def _relaunch_one_kernel(p: _RelaunchParams, k: int, out: wp.array(dtype=wp.vec3)):
+    out[0] = p.offset * p.scale + wp.vec3(float(k), 0.0, 0.0)
+
+
+@pytest.mark.parametrize("bands", [True, False])
+def test_relaunch_replays_with_changed_arguments(device, bands, rng):
+    """parallel.Relaunch (the recorded per-frame head launches) gives what a fresh wp.launch gives on every call:
+    changed numbers and new structs are re-set, unchanged ones kept, a new array object or dim re-records."""
+    n = 37
+    a1 = wp.array(rng.random((n, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    a2 = wp.array(rng.random((n, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    out = wp.zeros(n, dtype=wp.vec3, device=device)
+    ref = wp.zeros(n, dtype=wp.vec3, device=device)
+    kern = _relaunch_kernel if bands else _relaunch_one_kernel
+    rl = parallel.Relaunch(kern, bands=bands)
+    calls = [(a1, 2.0, (0.0, 0.0, 0.0), 3), (a1, 2.0, (0.0, 0.0, 0.0), 3), (a1, 0.5, (1.0, 2.0, 3.0), 3),
+             (a1, 0.5, (1.0, 2.0, 3.0), -4), (a2, 0.5, (1.0, 2.0, 3.0), -4), (a2, 7.0, (0.0, -1.0, 0.0), 0)]
+    for arr, scale, off, k in calls:
+        p = _RelaunchParams()
+        p.scale = scale
+        p.offset = wp.vec3(*off)
+        out.zero_()
+        if bands:
+            rl(n, inputs=[arr, p, k], outputs=[out], device=device)
+            wp.launch(kern, dim=n, inputs=[arr, p, k], outputs=[ref, 0], device=device)
+            np.testing.assert_array_equal(out.numpy(), ref.numpy())
+            want = arr.numpy() * np.float32(scale) + np.asarray(off, np.float32) + np.array([k, 0, 0], np.float32)
+            np.testing.assert_allclose(out.numpy(), want, rtol=1e-6, atol=1e-6)
+        else:
+            rl(1, inputs=[p, k], outputs=[out], device=device)
+            want = np.asarray(off, np.float32) * np.float32(scale) + np.array([k, 0, 0], np.float32)
+            np.testing.assert_allclose(out.numpy()[0], want, rtol=1e-6, atol=1e-6)

@@ -18,6 +18,7 @@ class GBufferStage:
 
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
+        self._launch = parallel.Relaunch(gbuffer_kernel, bands=True)  # recorded once on CUDA (per-frame head)
 
     def max_t(self, camera: Camera) -> float:
         """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
@@ -31,8 +32,7 @@ class GBufferStage:
         scene's previous vertex positions."""
         g, ds = gbuffer, self.dscene
         w, h = self.width, self.height
-        parallel.launch(
-            gbuffer_kernel,
+        self._launch(
             dim=(h, w),
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                     camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)],

@@ -219,6 +219,7 @@ class SamplingStage:
         self.num_cache_hits = wp.zeros(1, dtype=wp.int32, device=dev)
         # per-tile (samples, cache hits) of the CPU's band-parallel tile pass (see ``launch_tile_pass``)
         self.tile_counts = wp.zeros(self.tiles if dev.is_cpu else (1, 1), dtype=wp.vec2i, device=dev)
+        self._setup_launch = parallel.Relaunch(frame_setup_kernel, bands=False)  # recorded once on CUDA
         self.skipped: dict = {}
         self._no_cam = CameraParams()
         self._zero = wp.vec3(0.0, 0.0, 0.0)
@@ -316,11 +317,12 @@ class SamplingStage:
         gx, gy = clamp_gaze(gaze, w, h)
         self.skipped = skipped
         self._maps_gbuffer, self._maps_current = gbuffer, False
-        wp.launch(frame_setup_kernel, dim=1,
-                  inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope, self.params.mar_fovea_deg,
-                          NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg), focus_mode, focus,
-                          gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p, do_cache, rot, phase, xi],
-                  outputs=[self.frame_params], device=self.device)
+        self._setup_launch(1,
+                           inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope,
+                                   self.params.mar_fovea_deg, NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg),
+                                   focus_mode, focus, gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p,
+                                   do_cache, rot, phase, xi],
+                           outputs=[self.frame_params], device=self.device)
 
     def launch(self, gbuffer, *, depth_prev=None, valid_prev=None) -> None:
         """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.

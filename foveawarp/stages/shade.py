@@ -33,6 +33,7 @@ class ShadeStage:
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
+        self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -65,7 +66,7 @@ class ShadeStage:
 
     def upload(self, sp: ShadeParams) -> wp.array:
         """Write ``sp`` to the device array the launches read; returns that array."""
-        wp.launch(set_shade_params_kernel, dim=1, inputs=[sp], outputs=[self.params_dev], device=self.device)
+        self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)
         return self.params_dev
 
     def _inputs(self, gbuffer):
