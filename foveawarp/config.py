@@ -81,6 +81,8 @@ def _is_real_scalar(value) -> bool:
 def check_finite(name: str, value) -> float:
     """Return ``value`` as a float, or raise ``ValueError`` when it is not a finite real number (strings and
     bools are rejected)."""
+    if type(value) is float and math.isfinite(value):  # the common case, checked per frame: no more to do
+        return value
     if not _is_real_scalar(value):
         raise ValueError(f"{name} must be a finite real number, got {show(value)}")
     try:
