@@ -332,7 +332,7 @@ def plot(records, folder, name, dev):
                 ax.annotate(p[2], (p[0], p[1]), fontsize=6)
         ax.set_title(f"{key[0]} {key[1]}x{key[2]}", fontsize=8)
         ax.set_xlabel("frame ms", fontsize=7)
-        ax.set_ylabel("PSNR dB (60-frame mean)", fontsize=7)
+        ax.set_ylabel("PSNR dB (mean over the path)", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=5)
     for ax in list(axes.flat)[n:]:
