@@ -403,6 +403,9 @@ class FrameLoop:
             skipped["reconstruct"] = "sampling rate 1: nothing to fill"
         if not cfg.dof.enabled:
             skipped["dof"] = "pinhole camera (aperture 0)"
+        if self._tonemap_fused(strategy):
+            skipped["tonemap"] = ("no separate pass: the " + ("full-resolution shading" if strategy == "full" else
+                                  "Sibson gather") + " writes the tone-mapped image")
         # -- body: fixed arguments (captured as a CUDA graph in steady state) -----------------------------
         if sparse:  # no history: one graph per strategy and field of view
             key = (strategy, "sparse", float(camera.fov_y_deg))
@@ -508,8 +511,9 @@ class FrameLoop:
         with self._stage("reorder"):
             if strategy in ("scan", "tile", "rows", "rows+balance"):
                 self.reorder.run(smap)
+        fused = self._tonemap_fused(strategy)
         with self._stage("shade"):
-            self._trace(smap, strategy)
+            self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
         with self._stage("temporal"):
@@ -518,7 +522,10 @@ class FrameLoop:
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background)
         with self._stage("reconstruct"):
             if foveated:
-                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon)
+                sc = cfg.shading
+                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon,
+                                     display=self.image if fused else None, exposure=float(sc.exposure),
+                                     white_point=float(sc.white_point))
                 hdr = self.recon
             else:
                 hdr = self.radiance
@@ -528,7 +535,19 @@ class FrameLoop:
                              fov_y_deg=camera.fov_y_deg)
                 hdr = self.dof_out
         with self._stage("tonemap"):
-            self._tonemap(hdr, self.image)
+            if not fused:
+                self._tonemap(hdr, self.image)
+
+    def _tonemap_fused(self, strategy: str) -> bool:
+        """Whether the frame's last pass writes the display image itself (no separate tone-map pass): nothing
+        may follow it (no depth of field), and it must be the full-resolution shading (with no indirect light
+        added after it) or the bounded Sibson gather."""
+        if self.config.dof.enabled:
+            return False
+        if strategy == "full":
+            return self.indirect is None
+        rc = self.reconstruct
+        return bool(rc.config.sibson and not rc.exact_sibson)
 
     def _sparse_body(self, smap, strategy: str) -> None:
         """The body of a sparse-G-buffer frame: sampling map from the coarse G-buffer, compaction, primary rays
@@ -544,10 +563,14 @@ class FrameLoop:
                                     self.radiance_stoch)
         with self._stage("indirect"):
             self._indirect(smap, list_strategy)
+        fused = self._tonemap_fused(strategy)
         with self._stage("reconstruct"):
-            self.reconstruct.run(self.radiance, smap, self.recon)
+            sc = self.config.shading
+            self.reconstruct.run(self.radiance, smap, self.recon, display=self.image if fused else None,
+                                 exposure=float(sc.exposure), white_point=float(sc.white_point))
         with self._stage("tonemap"):
-            self._tonemap(self.recon, self.image)
+            if not fused:
+                self._tonemap(self.recon, self.image)
 
     def _run_body(self, key, body) -> str:
         """Run ``body`` eagerly, or (CUDA, graphs on) replay its captured graph for ``key``: the first frame of
@@ -583,11 +606,12 @@ class FrameLoop:
         r += self.dscene.num_area_lights * sc.area_light_samples * (1 if sc.shadows else 0)
         return r + sc.ao_samples
 
-    def _trace(self, smap, strategy: str) -> None:
-        """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``."""
+    def _trace(self, smap, strategy: str, display=None) -> None:
+        """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``
+        (``display``: the full-resolution shading also writes the tone-mapped image)."""
         g, out, st = self.gbuffer, self.radiance, self.radiance_stoch
         if strategy == "full":
-            self.shade.full(g, out, st)
+            self.shade.full(g, out, st, display)
         elif strategy == "none":
             self.shade.masked(g, smap, out, st)
         elif strategy in ("rows", "rows+balance"):

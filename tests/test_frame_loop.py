@@ -329,3 +329,35 @@ def test_auto_reorder_strategy_resolves_per_device(device):
         assert f.stats["strategy"] == want
         imgs[s] = f.numpy().copy()
     np.testing.assert_array_equal(imgs["auto"], imgs[want])
+
+
+@pytest.mark.parametrize("policy", ["foveated", "full"])
+def test_tone_map_fused_into_the_last_pass(device, policy):
+    """Without DoF (and, at full resolution, without indirect light) the last pass writes the display image: it
+    equals the tone-map kernel applied to the HDR result bit for bit (and a NumPy Hable curve within 1e-6); with
+    DoF the separate pass runs."""
+    import warp as wp
+
+    from foveawarp.kernels.tonemap import tonemap_kernel
+
+    scene = fw.load_scene("cornell")
+    for dof in (False, True):
+        over = {"dof": {"aperture_m": 0.05}} if dof else {}
+        loop = fw.FrameLoop(scene, W, H, config=fw.Config().with_(**over), device=device, policy=policy)
+        for i in range(3):
+            f = loop.render(scene.camera_at(i / 30), gaze_px=(40.0 + 2 * i, 30.0))
+        assert ("tonemap" in f.stats["skipped"]) == (not dof)
+        hdr = loop.dof_out if dof else (loop.recon if policy == "foveated" else loop.radiance)
+        sc = loop.config.shading
+        again = wp.zeros((H, W), dtype=wp.vec3, device=device)
+        wp.launch(tonemap_kernel, dim=(H, W), inputs=[hdr, float(sc.exposure), float(sc.white_point)],
+                  outputs=[again, 0], device=device)
+        np.testing.assert_array_equal(f.numpy(), again.numpy())
+
+        def hable(x):
+            a, b, c, d, e, g = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
+            return x * (g * (a * x + c * b) - e * (a * x + b)) / (g * (x * (a * x + b) + d * g))
+
+        v = np.maximum(hdr.numpy().astype(np.float64), 0.0)
+        want = np.clip(hable(sc.exposure * v) / hable(sc.white_point), 0.0, 1.0) ** (1.0 / 2.2)
+        np.testing.assert_allclose(f.numpy(), want, atol=1e-6, rtol=0)

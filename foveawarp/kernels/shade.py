@@ -9,6 +9,7 @@ ambient, emission). The temporal resolve accumulates only the stochastic part ov
 import warp as wp
 
 from .rng import cosine_hemisphere, pixel_rng
+from .tonemap import tonemap_rgb
 
 
 @wp.struct
@@ -201,14 +202,22 @@ def shade_full_kernel(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
+    exposure: float,
+    white: float,
+    to_display: int,
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    display: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
+    """Shade every pixel; ``to_display`` != 0: also write its tone-mapped value to ``display`` (the frame's
+    last pass when no indirect light or depth of field follows: no separate tone-map pass)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     sp = spa[0]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+    if to_display != 0:
+        display[y, x] = tonemap_rgb(out[y, x], exposure, white)
 
 
 @wp.kernel(enable_backward=False)

@@ -23,6 +23,7 @@ sum that overflows float32 (colors near float max) is redone with scaled terms, 
 import warp as wp
 
 from .jfa import RTILE, finite_or_zero
+from .tonemap import tonemap_rgb
 
 
 @wp.func
@@ -96,14 +97,22 @@ def sibson_gather_kernel(
     color_in: wp.array2d(dtype=wp.vec3),
     window: int,
     max_r2: wp.array(dtype=wp.int32),
+    exposure: float,
+    white: float,
+    to_display: int,
     color_out: wp.array2d(dtype=wp.vec3),
+    display: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels."""
+    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
+    also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] != wp.uint8(0):  # a seed keeps its color
-        color_out[y, x] = finite_or_zero(color_in[y, x])
+        c = finite_or_zero(color_in[y, x])
+        color_out[y, x] = c
+        if to_display != 0:
+            display[y, x] = tonemap_rgb(c, exposure, white)
         return
     # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc ...
     rw = wp.min(window, isqrt(max_r2[0]))
@@ -115,7 +124,10 @@ def sibson_gather_kernel(
         for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + rw, w - 1) // RTILE + 1):
             loc = wp.max(loc, tile_r2[ty, tx])
     rw = wp.min(rw, isqrt(loc))
-    color_out[y, x] = disc_mean(mask, vor, r2, x, y, rw, loc)
+    c = disc_mean(mask, vor, r2, x, y, rw, loc)
+    color_out[y, x] = c
+    if to_display != 0:
+        display[y, x] = tonemap_rgb(c, exposure, white)
 
 
 @wp.kernel(enable_backward=False)

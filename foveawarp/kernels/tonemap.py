@@ -25,11 +25,17 @@ def tonemap_value(x: float, exposure: float, white: float) -> float:
     return wp.pow(t, 1.0 / 2.2)
 
 
+@wp.func
+def tonemap_rgb(c: wp.vec3, exposure: float, white: float) -> wp.vec3:
+    """``tonemap_value`` per channel: the display value of linear radiance ``c`` (also applied inside the last
+    pass of a frame, the Sibson gather or the full-resolution shading, when nothing runs after it)."""
+    return wp.vec3(tonemap_value(c[0], exposure, white), tonemap_value(c[1], exposure, white),
+                   tonemap_value(c[2], exposure, white))
+
+
 @wp.kernel(enable_backward=False)
 def tonemap_kernel(hdr: wp.array2d(dtype=wp.vec3), exposure: float, white: float, out: wp.array2d(dtype=wp.vec3),
                    row0: int):
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    c = hdr[y, x]
-    out[y, x] = wp.vec3(tonemap_value(c[0], exposure, white), tonemap_value(c[1], exposure, white),
-                        tonemap_value(c[2], exposure, white))
+    out[y, x] = tonemap_rgb(hdr[y, x], exposure, white)

@@ -284,8 +284,10 @@ class ReconstructStage:
         self._check("color_out", color_out, wp.vec3)
         self._interpolate(color_in, color_out, nearest, vor_ready=False)
 
-    def _interpolate(self, color_in, color_out, nearest, vor_ready: bool) -> None:
-        """``vor_ready``: the last pass of the JFA just run wrote ``voronoi_color`` for ``color_in``."""
+    def _interpolate(self, color_in, color_out, nearest, vor_ready: bool, display=None, tone=(1.0, 1.0)) -> bool:
+        """``vor_ready``: the last pass of the JFA just run wrote ``voronoi_color`` for ``color_in``. ``display``:
+        also write the tone-mapped result there (``tone`` = exposure, white point) when the path allows it (the
+        bounded Sibson gather); returns whether it did."""
         dev = self.device
         dim = (self.height, self.width)
         if nearest is not None:
@@ -309,7 +311,7 @@ class ReconstructStage:
         if not sibson:
             parallel.launch(voronoi_fill_kernel, dim=dim, inputs=[mask, self.nearest, color_in], outputs=[color_out],
                             device=dev)
-            return
+            return False
         if not vor_ready:
             parallel.launch(voronoi_color_kernel, dim=dim, inputs=[mask, self.nearest, color_in],
                             outputs=[self.voronoi_color], device=dev)
@@ -319,21 +321,32 @@ class ReconstructStage:
             wp.launch(sibson_scatter_kernel, dim=dim, inputs=near, outputs=[self._accum], device=dev)
             parallel.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                             outputs=[color_out], device=dev)
-        else:
-            parallel.launch(sibson_gather_kernel, dim=dim,
-                            inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq],
-                            outputs=[color_out], device=dev)
+            return False
+        parallel.launch(sibson_gather_kernel, dim=dim,
+                        inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
+                                float(tone[0]), float(tone[1]), 0 if display is None else 1],
+                        outputs=[color_out, self._dummy3 if display is None else display], device=dev)
+        return display is not None
 
-    def run(self, color_in, seed_mask, color_out) -> None:
+    def run(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,
+            white_point: float = 1.0) -> bool:
         """One frame: JFA over ``seed_mask`` ((H, W) uint8), then interpolation of ``color_in`` ((H, W) vec3,
         read at seeds only) into ``color_out`` ((H, W) vec3; may not alias ``color_in``). Seeds keep their
-        color. Launches only: no allocation, no host synchronization (CUDA-graph capturable)."""
+        color. Launches only: no allocation, no host synchronization (CUDA-graph capturable).
+
+        ``display`` ((H, W) vec3, or None): the bounded Sibson gather also writes the tone-mapped result there
+        (``exposure``, ``white_point`` as in ShadingConfig), saving the separate tone-map pass. Returns whether
+        it did (False on the other paths: plain Voronoi, exact Sibson; the caller tone-maps ``color_out``)."""
         if color_in is color_out:
             raise ValueError("color_out must be a different array from color_in")
         self._check("color_in", color_in, wp.vec3)
         self._check("color_out", color_out, wp.vec3)
+        if display is not None:
+            self._check("display", display, wp.vec3)
         if self.config.sibson or self.exact_sibson:
             self.run_jfa(seed_mask, color_in=color_in)
-            self._interpolate(color_in, color_out, None, vor_ready=True)
-        else:  # the last JFA pass writes the Voronoi colors
-            self.run_jfa(seed_mask, color_in=color_in, color_out=color_out)
+            return self._interpolate(color_in, color_out, None, vor_ready=True, display=display,
+                                     tone=(exposure, white_point))
+        # the last JFA pass writes the Voronoi colors
+        self.run_jfa(seed_mask, color_in=color_in, color_out=color_out)
+        return False

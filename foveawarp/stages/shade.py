@@ -34,6 +34,7 @@ class ShadeStage:
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
         self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
+        self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -73,9 +74,15 @@ class ShadeStage:
         g, ds = gbuffer, self.dscene
         return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
-    def full(self, gbuffer, out, out_stoch) -> None:
+    def full(self, gbuffer, out, out_stoch, display=None) -> None:
+        """Shade every pixel into ``out`` (and ``out_stoch``); ``display`` (an (H, W) vec3 array, or None): also
+        the tone-mapped values, with the config's exposure and white point, in the same pass."""
+        sc = self.config
+        disp = self._dummy_display if display is None else display
         parallel.launch(shade_full_kernel, dim=(self.height, self.width),
-                        inputs=[self.params_dev, *self._inputs(gbuffer)], outputs=[out, out_stoch], device=self.device)
+                        inputs=[self.params_dev, *self._inputs(gbuffer), float(sc.exposure), float(sc.white_point),
+                                0 if display is None else 1],
+                        outputs=[out, out_stoch, disp], device=self.device)
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
