@@ -271,8 +271,11 @@ class FrameLoop:
             self._advance_scene(time)
         with self._stage("gbuffer"):
             self._gbuffer(camera, self._ref_prev_camera or camera)
+        # the shading writes the display image itself when nothing follows it (as in render's full path)
+        fused = self.indirect is None and not (self.config.dof.enabled and dof)
         with self._stage("shade"):
-            self.shade_full(camera)
+            self.upload_shade_params(camera)
+            self.shade.full(self.gbuffer, self.radiance, self.radiance_stoch, self.image if fused else None)
         with self._stage("indirect"):
             if self.indirect is not None:
                 self.indirect.update()
@@ -289,7 +292,8 @@ class FrameLoop:
                              fov_y_deg=camera.fov_y_deg)
                 hdr = self.dof_out
         with self._stage("tonemap"):
-            self._tonemap(hdr, self.image)
+            if not fused:
+                self._tonemap(hdr, self.image)
         wp.synchronize_device(self.device)
         n = self.width * self.height
         stats = dict(self._stats)
