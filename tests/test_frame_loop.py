@@ -361,3 +361,22 @@ def test_tone_map_fused_into_the_last_pass(device, policy):
         v = np.maximum(hdr.numpy().astype(np.float64), 0.0)
         want = np.clip(hable(sc.exposure * v) / hable(sc.white_point), 0.0, 1.0) ** (1.0 / 2.2)
         np.testing.assert_allclose(f.numpy(), want, atol=1e-6, rtol=0)
+
+
+def test_render_reference_tone_map_fused(device):
+    """render_reference writes the display image from its shading pass when nothing follows (no DoF, no indirect
+    light): equal bit for bit to the tone-map kernel applied to its radiance; with DoF the separate pass runs on
+    the DoF output."""
+    import warp as wp
+
+    from foveawarp.kernels.tonemap import tonemap_kernel
+
+    scene = fw.load_scene("cornell")
+    for over, src in (({}, "radiance"), ({"dof": {"aperture_m": 0.05}}, "dof_out")):
+        loop = fw.FrameLoop(scene, W, H, config=fw.Config().with_(**over), device=device)
+        f = loop.render_reference(scene.camera_at(0.2), gaze_px=(40.0, 30.0))
+        sc = loop.config.shading
+        again = wp.zeros((H, W), dtype=wp.vec3, device=device)
+        wp.launch(tonemap_kernel, dim=(H, W), inputs=[getattr(loop, src), float(sc.exposure), float(sc.white_point)],
+                  outputs=[again, 0], device=device)
+        np.testing.assert_array_equal(f.numpy(), again.numpy())
