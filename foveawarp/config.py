@@ -392,12 +392,12 @@ JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")
 VORONOI_VARIANTS = JFA_VARIANTS + ("disc", "auto")
 
 
-def resolve_voronoi_variant(variant: str, device, guaranteed: bool) -> str:
+def resolve_voronoi_variant(variant: str, guaranteed: bool) -> str:
     """The Voronoi step a reconstruction runs: "auto" is "disc" when the seed masks carry the jitter-block
     guarantee (``guaranteed``: a FrameLoop's always do), else "1+jfa". The disc scan is one launch where 1+JFA
     takes a pass per step: on the CPU (cornell 640x360, 16 threads) 23.2 against 28.4 ms per frame, on the H100
     0.19-0.22 ms less GPU time per 4K frame (cornell, bunny, city), at equal quality (it is exact). Any other
-    value unchanged. ``device`` is accepted for symmetry with ``resolve_reorder_strategy``."""
+    value unchanged."""
     check_choice("ReconstructionConfig.jfa_variant", variant, VORONOI_VARIANTS)
     if variant != "auto":
         return variant

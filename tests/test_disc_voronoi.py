@@ -129,12 +129,12 @@ def test_auto_variant_resolves_by_guarantee(device):
     from foveawarp.stages.reconstruct import ReconstructStage, jfa_steps
 
     assert fw.Config().reconstruction.jfa_variant == "auto"
-    assert resolve_voronoi_variant("auto", device, True) == "disc"
-    assert resolve_voronoi_variant("auto", device, False) == "1+jfa"
+    assert resolve_voronoi_variant("auto", True) == "disc"
+    assert resolve_voronoi_variant("auto", False) == "1+jfa"
     for v in JFA_VARIANTS + ("disc",):
-        assert resolve_voronoi_variant(v, device, True) == v
+        assert resolve_voronoi_variant(v, True) == v
     with pytest.raises(ValueError, match="jfa_variant"):
-        resolve_voronoi_variant("voronoi", device, True)
+        resolve_voronoi_variant("voronoi", True)
     assert jfa_steps(64, 48, "auto") == jfa_steps(64, 48, "1+jfa")
     assert ReconstructStage(32, 24, device=device).variant == "1+jfa"
     scene = fw.load_scene("cornell")

@@ -102,8 +102,7 @@ def jfa_steps(width: int, height: int, variant: str = "1+jfa", start_step: Optio
     "1+jfa" prepends a step-1 pass; "auto" is "1+jfa"; "disc" has none."""
     w, h = check_image_size(width, height)
     check_choice("variant", variant, VORONOI_VARIANTS)
-    if variant == "auto":  # no guarantee known here (see resolve_voronoi_variant)
-        variant = "1+jfa"
+    variant = resolve_voronoi_variant(variant, False)  # no guarantee known here: "auto" is "1+jfa"
     if variant == "disc":
         return []  # no jump flooding: the last pass scans the disc
     n = 1
@@ -183,7 +182,7 @@ class ReconstructStage:
         else:
             self.start_step = jfa_start_step_for_block(self.block) if config.bounded_jfa_start else None
         # the Voronoi step run ("auto" resolved: "disc" needs the block guarantee, which ``guaranteed`` promises)
-        self.variant = resolve_voronoi_variant(config.jfa_variant, self.device, bool(guaranteed))
+        self.variant = resolve_voronoi_variant(config.jfa_variant, bool(guaranteed))
         self.steps = jfa_steps(self.width, self.height, self.variant, self.start_step)
 
         shape = (self.height, self.width)
