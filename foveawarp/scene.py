@@ -347,6 +347,22 @@ class DeviceScene:
         self.ray_eps = 1.0e-4 * self.extent
         self.time = None
         self.moved_last_update = False
+        self._face_lab = None
+
+    @property
+    def face_lab(self):
+        """(F + 1,) vec3 wp.array: the CIE-Lab of each face's albedo, then of the miss albedo (black), computed
+        once on the device (``kernels.saliency.face_lab_kernel``); the G-buffer gathers the sampling map's
+        Lab albedo from it."""
+        if self._face_lab is None:
+            import warp as wp
+
+            from .kernels.saliency import face_lab_kernel
+
+            n = self.face_albedo.shape[0] + 1
+            self._face_lab = wp.empty(n, dtype=wp.vec3, device=self.device)
+            wp.launch(face_lab_kernel, dim=n, inputs=[self.face_albedo], outputs=[self._face_lab], device=self.device)
+        return self._face_lab
 
     def set_time(self, t: float) -> bool:
         """Move animated objects to time ``t``; previous positions go to ``points_prev``. Returns whether

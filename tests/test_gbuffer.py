@@ -155,3 +155,77 @@ def test_object_motion_velocity(device):
     # prev_dist: the block's points at their previous place, seen from the (static) eye
     np.testing.assert_allclose(g["prev_dist"][on_block], np.linalg.norm(prev_pos - cam.eye, axis=1), rtol=1e-4)
     np.testing.assert_allclose(g["prev_dist"][static], g["depth"][static], rtol=1e-4)
+
+
+# -- the CIE-Lab albedo the G-buffer writes for the sampling map (its prepass folded into the G-buffer) ----------
+
+
+def _lab_reference(albedo):
+    """Independent CIE-Lab of linear RGB (skimage's rgb2lab of the sRGB-encoded values decodes them again)."""
+    from skimage.color import rgb2lab
+
+    a = np.asarray(albedo, np.float64)
+    srgb = np.where(a <= 0.0031308, 12.92 * a, 1.055 * np.power(np.maximum(a, 0.0031308), 1.0 / 2.4) - 0.055)
+    return rgb2lab(srgb)
+
+
+@pytest.mark.parametrize("name", ["cornell", "eyechart"])
+def test_gbuffer_writes_the_lab_albedo(name, device):
+    """With ``lab=`` the G-buffer also writes each pixel's CIE-Lab albedo from the scene's per-face table: bit for
+    bit what the sampling stage's Lab prepass computes from the albedo it wrote (misses included), and within
+    2e-3 Lab units of skimage; ``write_lab=False`` leaves the array alone."""
+    import warp as wp
+
+    from foveawarp.kernels.saliency import lab_kernel
+
+    scene = fw.load_scene(name)
+    loop = fw.FrameLoop(scene, W, H, device=device)
+    cam = scene.camera
+    lab = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
+    loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=lab)
+    g = loop.gbuffer
+    hit = g.hit.numpy()
+    assert hit.sum() > 0
+    prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
+    wp.launch(lab_kernel, dim=(H, W), inputs=[g.albedo], outputs=[prepass, 0], device=loop.device)
+    assert np.array_equal(lab.numpy(), prepass.numpy())
+    assert np.abs(lab.numpy() - _lab_reference(g.albedo.numpy())).max() < 2e-3
+    # the table itself: one entry per face, then black for misses
+    table = loop.dscene.face_lab.numpy()
+    assert table.shape == (scene.num_triangles + 1, 3)
+    assert np.abs(table[:-1] - _lab_reference(scene.face_albedo[None])[0]).max() < 2e-3
+    assert np.abs(table[-1]).max() < 1e-4
+    # write_lab=False: untouched
+    lab.fill_(wp.vec3(7.0, 7.0, 7.0))
+    loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=lab, write_lab=False)
+    assert np.all(lab.numpy() == 7.0)
+
+
+def test_gbuffer_lab_argument_is_checked(device):
+    import warp as wp
+
+    loop = fw.FrameLoop("cornell", W, H, device=device)
+    cam = loop.scene.camera
+    for bad in (wp.zeros((H, W + 1), dtype=wp.vec3, device=loop.device),
+                wp.zeros((H, W), dtype=float, device=loop.device), np.zeros((H, W, 3))):
+        with pytest.raises(ValueError, match="lab must be"):
+            loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=bad)
+
+
+def test_frame_loop_lab_comes_from_the_gbuffer(device):
+    """A foveated frame's sampling map reads the Lab albedo the G-buffer wrote (no prepass): it equals the
+    prepass of the frame's albedo; a full-resolution frame (render_reference) does not write it."""
+    import warp as wp
+
+    from foveawarp.kernels.saliency import lab_kernel
+
+    loop = fw.FrameLoop("eyechart", W, H, device=device, policy="foveated")
+    scene = loop.scene
+    loop.render(scene.camera_at(0.0), time=0.0)
+    prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
+    wp.launch(lab_kernel, dim=(H, W), inputs=[loop.gbuffer.albedo], outputs=[prepass, 0], device=loop.device)
+    assert np.array_equal(loop.sampling.lab.numpy(), prepass.numpy())
+    assert np.abs(prepass.numpy()).max() > 1.0  # a real image, not zeros
+    loop.sampling.lab.fill_(wp.vec3(7.0, 7.0, 7.0))
+    loop.render_reference(scene.camera_at(0.1), time=0.1)
+    assert np.all(loop.sampling.lab.numpy() == 7.0)

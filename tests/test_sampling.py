@@ -486,3 +486,66 @@ def test_eccentricity_far_off_screen_gaze_has_no_cancellation(device):
         clamped = (min(max(gaze[0], -1e6), w + 1e6), min(max(gaze[1], -1e6), h + 1e6))
         err = np.abs(got - ref_eccentricity(w, h, clamped, fov)).max()
         assert err < 5e-4, (w, h, fov, gaze, err)
+
+
+# -- eq. 2's plateaus without the arc tangent (pixel_probability) -------------------------------------------------
+
+from foveawarp.kernels.sampling import (  # noqa: E402
+    FrameParams,
+    SamplingParams,
+    eccentricity_at,
+    foveation_prob,
+    pixel_probability,
+)
+
+
+@wp.kernel(enable_backward=False)
+def _probability_both_ways_kernel(sp: SamplingParams, frame: wp.array(dtype=FrameParams),
+                                  fast: wp.array2d(dtype=float), slow: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    fp = frame[0]
+    w = fast.shape[1]
+    h = fast.shape[0]
+    fast[y, x] = pixel_probability(x, y, w, h, sp, fp)
+    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+    slow[y, x] = foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
+
+
+def _both_ways(device, w, h, fov, gaze, cfg, min_probability=None):
+    cam = fw.Camera(fov_y_deg=fov)
+    stage = SamplingStage(w, h, cfg, device=device)
+    stage.set_frame(_synthetic_gbuffer(w, h, device), cam, gaze, 0, moving=False, first_frame=True,
+                    min_probability=min_probability)
+    fast = wp.zeros((h, w), dtype=float, device=device)
+    slow = wp.zeros((h, w), dtype=float, device=device)
+    wp.launch(_probability_both_ways_kernel, dim=(h, w), inputs=[stage.params, stage.frame_params],
+              outputs=[fast, slow], device=device)
+    return fast.numpy(), slow.numpy(), stage.frame_params.numpy()[0]
+
+
+@pytest.mark.parametrize("fovea,falloff", [(5.0, 12.0), (0.0, 12.0), (5.0, None), (30.0, 12.0), (2.0, 0.5)])
+def test_plateau_shortcut_equals_the_formula(device, fovea, falloff):
+    """Inside the fovea and beyond the eccentricity where p reaches xi, pixel_probability skips the arc tangent:
+    its value equals eccentricity_at + foveation_prob bit for bit at every pixel, and with the defaults both
+    plateaus are in use (their tangents are set)."""
+    cfg = fw.Config().with_(foveation={"fovea_deg": fovea, "falloff_deg": falloff})
+    for gaze in [(40.0, 30.0), (3.0, 60.0), (-500.0, 20.0)]:
+        fast, slow, fp = _both_ways(device, 96, 64, 60.0, gaze, cfg)
+        assert np.array_equal(fast, slow)
+    if fovea > 0.0:
+        assert fp["tan2_fovea"] > 0.0
+    if falloff is not None:
+        assert fp["tan2_floor"] > 0.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(gx=st.floats(-1e6, 1e6), gy=st.floats(-1e6, 1e6), fov=st.floats(1.0, 179.0), m=st.floats(0.001, 1.0),
+       b=st.floats(0.001, 1.0), xi=st.floats(0.0, 1.0), fovea=st.floats(0.0, 180.0),
+       falloff=st.one_of(st.none(), st.floats(0.01, 180.0)), boost=st.one_of(st.none(), st.floats(0.0, 1.0)))
+def test_plateau_shortcut_property(gx, gy, fov, m, b, xi, fovea, falloff, boost):
+    """Any gaze, field of view, MAR line, floor, fovea and falloff: the shortcut never changes a value."""
+    cfg = fw.Config().with_(foveation={"mar_slope": m, "mar_fovea_deg": b, "min_probability": xi,
+                                       "fovea_deg": fovea, "falloff_deg": falloff})
+    fast, slow, _ = _both_ways("cpu", 23, 17, fov, (gx, gy), cfg, min_probability=boost)
+    assert np.array_equal(fast, slow)
+    assert np.all(np.isfinite(fast))

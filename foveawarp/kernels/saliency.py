@@ -87,6 +87,18 @@ def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3)
 
 
 @wp.kernel(enable_backward=False)
+def face_lab_kernel(face_albedo: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    """CIE-Lab of every face's albedo, ``out[f]`` for f < F, and of the miss albedo (black) in ``out[F]``:
+    the table the G-buffer gathers per pixel (``out`` has F + 1 entries), the same values ``lab_kernel``
+    computes from the G-buffer's albedo, without a cube root per pixel."""
+    i = wp.tid()
+    c = wp.vec3(0.0, 0.0, 0.0)
+    if i < face_albedo.shape[0]:
+        c = face_albedo[i]
+    out[i] = linear_rgb_to_lab(c)
+
+
+@wp.kernel(enable_backward=False)
 def gradient_kernel(a: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=float), row0: int):
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)

@@ -70,6 +70,12 @@ class FrameParams:
     rot: int  # per-frame rank rotation, in [0, K)
     phase: float  # per-frame jitter phase, in [0, 1)
     xi: float  # this frame's minimum probability (SamplingParams.xi, or higher while a still view converges)
+    # eq. 2's plateaus without the arc tangent (pixel_probability): with g x p and g.p of eccentricity_at, a pixel
+    # with |g x p|^2 < tan2_fovea (g.p)^2 lies inside the fovea (p = 1), one with |g x p|^2 > tan2_floor (g.p)^2 or
+    # g.p <= 0 lies where p is clamped to xi. Both tangents sit ECC_MARGIN_DEG inside the true boundaries, so
+    # the pixels they classify get exactly the value the formula gives; -1 disables a test.
+    tan2_fovea: float
+    tan2_floor: float
 
 
 # -- geometry -----------------------------------------------------------------------------------------------
@@ -87,14 +93,15 @@ def angle_deg(a: wp.vec3, b: wp.vec3) -> float:
     return wp.degrees(wp.atan2(wp.length(wp.cross(a, b)), wp.dot(a, b)))
 
 
-@wp.func
-def eccentricity_at(px: float, py: float, gaze: wp.vec2, width: float, height: float, tan_half: float) -> float:
-    """Angle in degrees at the eye between the rays through the gaze point and through (px, py).
+# how far inside eq. 2's plateau boundaries the arc-tangent-free classification stays (degrees): far above the
+# float error of either computation (~1e-5 deg), far below anything a sample map could show
+ECC_MARGIN_DEG = 1.0e-3
 
-    angle = atan2(|g x p|, g.p) with g x p = g x d, d = p - g formed from pixel differences: full relative
-    accuracy near the gaze (small cross product) and, with g.p taken directly and the cross product's z from
-    whichever form cancels less, for gazes far off screen too.
-    """
+
+@wp.func
+def eccentricity_terms(px: float, py: float, gaze: wp.vec2, width: float, height: float, tan_half: float):
+    """(g x p, g.p) for the rays g through the gaze point and p through (px, py): the eccentricity is
+    atan2(|g x p|, g.p) (see :func:`eccentricity_at`)."""
     g = plane_dir(gaze[0], gaze[1], width, height, tan_half)
     p = plane_dir(px, py, width, height, tan_half)
     dx = 2.0 * (px - gaze[0]) / width * tan_half * (width / height)
@@ -107,8 +114,19 @@ def eccentricity_at(px: float, py: float, gaze: wp.vec2, width: float, height: f
     z = z1
     if wp.abs(g[0] * p[1]) + wp.abs(g[1] * p[0]) < wp.abs(g[0] * dy) + wp.abs(g[1] * dx):
         z = z2
-    c = wp.vec3(-dy, dx, z)
-    return wp.degrees(wp.atan2(wp.length(c), wp.dot(g, p)))
+    return wp.vec3(-dy, dx, z), wp.dot(g, p)
+
+
+@wp.func
+def eccentricity_at(px: float, py: float, gaze: wp.vec2, width: float, height: float, tan_half: float) -> float:
+    """Angle in degrees at the eye between the rays through the gaze point and through (px, py).
+
+    angle = atan2(|g x p|, g.p) with g x p = g x d, d = p - g formed from pixel differences: full relative
+    accuracy near the gaze (small cross product) and, with g.p taken directly and the cross product's z from
+    whichever form cancels less, for gazes far off screen too.
+    """
+    c, d = eccentricity_terms(px, py, gaze, width, height, tan_half)
+    return wp.degrees(wp.atan2(wp.length(c), d))
 
 
 @wp.func
@@ -158,8 +176,18 @@ def foveation_prob(e_deg: float, mar_slope: float, mar_fovea_deg: float, w_min_d
 
 @wp.func
 def pixel_probability(x: int, y: int, w: int, h: int, sp: SamplingParams, fp: FrameParams) -> float:
-    """Thesis eq. 2 at pixel (x, y)'s centre for this frame's gaze (with the full-rate fovea)."""
-    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+    """Thesis eq. 2 at pixel (x, y)'s centre for this frame's gaze (with the full-rate fovea). Pixels well inside
+    the fovea or well beyond the eccentricity where p reaches xi take their plateau value without the arc
+    tangent (FrameParams.tan2_fovea / tan2_floor): the same value, for most of the screen's pixels."""
+    c, d = eccentricity_terms(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+    c2 = wp.dot(c, c)
+    if c2 < 1.0e30 and wp.abs(d) < 1.0e15:  # finite and no overflow in the products below
+        dd = d * d
+        if d > 0.0 and c2 < fp.tan2_fovea * dd:
+            return 1.0
+        if fp.tan2_floor >= 0.0 and (d <= 0.0 or c2 > fp.tan2_floor * dd):
+            return fp.xi
+    e = wp.degrees(wp.atan2(wp.sqrt(c2), d))
     return foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
 
 
@@ -240,6 +268,7 @@ def frame_setup_kernel(
     rot: int,
     phase: float,
     xi: float,
+    fovea_deg: float,
     out: wp.array(dtype=FrameParams),
 ):
     """One thread: derive the per-frame scalars on the device (no host round trip for the focus depth)."""
@@ -272,6 +301,19 @@ def frame_setup_kernel(
     f.rot = rot
     f.phase = phase
     f.xi = xi
+    # eq. 2's plateaus (pixel_probability): inside fovea_deg p = 1; beyond e_floor, where
+    # 1 - (m e + b - w_min) / w_far falls to xi, p = xi (and e > fovea_deg there too)
+    f.tan2_fovea = -1.0
+    lo = fovea_deg - ECC_MARGIN_DEG
+    if lo > 0.0 and lo < 89.0:
+        t = wp.tan(wp.radians(lo))
+        f.tan2_fovea = t * t
+    f.tan2_floor = -1.0
+    e_floor = ((1.0 - xi) * f.w_far_deg + f.w_min_deg - mar_fovea_deg) / mar_slope
+    hi = wp.max(e_floor, fovea_deg) + ECC_MARGIN_DEG
+    if hi > 0.0 and hi < 89.0:
+        t = wp.tan(wp.radians(hi))
+        f.tan2_floor = t * t
     out[0] = f
 
 

@@ -57,7 +57,7 @@ def _frame(width, height, gaze_px, fov_y_deg, dev, *, mar_slope=1.0, mar_fovea_d
     wp.launch(frame_setup_kernel, dim=1,
               inputs=[gx, gy, w, h, math.tan(math.radians(fov) * 0.5), float(mar_slope), float(mar_fovea_deg),
                       float(falloff_deg), 0, 0.0, dummy_d, dummy_h, 0, 0, CameraParams(), wp.vec3(0.0, 0.0, 0.0), 0,
-                      rot, phase, 0.0],
+                      rot, phase, 0.0, 0.0],
               outputs=[out], device=dev)
     return out, w, h
 

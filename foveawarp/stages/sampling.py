@@ -321,10 +321,10 @@ class SamplingStage:
                            inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope,
                                    self.params.mar_fovea_deg, NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg),
                                    focus_mode, focus, gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p,
-                                   do_cache, rot, phase, xi],
+                                   do_cache, rot, phase, xi, float(fc.fovea_deg)],
                            outputs=[self.frame_params], device=self.device)
 
-    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None) -> None:
+    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, lab_ready: bool = False) -> None:
         """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.
 
         Every argument is fixed (buffers and constants; the per-frame values are read from
@@ -344,7 +344,7 @@ class SamplingStage:
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
-        if self._lab_on:
+        if self._lab_on and not lab_ready:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
         parallel.launch(sampling_map_kernel, dim=(h, w),
                         inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
