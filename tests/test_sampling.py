@@ -493,6 +493,7 @@ def test_eccentricity_far_off_screen_gaze_has_no_cancellation(device):
 from foveawarp.kernels.sampling import (  # noqa: E402
     FrameParams,
     SamplingParams,
+    dither_rank,
     eccentricity_at,
     foveation_prob,
     pixel_probability,
@@ -549,3 +550,42 @@ def test_plateau_shortcut_property(gx, gy, fov, m, b, xi, fovea, falloff, boost)
     fast, slow, _ = _both_ways("cpu", 23, 17, fov, (gx, gy), cfg, min_probability=boost)
     assert np.array_equal(fast, slow)
     assert np.all(np.isfinite(fast))
+
+
+# -- the per-pixel rank against an independent NumPy model of its definition -------------------------------------
+
+
+def _pcg(v):
+    v = np.asarray(v, dtype=np.uint64) & 0xFFFFFFFF
+    b = (v * 747796405 + 2891336453) & 0xFFFFFFFF
+    c = (((b >> ((b >> 28) + 4)) ^ b) * 277803737) & 0xFFFFFFFF
+    return (c >> 22) ^ c
+
+
+@wp.kernel(enable_backward=False)
+def _rank_kernel(sp: SamplingParams, ranks: wp.array2d(dtype=wp.int32), rot: int, out: wp.array2d(dtype=wp.int32)):
+    y, x = wp.tid()
+    out[y, x] = dither_rank(x, y, ranks, sp, rot)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5, 6, 8, 16])
+def test_dither_rank_matches_numpy_model(device, k):
+    """rank = (blue-noise rank + tile offset + rot) mod K, tile offset = Warp's PCG draw (rand_init(seed, tile),
+    then randi mod K), for power-of-two blocks (shift and mask path) and others (division path)."""
+    from foveawarp.stages.sampling import sampling_params
+
+    w, h, seed = 37, 29, 12345
+    cfg = fw.Config().with_(foveation={"block": k})
+    sp = sampling_params(cfg, w, h, seed=seed)
+    assert (sp.block_shift >= 0) == ((k & (k - 1)) == 0)
+    nr = dither_ranks(k)
+    ranks = wp.array(nr.astype(np.int32), dtype=wp.int32, device=device)
+    out = wp.zeros((h, w), dtype=wp.int32, device=device)
+    kk = k * k
+    ys, xs = np.mgrid[0:h, 0:w]
+    tile = (ys // k) * ((w + k - 1) // k) + xs // k
+    off = _pcg(_pcg(np.uint64(seed) + _pcg(tile))) % kk  # rand_init(seed, tile), then randi's draw, mod K
+    for rot in sorted({0, kk // 2, kk - 1}):
+        wp.launch(_rank_kernel, dim=(h, w), inputs=[sp, ranks, rot], outputs=[out], device=device)
+        ref = (nr[ys % k, xs % k] + off.astype(np.int64) + rot) % kk
+        assert np.array_equal(out.numpy(), ref)

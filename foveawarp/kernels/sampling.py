@@ -47,6 +47,7 @@ class SamplingParams:
     block: int
     tiles_x: int
     num_ranks: int  # block^2
+    block_shift: int  # log2(block) when block is a power of two, else -1 (tile indices by shifts, not divisions)
     seed: int
 
 
@@ -211,17 +212,40 @@ def saliency_velocity(fp: FrameParams, velocity: wp.vec2, position: wp.vec3, uv:
 @wp.func
 def tile_rank_offset(seed: int, tile: int, num_ranks: int) -> int:
     s = wp.rand_init(seed, tile)
+    if (num_ranks & (num_ranks - 1)) == 0:
+        # a power of two: the draw's low bits are its remainder (randi(s, 0, K) is the unsigned draw mod K)
+        return wp.randi(s) & (num_ranks - 1)
     return wp.randi(s, 0, num_ranks)
+
+
+@wp.func
+def tile_of(x: int, y: int, sp: SamplingParams):
+    """(x // block, y // block) for x, y >= 0: shifts when the block is a power of two (CPU integer division is
+    slow; the values are the same)."""
+    if sp.block_shift >= 0:
+        return x >> sp.block_shift, y >> sp.block_shift
+    return x // sp.block, y // sp.block
+
+
+@wp.func
+def rank_in_tile(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
+                 rot: int) -> int:
+    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K,
+    each term in [0, K), so the remainder is at most two subtractions."""
+    k = sp.block
+    r = ranks[y - ty * k, x - tx * k] + tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
+    if r >= sp.num_ranks:
+        r -= sp.num_ranks
+    if r >= sp.num_ranks:
+        r -= sp.num_ranks
+    return r
 
 
 @wp.func
 def dither_rank(x: int, y: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams, rot: int) -> int:
     """Rank in [0, K) of pixel (x, y) within its aligned block x block tile this frame (a permutation)."""
-    k = sp.block
-    tx = x // k
-    ty = y // k
-    off = tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks)
-    return (ranks[y - ty * k, x - tx * k] + off + rot) % sp.num_ranks
+    tx, ty = tile_of(x, y, sp)
+    return rank_in_tile(x, y, tx, ty, ranks, sp, rot)
 
 
 @wp.func
@@ -230,14 +254,15 @@ def dither_sample(p: float, x: int, y: int, width: int, height: int, ranks: wp.a
     """1 when pixel (x, y) is sampled at probability p this frame (stratified threshold, see module doc)."""
     if p >= 1.0:  # the fovea and saturated saliency: no rank or jitter needed
         return wp.uint8(1)
-    r = dither_rank(x, y, ranks, sp, rot)
+    tx, ty = tile_of(x, y, sp)
+    r = rank_in_tile(x, y, tx, ty, ranks, sp, rot)
     s = wp.rand_init(sp.seed ^ JITTER_SALT, y * width + x)
     u = wp.randf(s) + phase
     if u >= 1.0:
         u = u - 1.0
     t = (float(r) + u) / float(sp.num_ranks)
     k = sp.block
-    full = (x // k + 1) * k <= width and (y // k + 1) * k <= height
+    full = (tx + 1) * k <= width and (ty + 1) * k <= height
     if t < p or (r == 0 and full):
         return wp.uint8(1)
     return wp.uint8(0)

@@ -115,6 +115,7 @@ def sampling_params(config: Config, width: int, height: int, seed: int = 0) -> S
     sp.block = int(fc.block)
     sp.tiles_x = (width + fc.block - 1) // fc.block
     sp.num_ranks = int(fc.block * fc.block)
+    sp.block_shift = int(fc.block).bit_length() - 1 if (fc.block & (fc.block - 1)) == 0 else -1
     sp.seed = int(seed)
     return sp
 
