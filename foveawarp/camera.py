@@ -190,7 +190,8 @@ class Camera:
             raise ValueError(f"other must be a foveawarp.Camera, got {show(other)} ({type(other).__name__})")
         _, _, f0 = self.basis()
         _, _, f1 = other.basis()
-        return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(f0, f1))))))
+        d = float(f0[0]) * float(f1[0]) + float(f0[1]) * float(f1[1]) + float(f0[2]) * float(f1[2])
+        return math.degrees(math.acos(max(-1.0, min(1.0, d))))
 
 
 def _sub3(a, b) -> tuple:

@@ -211,18 +211,16 @@ class FrameLoop:
             t = self.dscene.time if self.dscene.time is not None else 0.0
         return self.dscene.set_time(t)
 
-    def _gbuffer(self, camera: Camera, prev_camera: Camera, lab: bool = False) -> None:
-        """The full-resolution G-buffer; ``lab``: also the sampling stage's CIE-Lab albedo (a foveated frame;
-        the sampling map then skips its Lab prepass). The same Lab array goes to every launch, so the recorded
-        launch stays valid whichever path a frame takes."""
-        s = self.sampling
-        target = s.lab if (s is not None and s._lab_on) else None
-        self.gbuffer_stage.run(self.gbuffer, camera, prev_camera, lab=target, write_lab=lab)
+    def _gbuffer(self, camera: Camera, prev_camera: Camera) -> None:
+        self.gbuffer_stage.run(self.gbuffer, camera, prev_camera)
 
     @_cpu_threads
     def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
         """Write ``shade_params(camera)`` to the (1,) device array the shading kernels read, and return it."""
-        return self.shade.upload(self.shade_params(camera, ao_samples=ao_samples))
+        camera = self._require_camera(camera)
+        if ao_samples is not None:
+            ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
+        return self.shade.upload_frame(camera, self.frame_index, ao_samples)
 
     @_cpu_threads
     def shade_full(self, camera: Camera, out=None, *, ao_samples: Optional[int] = None) -> None:
@@ -366,7 +364,7 @@ class FrameLoop:
             if sparse:
                 self.sparse.trace_coarse(camera, prev_cam, self._max_t(camera))
             else:
-                self._gbuffer(camera, prev_cam, lab=foveated)
+                self._gbuffer(camera, prev_cam)
         if sparse:
             skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
@@ -513,7 +511,7 @@ class FrameLoop:
             if foveated:
                 # the cache test's previous depth and valid mask: the temporal history's, as last resolved
                 self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
-                                     lab_ready=True)  # the head's G-buffer wrote the Lab albedo
+                                     face_lab=self.dscene.face_lab)  # Lab albedo by face: no cube roots
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,

@@ -240,7 +240,11 @@ class Scene:
     def extent(self) -> float:
         """Bounding-box diagonal (world units), > 0."""
         lo, hi = self.bounds
-        return max(float(np.linalg.norm(hi - lo)), 1e-30)
+        key = self._bounds_key
+        if getattr(self, "_extent_key", None) != key:
+            self._extent = max(float(np.linalg.norm(hi - lo)), 1e-30)
+            self._extent_key = key
+        return self._extent
 
     @property
     def is_animated(self) -> bool:
@@ -352,8 +356,8 @@ class DeviceScene:
     @property
     def face_lab(self):
         """(F + 1,) vec3 wp.array: the CIE-Lab of each face's albedo, then of the miss albedo (black), computed
-        once on the device (``kernels.saliency.face_lab_kernel``); the G-buffer gathers the sampling map's
-        Lab albedo from it."""
+        once on the device (``kernels.saliency.face_lab_kernel``); the sampling map's Lab prepass gathers it
+        by the G-buffer's face index."""
         if self._face_lab is None:
             import warp as wp
 

@@ -157,7 +157,7 @@ def test_object_motion_velocity(device):
     np.testing.assert_allclose(g["prev_dist"][static], g["depth"][static], rtol=1e-4)
 
 
-# -- the CIE-Lab albedo the G-buffer writes for the sampling map (its prepass folded into the G-buffer) ----------
+# -- the sampling map's CIE-Lab albedo, gathered by face from the scene's table --------------------------------
 
 
 def _lab_reference(albedo):
@@ -170,62 +170,54 @@ def _lab_reference(albedo):
 
 
 @pytest.mark.parametrize("name", ["cornell", "eyechart"])
-def test_gbuffer_writes_the_lab_albedo(name, device):
-    """With ``lab=`` the G-buffer also writes each pixel's CIE-Lab albedo from the scene's per-face table: bit for
-    bit what the sampling stage's Lab prepass computes from the albedo it wrote (misses included), and within
-    2e-3 Lab units of skimage; ``write_lab=False`` leaves the array alone."""
+def test_lab_gathered_by_face_equals_the_conversion(name, device):
+    """The per-face Lab table gathered by the G-buffer's face index is bit for bit the Lab prepass of the
+    G-buffer's albedo (misses included), and within 2e-3 Lab units of skimage; the table holds one entry per
+    face, then black."""
     import warp as wp
 
-    from foveawarp.kernels.saliency import lab_kernel
+    from foveawarp.kernels.saliency import lab_from_face_kernel, lab_kernel
 
     scene = fw.load_scene(name)
     loop = fw.FrameLoop(scene, W, H, device=device)
     cam = scene.camera
-    lab = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
-    loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=lab)
+    loop.gbuffer_stage.run(loop.gbuffer, cam, cam)
     g = loop.gbuffer
-    hit = g.hit.numpy()
-    assert hit.sum() > 0
+    assert g.hit.numpy().sum() > 0
+    gathered = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
     prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
+    wp.launch(lab_from_face_kernel, dim=(H, W), inputs=[g.face, loop.dscene.face_lab], outputs=[gathered, 0],
+              device=loop.device)
     wp.launch(lab_kernel, dim=(H, W), inputs=[g.albedo], outputs=[prepass, 0], device=loop.device)
-    assert np.array_equal(lab.numpy(), prepass.numpy())
-    assert np.abs(lab.numpy() - _lab_reference(g.albedo.numpy())).max() < 2e-3
-    # the table itself: one entry per face, then black for misses
+    assert np.array_equal(gathered.numpy(), prepass.numpy())
+    assert np.abs(gathered.numpy() - _lab_reference(g.albedo.numpy())).max() < 2e-3
     table = loop.dscene.face_lab.numpy()
     assert table.shape == (scene.num_triangles + 1, 3)
     assert np.abs(table[:-1] - _lab_reference(scene.face_albedo[None])[0]).max() < 2e-3
     assert np.abs(table[-1]).max() < 1e-4
-    # write_lab=False: untouched
-    lab.fill_(wp.vec3(7.0, 7.0, 7.0))
-    loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=lab, write_lab=False)
-    assert np.all(lab.numpy() == 7.0)
 
 
-def test_gbuffer_lab_argument_is_checked(device):
-    import warp as wp
-
-    loop = fw.FrameLoop("cornell", W, H, device=device)
-    cam = loop.scene.camera
-    for bad in (wp.zeros((H, W + 1), dtype=wp.vec3, device=loop.device),
-                wp.zeros((H, W), dtype=float, device=loop.device), np.zeros((H, W, 3))):
-        with pytest.raises(ValueError, match="lab must be"):
-            loop.gbuffer_stage.run(loop.gbuffer, cam, cam, lab=bad)
-
-
-def test_frame_loop_lab_comes_from_the_gbuffer(device):
-    """A foveated frame's sampling map reads the Lab albedo the G-buffer wrote (no prepass): it equals the
-    prepass of the frame's albedo; a full-resolution frame (render_reference) does not write it."""
+def test_frame_loop_lab_is_the_frames_albedo(device):
+    """A foveated frame's sampling map reads the Lab gathered by face: it equals the prepass of the frame's own
+    albedo (eyechart: textured faces and background)."""
     import warp as wp
 
     from foveawarp.kernels.saliency import lab_kernel
 
     loop = fw.FrameLoop("eyechart", W, H, device=device, policy="foveated")
-    scene = loop.scene
-    loop.render(scene.camera_at(0.0), time=0.0)
+    loop.render(loop.scene.camera_at(0.0), time=0.0)
     prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
     wp.launch(lab_kernel, dim=(H, W), inputs=[loop.gbuffer.albedo], outputs=[prepass, 0], device=loop.device)
     assert np.array_equal(loop.sampling.lab.numpy(), prepass.numpy())
     assert np.abs(prepass.numpy()).max() > 1.0  # a real image, not zeros
-    loop.sampling.lab.fill_(wp.vec3(7.0, 7.0, 7.0))
-    loop.render_reference(scene.camera_at(0.1), time=0.1)
-    assert np.all(loop.sampling.lab.numpy() == 7.0)
+
+
+def test_sampling_launch_face_lab_is_checked(device):
+    import warp as wp
+
+    loop = fw.FrameLoop("cornell", W, H, device=device, policy="foveated")
+    loop.render()
+    for bad in (wp.zeros((3, 3), dtype=wp.vec3, device=loop.device), wp.zeros(4, dtype=float, device=loop.device),
+                np.zeros((4, 3))):
+        with pytest.raises(ValueError, match="face_lab must be"):
+            loop.sampling.launch(loop.gbuffer, face_lab=bad)

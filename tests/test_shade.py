@@ -140,3 +140,17 @@ def test_tonemap_against_numpy_hable(device):
     fw.parallel.launch(tonemap_kernel, dim=(8, 8), inputs=[hdr, 2.0, 11.2], outputs=[out], device=device)
     expect = np.clip(hable(2.0 * x.astype(np.float64)) / hable(11.2), 0, 1) ** (1 / 2.2)
     np.testing.assert_allclose(out.numpy(), expect, atol=2e-5)
+
+
+def test_per_frame_upload_equals_fresh_parameters(device):
+    """``upload_shade_params`` keeps one struct per ``ao_samples`` and only sets the eye and frame again: what
+    it uploads equals a freshly built ``shade_params`` struct, frame after frame, camera after camera."""
+    loop = fw.FrameLoop("cornell", 16, 12, device=device)
+    scene = loop.scene
+    for i, ao in enumerate([None, None, 3, None, 3]):
+        cam = scene.camera_at(0.2 * i) if scene.camera_path is not None else fw.Camera(eye=(0.1 * i, 1.0, 3.5))
+        loop.frame_index = 7 * i
+        got = loop.upload_shade_params(cam, ao_samples=ao).numpy()[0].copy()
+        want = loop.shade.upload(loop.shade_params(cam, ao_samples=ao)).numpy()[0]
+        assert got.tobytes() == want.tobytes()
+        assert tuple(got["eye"]) == pytest.approx(cam.eye)

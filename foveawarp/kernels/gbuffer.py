@@ -52,10 +52,10 @@ def trace_primary(
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
-) -> int:
+):
     """Trace the primary ray through the continuous pixel position (px, py) and write its G-buffer entry at
     [y, x] of the output arrays (the full-resolution G-buffer writes pixel (x, y) through its own centre; the
-    coarse one of the sparse mode writes one entry per cell). Returns the face hit, -1 on a miss."""
+    coarse one of the sparse mode writes one entry per cell)."""
     d = camera_ray_dir(cam, px, py)
     q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
     if q.result:
@@ -89,7 +89,6 @@ def trace_primary(
         out_hit[y, x] = wp.uint8(1)
         out_velocity[y, x] = vel
         out_reproj[y, x] = uv
-        return q.face
     else:
         out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
         out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
@@ -101,7 +100,6 @@ def trace_primary(
         out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
         out_prev_dist[y, x] = 0.0
         out_moved[y, x] = wp.uint8(0)
-    return -1
 
 
 @wp.kernel(enable_backward=False)
@@ -125,20 +123,10 @@ def gbuffer_kernel(
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
-    face_lab: wp.array(dtype=wp.vec3),
-    lab_on: int,
-    out_lab: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """The full-resolution G-buffer. ``lab_on`` != 0: also the CIE-Lab albedo of each pixel into ``out_lab``,
-    gathered from ``face_lab`` (``saliency.face_lab_kernel``'s table: F faces, then the miss entry), which
-    equals ``saliency.lab_kernel`` of the albedo written here (the sampling map's prepass, folded in)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    f = trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
-                      float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face,
-                      out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
-    if lab_on != 0:
-        if f < 0:
-            f = face_lab.shape[0] - 1
-        out_lab[y, x] = face_lab[f]
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, float(x) + 0.5,
+                  float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity,
+                  out_reproj, out_prev_dist, out_moved)

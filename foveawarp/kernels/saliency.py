@@ -88,14 +88,27 @@ def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3)
 
 @wp.kernel(enable_backward=False)
 def face_lab_kernel(face_albedo: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
-    """CIE-Lab of every face's albedo, ``out[f]`` for f < F, and of the miss albedo (black) in ``out[F]``:
-    the table the G-buffer gathers per pixel (``out`` has F + 1 entries), the same values ``lab_kernel``
-    computes from the G-buffer's albedo, without a cube root per pixel."""
+    """CIE-Lab of every face's albedo, ``out[f]`` for f < F, and of the miss albedo (black) in ``out[F]``
+    (``out`` has F + 1 entries): ``lab_from_face_kernel`` gathers from it the values ``lab_kernel`` computes
+    from a scene's G-buffer albedo, without a cube root per pixel."""
     i = wp.tid()
     c = wp.vec3(0.0, 0.0, 0.0)
     if i < face_albedo.shape[0]:
         c = face_albedo[i]
     out[i] = linear_rgb_to_lab(c)
+
+
+@wp.kernel(enable_backward=False)
+def lab_from_face_kernel(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3),
+                         out: wp.array2d(dtype=wp.vec3), row0: int):
+    """``lab_kernel`` for a G-buffer whose albedo is its faces' (the scene's): a gather from the
+    ``face_lab_kernel`` table by the G-buffer's face index (-1, a miss: the table's last entry)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    f = face[y, x]
+    if f < 0:
+        f = face_lab.shape[0] - 1
+    out[y, x] = face_lab[f]
 
 
 @wp.kernel(enable_backward=False)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import numpy as np
+import math
+
 import warp as wp
 
 from .. import parallel
@@ -19,42 +20,29 @@ class GBufferStage:
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
         self._launch = parallel.Relaunch(gbuffer_kernel, bands=True)  # recorded once on CUDA (per-frame head)
-        self._no_lab = wp.zeros((1, 1), dtype=wp.vec3, device=device)
-        self._no_face_lab = wp.zeros(1, dtype=wp.vec3, device=device)
 
     def max_t(self, camera: Camera) -> float:
         """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
         sc = self.dscene.scene
-        lo, hi = sc.bounds
-        far = float(np.linalg.norm(np.asarray(camera.eye) - (lo + hi) * 0.5)) + sc.extent
+        key = (id(sc.vertices), sc.vertices.shape)
+        if getattr(self, "_centre_key", None) != key:  # plain floats: this runs before every frame's G-buffer
+            lo, hi = sc.bounds
+            self._centre = tuple(float(v) for v in (lo + hi) * 0.5)
+            self._centre_key = key
+        c, e = self._centre, camera.eye
+        far = math.sqrt((e[0] - c[0]) ** 2 + (e[1] - c[1]) ** 2 + (e[2] - c[2]) ** 2) + sc.extent
         return float(min(max(2.0 * far, 1.0), 1.0e30))
 
-    def run(self, gbuffer, camera: Camera, prev_camera: Camera, lab=None, write_lab: bool = True) -> None:
+    def run(self, gbuffer, camera: Camera, prev_camera: Camera) -> None:
         """Fill every field of ``gbuffer`` for ``camera``; reprojection fields refer to ``prev_camera`` and the
-        scene's previous vertex positions.
-
-        ``lab``: an (H, W) vec3 wp.array on this device, or None. Given (and ``write_lab`` true), it also
-        receives each pixel's CIE-Lab albedo, gathered from the scene's per-face table: the values
-        ``saliency.lab_kernel`` computes from ``gbuffer.albedo`` (a :class:`SamplingStage` whose ``lab`` was
-        written here skips its prepass: ``launch(..., lab_ready=True)``). Passing the same array every frame
-        and toggling ``write_lab`` keeps the recorded launch."""
+        scene's previous vertex positions."""
         g, ds = gbuffer, self.dscene
         w, h = self.width, self.height
-        if lab is None:
-            lab, lab_on, face_lab = self._no_lab, 0, self._no_face_lab
-        else:
-            face_lab = ds.face_lab
-            ok = (isinstance(lab, wp.array) and lab.dtype == wp.vec3 and tuple(lab.shape) == (h, w)
-                  and lab.device == self.device)
-            if not ok:
-                raise ValueError(f"lab must be a ({h}, {w}) vec3 wp.array on {self.device}, got "
-                                 f"{getattr(lab, 'shape', type(lab).__name__)}")
-            lab_on = 1 if write_lab else 0
         self._launch(
             dim=(h, w),
             inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                     camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)],
             outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved, face_lab, lab_on, lab],
+                     g.moved],
             device=self.device,
         )

@@ -15,7 +15,7 @@ from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
 from ..config import Config, check_bool, check_int_range, check_range, check_vec, show
 from ..kernels.camera import CameraParams
-from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
+from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_from_face_kernel, lab_kernel
 from ..kernels.sampling import (
     FrameParams,
     SamplingParams,
@@ -325,7 +325,7 @@ class SamplingStage:
                                    do_cache, rot, phase, xi, float(fc.fovea_deg)],
                            outputs=[self.frame_params], device=self.device)
 
-    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, lab_ready: bool = False) -> None:
+    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, face_lab=None) -> None:
         """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.
 
         Every argument is fixed (buffers and constants; the per-frame values are read from
@@ -345,8 +345,16 @@ class SamplingStage:
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
-        if self._lab_on and not lab_ready:
-            parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+        if self._lab_on:
+            if face_lab is None:
+                parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+            else:
+                if not (isinstance(face_lab, wp.array) and face_lab.dtype == wp.vec3 and face_lab.ndim == 1
+                        and face_lab.device == dev):
+                    raise ValueError(f"face_lab must be a 1-D vec3 wp.array on {dev} (DeviceScene.face_lab), got "
+                                     f"{getattr(face_lab, 'shape', type(face_lab).__name__)}")
+                parallel.launch(lab_from_face_kernel, dim=(h, w), inputs=[g.face, face_lab], outputs=[self.lab],
+                                device=dev)
         parallel.launch(sampling_map_kernel, dim=(h, w),
                         inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
                                 g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp, 0],
