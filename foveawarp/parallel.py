@@ -2,7 +2,7 @@
 
 Warp runs a CPU launch in the calling thread. :func:`launch` runs a kernel whose last argument is
 ``row0: int`` (its first launch index is ``wp.tid()[0] + row0``) as bands of its first dimension (image rows or
-ranges of a work list), one Warp launch per band from a thread pool; the Warp CPU launch releases the GIL, so
+ranges of a work list), one Warp launch per band on a team of threads (:class:`_Team`); the Warp CPU launch releases the GIL, so
 the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with ``row0 = 0``.
 
 Which kernels may be split: each thread of the kernel writes only its own element(s) of its band (reads may
@@ -24,11 +24,12 @@ Thread count: ``threads=`` of :func:`launch`; else the innermost :func:`cpu_thre
 
 from __future__ import annotations
 
+import _thread
 import contextlib
 import contextvars
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+import weakref
 from typing import Optional, Sequence
 
 import warp as wp
@@ -109,13 +110,71 @@ def current_cpu_threads() -> int:
     return default_cpu_threads() if n is None else n
 
 
-def _pool(n: int) -> ThreadPoolExecutor:
-    """The pool of ``n - 1`` threads that work beside the calling thread at ``n`` threads."""
+class _Team:
+    """``n - 1`` daemon threads that run one job at a time beside the calling thread.
+
+    A job is a callable each member calls once (it takes bands from a shared iterator until none is left: a
+    list iterator's ``next`` holds the GIL, so no lock is needed). The hand-off is plain ``_thread`` locks: the
+    caller releases each member's start lock, and the last member to finish releases the done lock (a
+    ``ThreadPoolExecutor`` submit + ``result`` per member cost ~10-20 us of Python each, at 16 threads a few
+    hundred microseconds per launch). ``busy`` keeps concurrent launches from different Python threads apart:
+    a launch that finds the team busy runs its bands in its own thread."""
+
+    def __init__(self, n: int):
+        self.busy = _thread.allocate_lock()
+        self._go = []
+        self._done = _thread.allocate_lock()
+        self._done.acquire()
+        self._count_lock = _thread.allocate_lock()
+        self._active = 0
+        self._job = None
+        self._error = None
+        for i in range(max(0, n - 1)):
+            go = _thread.allocate_lock()
+            go.acquire()
+            self._go.append(go)
+            t = threading.Thread(target=self._member, args=(go,), name=f"foveawarp-cpu-{i}", daemon=True)
+            t.start()
+
+    def _member(self, go) -> None:
+        while True:
+            go.acquire()
+            try:
+                self._job()
+            except BaseException as e:  # noqa: BLE001 - handed to the caller
+                self._error = e
+            with self._count_lock:
+                self._active -= 1
+                last = self._active == 0
+            if last:
+                self._done.release()
+
+    def run(self, job, members: int) -> None:
+        """``job()`` on ``members`` threads (the caller and ``members - 1`` team threads); returns when all
+        are done, raising the first error a team thread met."""
+        members = min(members, len(self._go) + 1)
+        self._job, self._error = job, None
+        self._active = members - 1
+        for go in self._go[:members - 1]:
+            go.release()
+        try:
+            job()
+        finally:
+            if members > 1:
+                self._done.acquire()
+            self._job = None
+        if self._error is not None:
+            e, self._error = self._error, None
+            raise e
+
+
+def _team(n: int) -> _Team:
+    """The team of ``n - 1`` threads that work beside the calling thread at ``n`` threads."""
     with _pool_lock:
-        p = _pools.get(n)
-        if p is None:
-            p = _pools[n] = ThreadPoolExecutor(max_workers=max(1, n - 1), thread_name_prefix="foveawarp-cpu")
-        return p
+        t = _pools.get(n)
+        if t is None:
+            t = _pools[n] = _Team(n)
+        return t
 
 
 def bands(n_rows: int, n_threads: int, row_items: int = 1, min_items: int = 0) -> list:
@@ -150,6 +209,49 @@ def _pack(cmd):
     for i, (name, _) in enumerate(st._fields_):
         setattr(args, name, params[1 + i])
     return cmd.hooks.forward, st, args, k.adj.kernel_dim
+
+
+_pack_cache: dict = {}
+_PACK_CACHE_MAX = 256
+
+
+def _packed_args(kernel, dims, inputs, outputs, dev):
+    """``_pack`` of this launch, reused when the same kernel is launched again with the same arrays (the same
+    objects, checked through weak references, so a freed array's reused id cannot match) and the same numbers;
+    Warp structs and vectors are set again in the kept argument struct on every call (their fields may have
+    changed in place). Any other argument kind is packed afresh every time."""
+    args = [*inputs, *outputs, 0]
+    key = [id(kernel), len(dims)]
+    arrays, reset = [], []
+    for i, a in enumerate(args):
+        if isinstance(a, wp.array):
+            key.append(id(a))
+            arrays.append(a)
+        elif type(a) in (int, float, bool):
+            key.append((type(a), a))
+        elif hasattr(a, "__ctype__") or isinstance(a, ctypes.Array):
+            key.append(None)
+            reset.append(i)
+        else:
+            return _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs,
+                                   outputs=[*outputs, 0], device=dev, record_cmd=True))
+    key = tuple(key)
+    hit = _pack_cache.get(key)
+    if hit is not None:
+        refs, packed = hit
+        if all(r() is a for r, a in zip(refs, arrays)):
+            fields = packed[1]._fields_
+            st = packed[2]
+            for i in reset:
+                a = args[i]
+                setattr(st, fields[i][0], a.__ctype__() if hasattr(a, "__ctype__") else a)
+            return packed
+    packed = _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
+                             device=dev, record_cmd=True))
+    if len(_pack_cache) >= _PACK_CACHE_MAX:
+        _pack_cache.clear()
+    _pack_cache[key] = ([weakref.ref(a) for a in arrays], packed)
+    return packed
 
 
 def _check_kernel(kernel) -> None:
@@ -200,10 +302,9 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     if _invoke is not None and FAST_BANDS:
         # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing) into the
         # CPU entry point's argument struct; each band copies it with its own row0 and launch bounds and calls
-        # the entry point (a ctypes call: it releases the GIL)
-        cmd = wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
-                        device=dev, record_cmd=True)
-        packed = _pack(cmd)
+        # the entry point (a ctypes call: it releases the GIL). The packed struct is kept per kernel and
+        # arguments (_packed_args): a frame's launches repeat theirs, and packing ~20 arguments costs ~60 us.
+        packed = _packed_args(kernel, dims, inputs, outputs, dev)
 
     # bands have at most two sizes: their launch bounds are built here once and only read by the entry point
     sized = {}
@@ -226,22 +327,19 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
     workers = min(n, len(parts))
     queue = iter(parts)
-    lock = threading.Lock()
 
     def worker():
-        while True:
-            with lock:
-                band = next(queue, None)
-            if band is None:
-                return
+        for band in queue:  # the list iterator is shared: each band goes to one thread
             run(band)
 
-    futures = [_pool(n).submit(worker) for _ in range(workers - 1)] if workers > 1 else []
-    try:
+    team = _team(n)
+    if not team.busy.acquire(blocking=False):  # another Python thread's launch holds the team: run here
         worker()
+        return
+    try:
+        team.run(worker, workers)
     finally:
-        for f in futures:
-            f.result()
+        team.busy.release()
 
 
 class Relaunch:

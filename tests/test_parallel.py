@@ -316,3 +316,82 @@ def test_relaunch_replays_with_changed_arguments(device, bands, rng):
             rl(1, inputs=[p, k], outputs=[out], device=device)
             want = np.asarray(off, np.float32) * np.float32(scale) + np.array([k, 0, 0], np.float32)
             np.testing.assert_allclose(out.numpy()[0], want, rtol=1e-6, atol=1e-6)
+
+
+# -- the kept packed arguments and the thread team ------------------------------------------------------------
+
+
+def test_band_launch_sees_changed_arguments(every_band, rng):
+    """parallel.launch keeps each launch's packed arguments: the same kernel launched again with a struct changed
+    in place, another vector, another number, another array (and a new array in a freed one's place) computes
+    with the new values every time (NumPy reference)."""
+    n = 257
+    out = wp.zeros(n, dtype=wp.vec3, device=DEV)
+    p = _RelaunchParams()
+    a_np = rng.random((n, 3)).astype(np.float32)
+    a = wp.array(a_np, dtype=wp.vec3, device=DEV)
+    for i in range(8):
+        if i >= 4:  # a new array each time; the previous one is freed, so its id may come back
+            del a
+            a_np = rng.random((n, 3)).astype(np.float32)
+            a = wp.array(a_np, dtype=wp.vec3, device=DEV)
+        p.scale = float(i) * 0.5 - 1.0  # the same struct object, changed in place
+        p.offset = wp.vec3(float(i), -1.0, 2.0)
+        k = i % 3
+        for _ in range(2):  # the second launch takes the kept arguments
+            out.zero_()
+            with parallel.cpu_threads(3):
+                parallel.launch(_relaunch_kernel, n, inputs=[a, p, k], outputs=[out], device=DEV)
+            want = a_np * np.float32(p.scale) + np.array([i + k, -1.0, 2.0], np.float32)
+            np.testing.assert_allclose(out.numpy(), want, rtol=1e-6, atol=1e-6)
+
+
+def test_team_raises_a_member_error_and_stays_usable():
+    team = parallel._Team(4)
+    seen = []
+    lock = threading.Lock()
+
+    def job():
+        with lock:
+            seen.append(threading.get_ident())
+            if len(seen) == 2:
+                raise RuntimeError("band failed")
+
+    with pytest.raises(RuntimeError, match="band failed"):
+        team.run(job, 4)
+    assert len(seen) == 4
+    seen.clear()
+    team.run(lambda: seen.append(1), 4)
+    assert len(seen) == 4
+    team.run(lambda: seen.append(2), 2)  # fewer members than the team has
+    assert seen.count(2) == 2
+
+
+def test_launches_from_two_python_threads(every_band, rng):
+    """Two Python threads launching at once share one team: the one that finds it busy runs its bands itself;
+    both results are exact."""
+    n = 4099
+    srcs = [rng.random((n, 3)).astype(np.float32) for _ in range(2)]
+    outs = [wp.zeros(n, dtype=wp.vec3, device=DEV) for _ in range(2)]
+    ins = [wp.array(s, dtype=wp.vec3, device=DEV) for s in srcs]
+    p = _RelaunchParams()
+    p.scale, p.offset = 2.0, wp.vec3(0.0, 1.0, 0.0)
+    errors = []
+
+    def go(j):
+        try:
+            with parallel.cpu_threads(4):
+                for _ in range(20):
+                    parallel.launch(_relaunch_kernel, n, inputs=[ins[j], p, j], outputs=[outs[j]], device=DEV)
+        except Exception as e:  # noqa: BLE001
+            errors.append(e)
+
+    ts = [threading.Thread(target=go, args=(j,)) for j in range(2)]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join()
+    assert not errors
+    for j in range(2):
+        np.testing.assert_allclose(outs[j].numpy(), srcs[j] * 2.0 + np.array([j, 1.0, 0.0], np.float32),
+                                   rtol=1e-6, atol=1e-6)
