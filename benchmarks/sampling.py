@@ -50,12 +50,13 @@ def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
     stats = stage.stats()
     # the split, launched exactly as run() does
     split = {
-        "lab prepass": lambda: fw.parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[stage.lab],
-                                                  device=dev),
+        "lab prepass": lambda: fw.parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo],
+                                                  outputs=[stage._lab_array()], device=dev),
         "fused pass": lambda: fw.parallel.launch(
             sampling_map_kernel, dim=(h, w),
             inputs=[stage.params, stage.frame_params, stage.ranks, stage.lab, g.normal, g.depth, g.hit, g.velocity,
-                    g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0],
+                    g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
+                    stage._no_face_lab, 0],
             outputs=[stage._dummy_map, stage._dummy_map, stage.sample_map, stage.cache_hit, stage.prev_index],
             device=dev),
         "tile pass": lambda: launch_tile_pass(stage.ranks, stage.params, stage.frame_params, stage.tiles,

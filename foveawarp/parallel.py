@@ -254,6 +254,43 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
     return packed
 
 
+_band_cache: dict = {}
+
+
+class _Bands:
+    """The kept per-band launch state of one packed launch split one way."""
+
+    __slots__ = ("master", "last", "structs", "calls")
+
+
+def _band_calls(packed, parts, dims):
+    """An iterator over (entry point, bounds, arguments) per band of ``parts`` for ``packed`` (see ``launch``)."""
+    forward, struct_type, master, kdim = packed
+    key = (id(master), tuple(parts), tuple(dims[1:]))
+    st = _band_cache.get(key)
+    if st is None or st.master is not master:
+        st = _Bands()
+        st.master, st.last = master, None
+        st.structs = [struct_type() for _ in parts]
+        bounds = {}
+        for r0, r1 in parts:
+            if r1 - r0 not in bounds:
+                bounds[r1 - r0] = _bounds_of((r1 - r0, *dims[1:]), kdim)
+        st.calls = [(forward, ctypes.byref(bounds[r1 - r0]), ctypes.byref(a)) for a, (r0, r1) in zip(st.structs, parts)]
+        st.calls.append(bounds)  # kept alive with the byref objects that point into them
+        if len(_band_cache) >= _PACK_CACHE_MAX:
+            _band_cache.clear()
+        _band_cache[key] = st
+    cur = bytes(master)
+    if cur != st.last:
+        size, src = len(cur), ctypes.addressof(master)
+        for a, (r0, _) in zip(st.structs, parts):
+            ctypes.memmove(ctypes.addressof(a), src, size)
+            a.row0 = r0
+        st.last = cur
+    return iter(st.calls[:-1])
+
+
 def _check_kernel(kernel) -> None:
     ok = _checked.get(kernel.key)
     if ok is None:
@@ -306,32 +343,25 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # arguments (_packed_args): a frame's launches repeat theirs, and packing ~20 arguments costs ~60 us.
         packed = _packed_args(kernel, dims, inputs, outputs, dev)
 
-    # bands have at most two sizes: their launch bounds are built here once and only read by the entry point
-    sized = {}
     if packed is not None:
-        for r0, r1 in parts:
-            if r1 - r0 not in sized:
-                sized[r1 - r0] = _bounds_of((r1 - r0, *dims[1:]), packed[3])
+        # every band's launch bounds and argument struct (a copy of the packed one with its row0) are kept with
+        # the packed arguments and copied again only when those changed: a band is then one ctypes call, the
+        # least Python a member thread runs under the GIL
+        calls = _band_calls(packed, parts, dims)
 
-    def run(band):
-        r0, r1 = band
-        if packed is not None:
-            forward, struct_type, args, _ = packed
-            a = struct_type.from_buffer_copy(args)
-            a.row0 = r0
-            forward(ctypes.byref(sized[r1 - r0]), ctypes.byref(a))
-        else:
-            d = (r1 - r0, *dims[1:])
-            wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
+        def worker():
+            for f, b, a in calls:  # the list iterator is shared: each band goes to one thread
+                f(b, a)
+    else:
+        queue = iter(parts)
+
+        def worker():
+            for r0, r1 in queue:
+                d = (r1 - r0, *dims[1:])
+                wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
     # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
     workers = min(n, len(parts))
-    queue = iter(parts)
-
-    def worker():
-        for band in queue:  # the list iterator is shared: each band goes to one thread
-            run(band)
-
     team = _team(n)
     if not team.busy.acquire(blocking=False):  # another Python thread's launch holds the team: run here
         worker()

@@ -157,7 +157,7 @@ def test_object_motion_velocity(device):
     np.testing.assert_allclose(g["prev_dist"][static], g["depth"][static], rtol=1e-4)
 
 
-# -- the sampling map's CIE-Lab albedo, gathered by face from the scene's table --------------------------------
+# -- the sampling map's CIE-Lab albedo, read by face from the scene's table ------------------------------------
 
 
 def _lab_reference(albedo):
@@ -169,14 +169,27 @@ def _lab_reference(albedo):
     return rgb2lab(srgb)
 
 
-@pytest.mark.parametrize("name", ["cornell", "eyechart"])
-def test_lab_gathered_by_face_equals_the_conversion(name, device):
-    """The per-face Lab table gathered by the G-buffer's face index is bit for bit the Lab prepass of the
-    G-buffer's albedo (misses included), and within 2e-3 Lab units of skimage; the table holds one entry per
-    face, then black."""
-    import warp as wp
+import warp as wp  # noqa: E402
 
-    from foveawarp.kernels.saliency import lab_from_face_kernel, lab_kernel
+from foveawarp.kernels.saliency import face_lab_at, sobel_lab_by_face, sobel_vec3  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def _lab_by_face_kernel(face: wp.array2d(dtype=wp.int32), table: wp.array(dtype=wp.vec3),
+                        lab: wp.array2d(dtype=wp.vec3), out_lab: wp.array2d(dtype=wp.vec3),
+                        out_grad: wp.array2d(dtype=float), out_grad_ref: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    out_lab[y, x] = face_lab_at(face, table, x, y)
+    out_grad[y, x] = sobel_lab_by_face(face, table, x, y)
+    out_grad_ref[y, x] = sobel_vec3(lab, x, y)
+
+
+@pytest.mark.parametrize("name", ["cornell", "eyechart"])
+def test_lab_by_face_equals_the_conversion(name, device):
+    """The scene's per-face Lab table read through the G-buffer's face index gives bit for bit the Lab prepass
+    of the G-buffer's albedo (misses included) and the same Sobel gradient, and is within 2e-3 Lab units of
+    skimage; the table holds one entry per face, then black."""
+    from foveawarp.kernels.saliency import lab_kernel
 
     scene = fw.load_scene(name)
     loop = fw.FrameLoop(scene, W, H, device=device)
@@ -184,32 +197,42 @@ def test_lab_gathered_by_face_equals_the_conversion(name, device):
     loop.gbuffer_stage.run(loop.gbuffer, cam, cam)
     g = loop.gbuffer
     assert g.hit.numpy().sum() > 0
-    gathered = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
     prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
-    wp.launch(lab_from_face_kernel, dim=(H, W), inputs=[g.face, loop.dscene.face_lab], outputs=[gathered, 0],
-              device=loop.device)
     wp.launch(lab_kernel, dim=(H, W), inputs=[g.albedo], outputs=[prepass, 0], device=loop.device)
-    assert np.array_equal(gathered.numpy(), prepass.numpy())
-    assert np.abs(gathered.numpy() - _lab_reference(g.albedo.numpy())).max() < 2e-3
+    got = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
+    grad = wp.zeros((H, W), dtype=float, device=loop.device)
+    grad_ref = wp.zeros((H, W), dtype=float, device=loop.device)
+    wp.launch(_lab_by_face_kernel, dim=(H, W), inputs=[g.face, loop.dscene.face_lab, prepass],
+              outputs=[got, grad, grad_ref], device=loop.device)
+    assert np.array_equal(got.numpy(), prepass.numpy())
+    assert np.array_equal(grad.numpy(), grad_ref.numpy())
+    assert grad.numpy().max() > 0.0  # edges exist, so the comparison means something
+    assert np.abs(got.numpy() - _lab_reference(g.albedo.numpy())).max() < 2e-3
     table = loop.dscene.face_lab.numpy()
     assert table.shape == (scene.num_triangles + 1, 3)
     assert np.abs(table[:-1] - _lab_reference(scene.face_albedo[None])[0]).max() < 2e-3
     assert np.abs(table[-1]).max() < 1e-4
 
 
-def test_frame_loop_lab_is_the_frames_albedo(device):
-    """A foveated frame's sampling map reads the Lab gathered by face: it equals the prepass of the frame's own
-    albedo (eyechart: textured faces and background)."""
-    import warp as wp
-
-    from foveawarp.kernels.saliency import lab_kernel
-
-    loop = fw.FrameLoop("eyechart", W, H, device=device, policy="foveated")
-    loop.render(loop.scene.camera_at(0.0), time=0.0)
-    prepass = wp.zeros((H, W), dtype=wp.vec3, device=loop.device)
-    wp.launch(lab_kernel, dim=(H, W), inputs=[loop.gbuffer.albedo], outputs=[prepass, 0], device=loop.device)
-    assert np.array_equal(loop.sampling.lab.numpy(), prepass.numpy())
-    assert np.abs(prepass.numpy()).max() > 1.0  # a real image, not zeros
+def test_frame_loop_sampling_map_equals_the_prepass_path(device):
+    """A foveated frame's sampling map reads the Lab albedo through the face table: launching the stage again on
+    the same G-buffer and history through the Lab prepass gives the same sample map, cache hits and indices."""
+    w, h = 192, 108  # large enough for a periphery
+    loop = fw.FrameLoop("eyechart", w, h, device=device, policy="foveated")
+    for i in range(3):
+        t = 0.05 * i
+        loop.render(loop.scene.camera_at(t), gaze_px=(w * 0.2 + 5 * i, h * 0.5), time=t)
+    s = loop.sampling
+    # the last frame's inputs: the history the frame read is the one before its resolve, so run the stage
+    # right after a render on the current G-buffer with the current history, both ways
+    hist = (loop.temporal.depth, loop.temporal.filled)
+    s.launch(loop.gbuffer, depth_prev=hist[0], valid_prev=hist[1], face_lab=loop.dscene.face_lab)
+    by_face = [a.numpy().copy() for a in (s.sample_map, s.cache_hit, s.prev_index)]
+    s.launch(loop.gbuffer, depth_prev=hist[0], valid_prev=hist[1])
+    prepass = [a.numpy() for a in (s.sample_map, s.cache_hit, s.prev_index)]
+    for a, b in zip(by_face, prepass):
+        assert np.array_equal(a, b)
+    assert 0 < by_face[0].sum() < by_face[0].size
 
 
 def test_sampling_launch_face_lab_is_checked(device):

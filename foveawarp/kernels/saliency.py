@@ -68,6 +68,26 @@ def sobel_vec3(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
 
 
 @wp.func
+def face_lab_at(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3), x: int, y: int) -> wp.vec3:
+    """CIE-Lab albedo of G-buffer entry (x, y) from the scene's per-face table (last entry: a miss)."""
+    f = face[y, x]
+    if f < 0:
+        f = face_lab.shape[0] - 1
+    return face_lab[f]
+
+
+@wp.func
+def sobel_lab_by_face(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3), x: int, y: int) -> float:
+    """Sobel magnitude (max over channels, edge-clamped) of the CIE-Lab albedo of a G-buffer, each tap looked up
+    by its face in ``face_lab`` (``saliency.face_lab_kernel``: the same values as converting the albedo)."""
+    xm, xp, ym, yp = clamped_neighbours(x, y, face.shape[1], face.shape[0])
+    return sobel_max_channel(face_lab_at(face, face_lab, xm, ym), face_lab_at(face, face_lab, x, ym),
+                             face_lab_at(face, face_lab, xp, ym), face_lab_at(face, face_lab, xm, y),
+                             face_lab_at(face, face_lab, xp, y), face_lab_at(face, face_lab, xm, yp),
+                             face_lab_at(face, face_lab, x, yp), face_lab_at(face, face_lab, xp, yp))
+
+
+@wp.func
 def dof_factor(depth: float, focus: float, sigma1: float, sigma2: float, dof_floor: float) -> float:
     """F_DoF: 1 while |depth - focus| <= sigma1, then linear down to ``dof_floor`` at sigma1 + sigma2 and
     ``dof_floor`` beyond (metres; sigma2 > 0 is validated by SaliencyConfig)."""
@@ -89,26 +109,13 @@ def lab_kernel(albedo: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3)
 @wp.kernel(enable_backward=False)
 def face_lab_kernel(face_albedo: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
     """CIE-Lab of every face's albedo, ``out[f]`` for f < F, and of the miss albedo (black) in ``out[F]``
-    (``out`` has F + 1 entries): ``lab_from_face_kernel`` gathers from it the values ``lab_kernel`` computes
-    from a scene's G-buffer albedo, without a cube root per pixel."""
+    (``out`` has F + 1 entries): read by the G-buffer's face index (:func:`face_lab_at`), the values
+    ``lab_kernel`` computes from a scene's G-buffer albedo, without a cube root per pixel."""
     i = wp.tid()
     c = wp.vec3(0.0, 0.0, 0.0)
     if i < face_albedo.shape[0]:
         c = face_albedo[i]
     out[i] = linear_rgb_to_lab(c)
-
-
-@wp.kernel(enable_backward=False)
-def lab_from_face_kernel(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3),
-                         out: wp.array2d(dtype=wp.vec3), row0: int):
-    """``lab_kernel`` for a G-buffer whose albedo is its faces' (the scene's): a gather from the
-    ``face_lab_kernel`` table by the G-buffer's face index (-1, a miss: the table's last entry)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    f = face[y, x]
-    if f < 0:
-        f = face_lab.shape[0] - 1
-    out[y, x] = face_lab[f]
 
 
 @wp.kernel(enable_backward=False)

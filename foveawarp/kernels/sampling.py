@@ -20,7 +20,7 @@ import warp as wp
 from .camera import CameraParams, camera_project
 from .gbuffer import NO_REPROJ
 from .reproject import cache_lookup
-from .saliency import dof_factor, sobel_vec3
+from .saliency import dof_factor, sobel_lab_by_face, sobel_vec3
 
 # salt of the per-pixel jitter stream (the per-tile rank offsets use the plain seed)
 JITTER_SALT = 0x2545F491
@@ -497,6 +497,9 @@ def sampling_map_kernel(
     depth_prev: wp.array2d(dtype=float),
     valid_prev: wp.array2d(dtype=wp.uint8),
     maps_only: int,
+    face: wp.array2d(dtype=wp.int32),
+    face_lab: wp.array(dtype=wp.vec3),
+    lab_by_face: int,
     out_probability: wp.array2d(dtype=float),
     out_saliency: wp.array2d(dtype=float),
     out_sample: wp.array2d(dtype=wp.uint8),
@@ -510,7 +513,9 @@ def sampling_map_kernel(
     only ``out_probability`` and ``out_saliency``, the values the frame pass thresholds (the stage computes
     them on request: nothing in the frame reads them).
 
-    ``lab`` is the CIE-Lab albedo from ``saliency.lab_kernel`` (any (H, W) vec3 array when use_albedo is 0).
+    ``lab`` is the CIE-Lab albedo from ``saliency.lab_kernel`` (any (H, W) vec3 array when use_albedo is 0);
+    with ``lab_by_face`` != 0 the albedo gradient reads the G-buffer's ``face`` and the scene's per-face Lab
+    table ``face_lab`` instead (``saliency.face_lab_kernel``: the same values, no prepass).
     Background pixels (hit == 0) have albedo 0 and normal 0 in the G-buffer; they take part in the gradient
     terms as such (so silhouettes are sampled on both sides) but get no velocity term and no DoF factor (a
     miss has no surface depth or motion).
@@ -536,7 +541,10 @@ def sampling_map_kernel(
         v = wp.vec2(0.0, 0.0)
         if p < 1.0:
             if sp.use_albedo != 0:
-                ga = sobel_vec3(lab, x, y)
+                if lab_by_face != 0:
+                    ga = sobel_lab_by_face(face, face_lab, x, y)
+                else:
+                    ga = sobel_vec3(lab, x, y)
             if sp.use_normal != 0:
                 gn = sobel_vec3(normal, x, y)
             if hit_px != wp.uint8(0) and fp.use_velocity != 0:

@@ -16,7 +16,7 @@ import warp as wp
 
 from .camera import CameraParams
 from .gbuffer import trace_primary
-from .saliency import clamped_neighbours, sobel_max_channel, sobel_vec3
+from .saliency import sobel_lab_by_face, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
 
@@ -77,26 +77,6 @@ def coarse_gbuffer_kernel(
                   out_prev_dist, out_moved)
 
 
-@wp.func
-def face_lab_at(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3), x: int, y: int) -> wp.vec3:
-    """CIE-Lab albedo of G-buffer entry (x, y) from the scene's per-face table (last entry: a miss)."""
-    f = face[y, x]
-    if f < 0:
-        f = face_lab.shape[0] - 1
-    return face_lab[f]
-
-
-@wp.func
-def sobel_lab(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype=wp.vec3), x: int, y: int) -> float:
-    """Sobel magnitude (max over channels, edge-clamped) of the CIE-Lab albedo of a G-buffer, each tap looked up
-    by its face in ``face_lab`` (``saliency.face_lab_kernel``: the same values as converting the albedo)."""
-    xm, xp, ym, yp = clamped_neighbours(x, y, face.shape[1], face.shape[0])
-    return sobel_max_channel(face_lab_at(face, face_lab, xm, ym), face_lab_at(face, face_lab, x, ym),
-                             face_lab_at(face, face_lab, xp, ym), face_lab_at(face, face_lab, xm, y),
-                             face_lab_at(face, face_lab, xp, y), face_lab_at(face, face_lab, xm, yp),
-                             face_lab_at(face, face_lab, x, yp), face_lab_at(face, face_lab, xp, yp))
-
-
 @wp.kernel(enable_backward=False)
 def coarse_saliency_kernel(
     sp: SamplingParams,
@@ -117,7 +97,7 @@ def coarse_saliency_kernel(
     fp = frame[0]
     s = float(0.0)
     if sp.use_albedo != 0:
-        s = wp.max(s, wp.min(sp.albedo_gain * sobel_lab(face, face_lab, x, y), 1.0))
+        s = wp.max(s, wp.min(sp.albedo_gain * sobel_lab_by_face(face, face_lab, x, y), 1.0))
     if sp.use_normal != 0 and s < 1.0:
         s = wp.max(s, wp.min(sp.normal_gain * sobel_vec3(normal, x, y), 1.0))
     if hit[y, x] != wp.uint8(0) and fp.use_velocity != 0 and s < 1.0:

@@ -15,7 +15,7 @@ from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
 from ..config import Config, check_bool, check_int_range, check_range, check_vec, show
 from ..kernels.camera import CameraParams
-from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_from_face_kernel, lab_kernel
+from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
 from ..kernels.sampling import (
     FrameParams,
     SamplingParams,
@@ -204,7 +204,9 @@ class SamplingStage:
         self.ranks = wp.array(dither_ranks(k), dtype=wp.int32, device=dev)
         self.frame_params = wp.zeros(1, dtype=FrameParams, device=dev)
         self._lab_on = bool(config.foveation.enabled and config.saliency.use_albedo)
-        self.lab = wp.zeros((h, w) if self._lab_on else (1, 1), dtype=wp.vec3, device=dev)
+        # the Lab prepass's output, allocated on first use (a FrameLoop reads the scene's per-face table instead)
+        self.lab = wp.zeros((1, 1), dtype=wp.vec3, device=dev)
+        self._no_face_lab = wp.zeros(1, dtype=wp.vec3, device=dev)
         self._probability = None  # allocated on the first request (see ``probability``)
         self._saliency = None
         self._maps_gbuffer = None  # the G-buffer of the last set_frame, and whether the maps are of that frame
@@ -345,23 +347,28 @@ class SamplingStage:
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         self.num_samples.zero_()
         self.num_cache_hits.zero_()
-        if self._lab_on:
-            if face_lab is None:
-                parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
-            else:
-                if not (isinstance(face_lab, wp.array) and face_lab.dtype == wp.vec3 and face_lab.ndim == 1
-                        and face_lab.device == dev):
-                    raise ValueError(f"face_lab must be a 1-D vec3 wp.array on {dev} (DeviceScene.face_lab), got "
-                                     f"{getattr(face_lab, 'shape', type(face_lab).__name__)}")
-                parallel.launch(lab_from_face_kernel, dim=(h, w), inputs=[g.face, face_lab], outputs=[self.lab],
-                                device=dev)
+        by_face = 0
+        table = self._no_face_lab
+        if face_lab is not None:
+            if not (isinstance(face_lab, wp.array) and face_lab.dtype == wp.vec3 and face_lab.ndim == 1
+                    and face_lab.device == dev):
+                raise ValueError(f"face_lab must be a 1-D vec3 wp.array on {dev} (DeviceScene.face_lab), got "
+                                 f"{getattr(face_lab, 'shape', type(face_lab).__name__)}")
+            by_face, table = 1, face_lab
+        elif self._lab_on:
+            parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
         parallel.launch(sampling_map_kernel, dim=(h, w),
                         inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
-                                g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp, 0],
+                                g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face],
                         outputs=[self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index],
                         device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)
+
+    def _lab_array(self) -> wp.array:
+        if tuple(self.lab.shape) != (self.height, self.width):
+            self.lab = wp.zeros((self.height, self.width), dtype=wp.vec3, device=self.device)
+        return self.lab
 
     # -- probability and saliency maps, on request ---------------------------------------------------------------
     @property
@@ -392,11 +399,11 @@ class SamplingStage:
         g = self._maps_gbuffer
         if g is not None and not self._maps_current and not self._maps_external:
             if self._lab_on:
-                parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self.lab], device=dev)
+                parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
             parallel.launch(sampling_map_kernel, dim=(h, w),
                             inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
                                     g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev,
-                                    self.valid_prev, 1],
+                                    self.valid_prev, 1, g.face, self._no_face_lab, 0],
                             outputs=[self._probability, self._saliency, self.sample_map, self.cache_hit,
                                      self.prev_index],
                             device=dev)
