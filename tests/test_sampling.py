@@ -589,3 +589,51 @@ def test_dither_rank_matches_numpy_model(device, k):
         wp.launch(_rank_kernel, dim=(h, w), inputs=[sp, ranks, rot], outputs=[out], device=device)
         ref = (nr[ys % k, xs % k] + off.astype(np.int64) + rot) % kk
         assert np.array_equal(out.numpy(), ref)
+
+
+# -- the CPU's one-launch frame pass (rows of tiles) against the per-pixel kernel + tile pass --------------------
+
+
+@pytest.mark.parametrize("w,h,k", [(61, 45, 4), (64, 48, 4), (50, 31, 3), (23, 17, 5)])
+@pytest.mark.parametrize("threads", [1, 3])
+def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads):
+    """On the CPU ``SamplingStage.launch`` runs the map and the tile guarantee as one launch over rows of tiles
+    (``sampling_rows_kernel``): the sample map, cache hits, previous-pixel indices and counters equal the
+    per-pixel kernel (the CUDA path) followed by the tile pass, partial tiles included, at 1 and 3 threads."""
+    from foveawarp import parallel
+    from foveawarp.kernels.sampling import sampling_map_kernel
+    from foveawarp.stages.sampling import launch_tile_pass
+
+    dev = wp.get_device("cpu")
+    g = _textured_gbuffer(w, h, "cpu", rng)
+    cfg = fw.Config().with_(foveation={"block": k})
+    stage = SamplingStage(w, h, cfg, device="cpu")
+    cam = fw.Camera(fov_y_deg=50.0)
+    stage.run(g, cam, (w * 0.3, h * 0.6), 0, moving=False, first_frame=True)
+    stage.end_frame(g)
+    stage.set_frame(g, cam, (w * 0.6, h * 0.4), 1, moving=True, first_frame=False, eye_prev=cam.eye)
+    with parallel.cpu_threads(threads):
+        stage.launch(g)
+    got = [a.numpy().copy() for a in (stage.sample_map, stage.cache_hit, stage.prev_index)]
+    counts = (int(stage.num_samples.numpy()[0]), int(stage.num_cache_hits.numpy()[0]))
+    # the same frame through the per-pixel kernel and the tile pass
+    lab = wp.zeros((h, w), dtype=wp.vec3, device="cpu")
+    from foveawarp.kernels.saliency import lab_kernel
+    wp.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[lab, 0], device="cpu")
+    sm = wp.zeros((h, w), dtype=wp.uint8, device="cpu")
+    ch = wp.zeros((h, w), dtype=wp.uint8, device="cpu")
+    pi = wp.zeros((h, w), dtype=wp.int32, device="cpu")
+    ns = wp.zeros(1, dtype=wp.int32, device="cpu")
+    nc = wp.zeros(1, dtype=wp.int32, device="cpu")
+    dummy = wp.zeros((1, 1), dtype=float, device="cpu")
+    wp.launch(sampling_map_kernel, dim=(h, w),
+              inputs=[stage.params, stage.frame_params, stage.ranks, lab, g.normal, g.depth, g.hit, g.velocity,
+                      g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
+                      stage._no_face_lab, 0],
+              outputs=[dummy, dummy, sm, ch, pi, 0], device="cpu")
+    with parallel.cpu_threads(1):
+        launch_tile_pass(stage.ranks, stage.params, stage.frame_params, stage.tiles, sm, ch, ns, nc, dev)
+    for a, b in zip(got, (sm.numpy(), ch.numpy(), pi.numpy())):
+        assert np.array_equal(a, b)
+    assert counts == (int(ns.numpy()[0]), int(nc.numpy()[0])) == (int(got[0].sum()), int(got[1].sum()))
+    assert tile_counts(got[0], k).min() >= 1 and 0 < counts[1]

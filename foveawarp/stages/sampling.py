@@ -21,6 +21,7 @@ from ..kernels.sampling import (
     SamplingParams,
     frame_setup_kernel,
     sampling_map_kernel,
+    sampling_rows_kernel,
     tile_counts_sum_kernel,
     tile_pass_bands_kernel,
     tile_pass_kernel,
@@ -357,9 +358,19 @@ class SamplingStage:
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
+        gin = [self.lab, g.normal, g.depth, g.hit, g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp]
+        if dev.is_cpu:
+            # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum
+            parallel.launch(sampling_rows_kernel, dim=self.tiles[0],
+                            inputs=[self.params, self.frame_params, self.ranks, *gin, g.face, table, by_face,
+                                    self._dummy_map],
+                            outputs=[self.sample_map, self.cache_hit, self.prev_index, self.tile_counts], device=dev,
+                            min_band_items=1)
+            wp.launch(tile_counts_sum_kernel, dim=1, inputs=[self.tile_counts],
+                      outputs=[self.num_samples, self.num_cache_hits], device=dev)
+            return
         parallel.launch(sampling_map_kernel, dim=(h, w),
-                        inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
-                                g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face],
+                        inputs=[self.params, self.frame_params, self.ranks, *gin, 0, g.face, table, by_face],
                         outputs=[self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index],
                         device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
