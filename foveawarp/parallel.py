@@ -41,7 +41,7 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
     _bounds_of = _invoke = None
 import ctypes
 
-__all__ = ["launch", "Relaunch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
+__all__ = ["launch", "launch_rows", "Relaunch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
            "ENV_VAR"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
@@ -370,6 +370,21 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         team.run(worker, workers)
     finally:
         team.busy.release()
+
+
+def launch_rows(pixel_kernel, rows_kernel, shape, inputs: Sequence = (), outputs: Sequence = (), device=None) -> None:
+    """A per-pixel pass over an image of ``shape`` = (H, W): on CUDA ``pixel_kernel`` over (H, W) (a thread per
+    pixel); on the CPU ``rows_kernel`` over H (a thread per row, looping over its W pixels), in bands. Both take
+    the same arguments (the last ``row0``) and compute the same values (the rows kernel calls the pixel
+    kernel's body, a shared ``wp.func``, for x in [0, W)). On the CPU a Warp launch thread costs its kernel's
+    argument and struct loads every time: once per row instead of once per pixel is cheaper (the sampling
+    pass: 18.8 instead of 30 ms at 640x360 on one core)."""
+    h, w = int(shape[0]), int(shape[1])
+    dev = wp.get_device(device)
+    if dev.is_cuda:
+        launch(pixel_kernel, (h, w), inputs, outputs, dev)
+    else:
+        launch(rows_kernel, h, inputs, outputs, dev, min_band_items=max(1, -(-MIN_ITEMS_PER_BAND // max(w, 1))))
 
 
 class Relaunch:

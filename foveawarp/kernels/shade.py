@@ -221,6 +221,34 @@ def shade_full_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def shade_full_rows_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    exposure: float,
+    white: float,
+    to_display: int,
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    display: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """``shade_full_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
+    y = wp.tid() + row0  # band offset (foveawarp.parallel)
+    sp = spa[0]
+    for x in range(out.shape[1]):
+        shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+        if to_display != 0:
+            display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+
+
+@wp.kernel(enable_backward=False)
 def shade_list_kernel(
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
@@ -272,6 +300,30 @@ def shade_masked_kernel(
         return
     sp = spa[0]
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+
+
+@wp.kernel(enable_backward=False)
+def shade_masked_rows_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    mask: wp.array2d(dtype=wp.uint8),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """``shade_masked_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
+    y = wp.tid() + row0  # band offset (foveawarp.parallel)
+    sp = spa[0]
+    for x in range(mask.shape[1]):
+        if mask[y, x] != wp.uint8(0):
+            shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)

@@ -88,8 +88,10 @@ def disc_mean(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), 
                    wp.clamp(2.0 * t[2], -F32_MAX, F32_MAX))
 
 
-@wp.kernel(enable_backward=False)
-def sibson_gather_kernel(
+@wp.func
+def sibson_gather_pixel(
+    x: int,
+    y: int,
     mask: wp.array2d(dtype=wp.uint8),
     vor: wp.array2d(dtype=wp.vec3),
     r2: wp.array2d(dtype=wp.int32),
@@ -102,12 +104,8 @@ def sibson_gather_kernel(
     to_display: int,
     color_out: wp.array2d(dtype=wp.vec3),
     display: wp.array2d(dtype=wp.vec3),
-    row0: int,
 ):
-    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
-    also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
+    """Bounded Sibson gather at pixel (x, y) (``sibson_gather_kernel`` documents it)."""
     if mask[y, x] != wp.uint8(0):  # a seed keeps its color
         c = finite_or_zero(color_in[y, x])
         color_out[y, x] = c
@@ -128,6 +126,55 @@ def sibson_gather_kernel(
     color_out[y, x] = c
     if to_display != 0:
         display[y, x] = tonemap_rgb(c, exposure, white)
+
+
+
+
+@wp.kernel(enable_backward=False)
+def sibson_gather_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    vor: wp.array2d(dtype=wp.vec3),
+    r2: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    color_in: wp.array2d(dtype=wp.vec3),
+    window: int,
+    max_r2: wp.array(dtype=wp.int32),
+    exposure: float,
+    white: float,
+    to_display: int,
+    color_out: wp.array2d(dtype=wp.vec3),
+    display: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
+    also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display, color_out,
+                        display)
+
+
+@wp.kernel(enable_backward=False)
+def sibson_gather_rows_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    vor: wp.array2d(dtype=wp.vec3),
+    r2: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    color_in: wp.array2d(dtype=wp.vec3),
+    window: int,
+    max_r2: wp.array(dtype=wp.int32),
+    exposure: float,
+    white: float,
+    to_display: int,
+    color_out: wp.array2d(dtype=wp.vec3),
+    display: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """``sibson_gather_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
+    y = wp.tid() + row0  # band offset (foveawarp.parallel)
+    for x in range(mask.shape[1]):
+        sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
+                            color_out, display)
 
 
 @wp.kernel(enable_backward=False)

@@ -137,22 +137,22 @@ def neighbourhood_box(x: int, y: int, radius: int, sample_map: wp.array2d(dtype=
     return mu - sd * gamma, mu + sd * gamma, cnt
 
 
-def _make_resolve_kernel(stochastic: bool):
+def _make_resolve_kernels(stochastic: bool):
     """The resolve, specialised at compile time on the shading kind (``stochastic``: the shading has Monte
     Carlo terms, ``fresh_stoch`` holds them). The deterministic kernel (the default shading) has no
     stochastic history, no neighbourhood box and no clipping, and reads the velocity only where the rule
-    needs it; both kernels are this one body, so the rule stands once.
+    needs it; both kinds are this one body, so the rule stands once. Returns (pixel kernel, rows kernel): a
+    thread per pixel (CUDA), and a thread per row looping over its pixels (the CPU: ``parallel.launch_rows``).
 
     Outputs: ``out_color`` (flat) is both the frame's resolved colour and the colour history; ``out_filled``,
     ``out_depth`` (the G-buffer depth, kept as the next frame's previous depth); ``out_meta`` (age, stale);
     ``out_normal`` and ``out_stoch`` (flat) are written only where the history is non-empty (age > 0), the
     only place the next resolve reads them."""
 
-    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
-    # the single kernel this replaces used 136, so an SM held one block of 256 threads)
-    @wp.kernel(enable_backward=False, name="resolve_stoch_kernel" if stochastic else "resolve_kernel",
-               grid_stride=False)
-    def resolve(
+    @wp.func
+    def resolve_pixel(
+        x: int,
+        y: int,
         tp: TemporalParams,
         sample_map: wp.array2d(dtype=wp.uint8),
         hit: wp.array2d(dtype=wp.uint8),
@@ -175,10 +175,7 @@ def _make_resolve_kernel(stochastic: bool):
         out_normal: wp.array(dtype=wp.vec3),
         out_meta: wp.array(dtype=wp.int32),
         out_stoch: wp.array(dtype=wp.vec3),
-        row0: int,
     ):
-        y, x = wp.tid()
-        y += row0  # band offset (foveawarp.parallel)
         w = out_filled.shape[1]
         h = out_filled.shape[0]
         i = y * w + x
@@ -286,11 +283,79 @@ def _make_resolve_kernel(stochastic: bool):
             if wp.static(stochastic):
                 out_stoch[i] = st
 
-    return resolve
+
+    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
+    # the single kernel this replaces used 136, so an SM held one block of 256 threads)
+    @wp.kernel(enable_backward=False, name="resolve_stoch_kernel" if stochastic else "resolve_kernel",
+               grid_stride=False)
+    def resolve(
+        tp: TemporalParams,
+        sample_map: wp.array2d(dtype=wp.uint8),
+        hit: wp.array2d(dtype=wp.uint8),
+        normal: wp.array2d(dtype=wp.vec3),
+        depth: wp.array2d(dtype=float),
+        reproj_uv: wp.array2d(dtype=wp.vec2),
+        prev_dist: wp.array2d(dtype=float),
+        velocity: wp.array2d(dtype=wp.vec2),
+        moved: wp.array2d(dtype=wp.uint8),
+        fresh: wp.array2d(dtype=wp.vec3),
+        fresh_stoch: wp.array2d(dtype=wp.vec3),
+        depth_prev: wp.array2d(dtype=float),
+        normal_prev: wp.array(dtype=wp.vec3),
+        meta_prev: wp.array(dtype=wp.int32),
+        color_prev: wp.array(dtype=wp.vec3),
+        stoch_prev: wp.array(dtype=wp.vec3),
+        out_color: wp.array(dtype=wp.vec3),
+        out_filled: wp.array2d(dtype=wp.uint8),
+        out_depth: wp.array2d(dtype=float),
+        out_normal: wp.array(dtype=wp.vec3),
+        out_meta: wp.array(dtype=wp.int32),
+        out_stoch: wp.array(dtype=wp.vec3),
+        row0: int,
+    ):
+        y, x = wp.tid()
+        y += row0  # band offset (foveawarp.parallel)
+        resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
+                      fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color, out_filled,
+                      out_depth, out_normal, out_meta, out_stoch)
+
+    @wp.kernel(enable_backward=False, name="resolve_stoch_rows_kernel" if stochastic else "resolve_rows_kernel")
+    def resolve_rows(
+        tp: TemporalParams,
+        sample_map: wp.array2d(dtype=wp.uint8),
+        hit: wp.array2d(dtype=wp.uint8),
+        normal: wp.array2d(dtype=wp.vec3),
+        depth: wp.array2d(dtype=float),
+        reproj_uv: wp.array2d(dtype=wp.vec2),
+        prev_dist: wp.array2d(dtype=float),
+        velocity: wp.array2d(dtype=wp.vec2),
+        moved: wp.array2d(dtype=wp.uint8),
+        fresh: wp.array2d(dtype=wp.vec3),
+        fresh_stoch: wp.array2d(dtype=wp.vec3),
+        depth_prev: wp.array2d(dtype=float),
+        normal_prev: wp.array(dtype=wp.vec3),
+        meta_prev: wp.array(dtype=wp.int32),
+        color_prev: wp.array(dtype=wp.vec3),
+        stoch_prev: wp.array(dtype=wp.vec3),
+        out_color: wp.array(dtype=wp.vec3),
+        out_filled: wp.array2d(dtype=wp.uint8),
+        out_depth: wp.array2d(dtype=float),
+        out_normal: wp.array(dtype=wp.vec3),
+        out_meta: wp.array(dtype=wp.int32),
+        out_stoch: wp.array(dtype=wp.vec3),
+        row0: int,
+    ):
+        y = wp.tid() + row0  # band offset (foveawarp.parallel)
+        for x in range(out_filled.shape[1]):
+            resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
+                      fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color, out_filled,
+                      out_depth, out_normal, out_meta, out_stoch)
+
+    return resolve, resolve_rows
 
 
-resolve_kernel = _make_resolve_kernel(False)
-resolve_stoch_kernel = _make_resolve_kernel(True)
+resolve_kernel, resolve_rows_kernel = _make_resolve_kernels(False)
+resolve_stoch_kernel, resolve_stoch_rows_kernel = _make_resolve_kernels(True)
 
 
 @wp.func

@@ -8,7 +8,7 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from ..kernels.gbuffer import gbuffer_kernel
+from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel
 
 __all__ = ["GBufferStage"]
 
@@ -38,11 +38,10 @@ class GBufferStage:
         scene's previous vertex positions."""
         g, ds = gbuffer, self.dscene
         w, h = self.width, self.height
-        self._launch(
-            dim=(h, w),
-            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
-                    camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved],
-            device=self.device,
-        )
+        inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+                  camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
+        outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist, g.moved]
+        if self.device.is_cpu:  # a thread per row (parallel.launch_rows); CUDA: the recorded per-pixel launch
+            parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
+        else:
+            self._launch(dim=(h, w), inputs=inputs, outputs=outputs, device=self.device)

@@ -32,7 +32,12 @@ from ..kernels.jfa import (
     voronoi_fill_kernel,
     voronoi_from_nearest_kernel,
 )
-from ..kernels.sibson import sibson_gather_kernel, sibson_resolve_kernel, sibson_scatter_kernel
+from ..kernels.sibson import (
+    sibson_gather_kernel,
+    sibson_gather_rows_kernel,
+    sibson_resolve_kernel,
+    sibson_scatter_kernel,
+)
 
 __all__ = [
     "ReconstructStage",
@@ -321,10 +326,10 @@ class ReconstructStage:
             parallel.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                             outputs=[color_out], device=dev)
             return False
-        parallel.launch(sibson_gather_kernel, dim=dim,
-                        inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
-                                float(tone[0]), float(tone[1]), 0 if display is None else 1],
-                        outputs=[color_out, self._dummy3 if display is None else display], device=dev)
+        parallel.launch_rows(sibson_gather_kernel, sibson_gather_rows_kernel, dim,
+                             inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
+                                     float(tone[0]), float(tone[1]), 0 if display is None else 1],
+                             outputs=[color_out, self._dummy3 if display is None else display], device=dev)
         return display is not None
 
     def run(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,

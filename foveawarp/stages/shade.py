@@ -13,8 +13,10 @@ from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
     shade_full_kernel,
+    shade_full_rows_kernel,
     shade_list_kernel,
     shade_masked_kernel,
+    shade_masked_rows_kernel,
     shade_rows_kernel,
 )
 
@@ -92,16 +94,16 @@ class ShadeStage:
         the tone-mapped values, with the config's exposure and white point, in the same pass."""
         sc = self.config
         disp = self._dummy_display if display is None else display
-        parallel.launch(shade_full_kernel, dim=(self.height, self.width),
-                        inputs=[self.params_dev, *self._inputs(gbuffer), float(sc.exposure), float(sc.white_point),
-                                0 if display is None else 1],
-                        outputs=[out, out_stoch, disp], device=self.device)
+        parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width),
+                             inputs=[self.params_dev, *self._inputs(gbuffer), float(sc.exposure), float(sc.white_point),
+                                     0 if display is None else 1],
+                             outputs=[out, out_stoch, disp], device=self.device)
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
-        parallel.launch(shade_masked_kernel, dim=(self.height, self.width),
-                        inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
-                        device=self.device)
+        parallel.launch_rows(shade_masked_kernel, shade_masked_rows_kernel, (self.height, self.width),
+                             inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                             device=self.device)
 
     def rows(self, gbuffer, coords, counts, out, out_stoch) -> None:
         """Row-CSR launch (thesis strategies 1/2)."""

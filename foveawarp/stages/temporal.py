@@ -12,7 +12,9 @@ from ..kernels.temporal import (
     TemporalParams,
     refresh_thin_kernel,
     resolve_kernel,
+    resolve_rows_kernel,
     resolve_stoch_kernel,
+    resolve_stoch_rows_kernel,
 )
 
 __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
@@ -168,9 +170,10 @@ class TemporalStage:
         self._check_kind(stochastic)
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
-        parallel.launch(
+        parallel.launch_rows(
             resolve_stoch_kernel if stochastic else resolve_kernel,
-            dim=(self.height, self.width),
+            resolve_stoch_rows_kernel if stochastic else resolve_rows_kernel,
+            (self.height, self.width),
             inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
                     g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch,
                     self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev], self._stoch[prev]],
