@@ -41,7 +41,7 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
     _bounds_of = _invoke = None
 import ctypes
 
-__all__ = ["launch", "launch_rows", "Relaunch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
+__all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
            "ENV_VAR"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
@@ -372,6 +372,16 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         team.busy.release()
 
 
+# the CPU runs the per-pixel passes that have a rows variant a row per thread (launch_rows); False: a thread per
+# pixel as on CUDA (the same values: tests/test_parallel.py compares whole frames both ways)
+ROW_KERNELS = True
+
+
+def use_row_kernels(device) -> bool:
+    """Whether per-pixel passes with a rows variant run it on ``device`` (the CPU, unless ROW_KERNELS is off)."""
+    return bool(ROW_KERNELS) and not wp.get_device(device).is_cuda
+
+
 def launch_rows(pixel_kernel, rows_kernel, shape, inputs: Sequence = (), outputs: Sequence = (), device=None) -> None:
     """A per-pixel pass over an image of ``shape`` = (H, W): on CUDA ``pixel_kernel`` over (H, W) (a thread per
     pixel); on the CPU ``rows_kernel`` over H (a thread per row, looping over its W pixels), in bands. Both take
@@ -381,10 +391,10 @@ def launch_rows(pixel_kernel, rows_kernel, shape, inputs: Sequence = (), outputs
     pass: 18.8 instead of 30 ms at 640x360 on one core)."""
     h, w = int(shape[0]), int(shape[1])
     dev = wp.get_device(device)
-    if dev.is_cuda:
-        launch(pixel_kernel, (h, w), inputs, outputs, dev)
-    else:
+    if use_row_kernels(dev):
         launch(rows_kernel, h, inputs, outputs, dev, min_band_items=max(1, -(-MIN_ITEMS_PER_BAND // max(w, 1))))
+    else:
+        launch(pixel_kernel, (h, w), inputs, outputs, dev)
 
 
 class Relaunch:

@@ -41,7 +41,7 @@ class GBufferStage:
         inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                   camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
         outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist, g.moved]
-        if self.device.is_cpu:  # a thread per row (parallel.launch_rows); CUDA: the recorded per-pixel launch
+        if parallel.use_row_kernels(self.device):  # a thread per row (parallel.launch_rows); CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
             self._launch(dim=(h, w), inputs=inputs, outputs=outputs, device=self.device)

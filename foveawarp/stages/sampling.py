@@ -359,7 +359,7 @@ class SamplingStage:
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
         gin = [self.lab, g.normal, g.depth, g.hit, g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp]
-        if dev.is_cpu:
+        if parallel.use_row_kernels(dev):
             # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum
             parallel.launch(sampling_rows_kernel, dim=self.tiles[0],
                             inputs=[self.params, self.frame_params, self.ranks, *gin, g.face, table, by_face,
