@@ -86,3 +86,13 @@ def test_cpu_benchmark_quick(tmp_path):
     else:
         assert "not installed" in rays["embree"]
     assert [r["oversplit"] for r in res["oversplit_sweep"]] == [2]
+
+
+def test_cpu_dispatch_quick(tmp_path):
+    """benchmarks/cpu_dispatch.py: per-launch dispatch cost at 1 and 2 threads (no speed assertion)."""
+    _run([str(REPO / "benchmarks" / "cpu_dispatch.py"), "--quick", "--threads", "1,2"], tmp_path)
+    res = json.loads((tmp_path / "cpu-dispatch-cpu.json").read_text())
+    assert res["benchmark"] == "cpu-dispatch" and res["commit"]
+    assert [r["threads"] for r in res["rows"]] == [1, 2]
+    assert all(0 < r["launch_us_median"] <= r["launch_us_p90"] for r in res["rows"])
+    assert res["rows"][1]["bands"] > 1
