@@ -102,62 +102,48 @@ def trace_primary(
         out_moved[y, x] = wp.uint8(0)
 
 
-@wp.kernel(enable_backward=False)
-def gbuffer_kernel(
-    mesh: wp.uint64,
-    indices: wp.array(dtype=wp.int32),
-    points_prev: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
-    cam: CameraParams,
-    cam_prev: CameraParams,
-    max_t: float,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-    row0: int,
-):
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, float(x) + 0.5,
-                  float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity,
-                  out_reproj, out_prev_dist, out_moved)
+def _make_gbuffer(rows: bool):
+    """``gbuffer_kernel`` (a thread per pixel) or ``gbuffer_rows_kernel`` (a thread per row, the CPU:
+    ``parallel.launch_rows``)."""
+
+    @wp.kernel(enable_backward=False, name="gbuffer_rows_kernel" if rows else "gbuffer_kernel")
+    def gbuffer(
+        mesh: wp.uint64,
+        indices: wp.array(dtype=wp.int32),
+        points_prev: wp.array(dtype=wp.vec3),
+        vnormals: wp.array(dtype=wp.vec3),
+        smooth: wp.array(dtype=wp.uint8),
+        face_albedo: wp.array(dtype=wp.vec3),
+        cam: CameraParams,
+        cam_prev: CameraParams,
+        max_t: float,
+        out_pos: wp.array2d(dtype=wp.vec3),
+        out_normal: wp.array2d(dtype=wp.vec3),
+        out_depth: wp.array2d(dtype=float),
+        out_albedo: wp.array2d(dtype=wp.vec3),
+        out_face: wp.array2d(dtype=wp.int32),
+        out_hit: wp.array2d(dtype=wp.uint8),
+        out_velocity: wp.array2d(dtype=wp.vec2),
+        out_reproj: wp.array2d(dtype=wp.vec2),
+        out_prev_dist: wp.array2d(dtype=float),
+        out_moved: wp.array2d(dtype=wp.uint8),
+        row0: int,
+    ):
+        if wp.static(rows):
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
+            for x in range(out_depth.shape[1]):
+                trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
+                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
+                              out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
+            trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
+                          float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face,
+                          out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+
+    return gbuffer
 
 
-@wp.kernel(enable_backward=False)
-def gbuffer_rows_kernel(
-    mesh: wp.uint64,
-    indices: wp.array(dtype=wp.int32),
-    points_prev: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
-    cam: CameraParams,
-    cam_prev: CameraParams,
-    max_t: float,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-    row0: int,
-):
-    """``gbuffer_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
-    y = wp.tid() + row0  # band offset (foveawarp.parallel)
-    for x in range(out_depth.shape[1]):
-        trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, float(x) + 0.5,
-                      float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit,
-                      out_velocity, out_reproj, out_prev_dist, out_moved)
+gbuffer_kernel = _make_gbuffer(False)
+gbuffer_rows_kernel = _make_gbuffer(True)

@@ -560,93 +560,78 @@ def sampling_map_pixel(
         out_cache_hit[y, x] = wp.uint8(0)
 
 
-# CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
-# loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
-@wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=48)
-def sampling_map_kernel(
-    sp: SamplingParams,
-    frame: wp.array(dtype=FrameParams),
-    ranks: wp.array2d(dtype=wp.int32),
-    lab: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    depth: wp.array2d(dtype=float),
-    hit: wp.array2d(dtype=wp.uint8),
-    velocity: wp.array2d(dtype=wp.vec2),
-    position: wp.array2d(dtype=wp.vec3),
-    reproj_uv: wp.array2d(dtype=wp.vec2),
-    prev_dist: wp.array2d(dtype=float),
-    depth_prev: wp.array2d(dtype=float),
-    valid_prev: wp.array2d(dtype=wp.uint8),
-    maps_only: int,
-    face: wp.array2d(dtype=wp.int32),
-    face_lab: wp.array(dtype=wp.vec3),
-    lab_by_face: int,
-    out_probability: wp.array2d(dtype=float),
-    out_saliency: wp.array2d(dtype=float),
-    out_sample: wp.array2d(dtype=wp.uint8),
-    out_cache_hit: wp.array2d(dtype=wp.uint8),
-    out_prev_index: wp.array2d(dtype=wp.int32),
-    row0: int,
-):
-    """Fused per-pixel pass: eq. 2 probability, eq. 3 saliency, stratified threshold, eq. 4 cache test.
+def _make_sampling_map(rows: bool):
+    """``sampling_map_kernel`` (a thread per pixel, CUDA) or ``sampling_rows_kernel`` (the CPU: a thread per row
+    of ``block``-row tiles, launched over ``tiles_y`` in bands by ``foveawarp.parallel``, that runs the pixel pass
+    over its rows and then ``tile_guarantee`` on its tiles, writing their (samples, cache hits) to ``tile_counts``
+    for ``tile_counts_sum_kernel``: the map and the tile pass in one launch, with the same values as the two;
+    the pixel kernel does not touch ``tile_counts``)."""
 
-    ``maps_only`` 0 (the frame): writes ``out_sample``, ``out_cache_hit`` and ``out_prev_index`` only. 1: writes
-    only ``out_probability`` and ``out_saliency``, the values the frame pass thresholds (the stage computes
-    them on request: nothing in the frame reads them).
+    # CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
+    # loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
+    @wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=48,
+               name="sampling_rows_kernel" if rows else "sampling_map_kernel")
+    def sampling_map(
+        sp: SamplingParams,
+        frame: wp.array(dtype=FrameParams),
+        ranks: wp.array2d(dtype=wp.int32),
+        lab: wp.array2d(dtype=wp.vec3),
+        normal: wp.array2d(dtype=wp.vec3),
+        depth: wp.array2d(dtype=float),
+        hit: wp.array2d(dtype=wp.uint8),
+        velocity: wp.array2d(dtype=wp.vec2),
+        position: wp.array2d(dtype=wp.vec3),
+        reproj_uv: wp.array2d(dtype=wp.vec2),
+        prev_dist: wp.array2d(dtype=float),
+        depth_prev: wp.array2d(dtype=float),
+        valid_prev: wp.array2d(dtype=wp.uint8),
+        maps_only: int,
+        face: wp.array2d(dtype=wp.int32),
+        face_lab: wp.array(dtype=wp.vec3),
+        lab_by_face: int,
+        out_probability: wp.array2d(dtype=float),
+        out_saliency: wp.array2d(dtype=float),
+        out_sample: wp.array2d(dtype=wp.uint8),
+        out_cache_hit: wp.array2d(dtype=wp.uint8),
+        out_prev_index: wp.array2d(dtype=wp.int32),
+        tile_counts: wp.array2d(dtype=wp.vec2i),
+        row0: int,
+    ):
+        """Fused per-pixel pass: eq. 2 probability, eq. 3 saliency, stratified threshold, eq. 4 cache test.
 
-    ``lab`` is the CIE-Lab albedo from ``saliency.lab_kernel`` (any (H, W) vec3 array when use_albedo is 0);
-    with ``lab_by_face`` != 0 the albedo gradient reads the G-buffer's ``face`` and the scene's per-face Lab
-    table ``face_lab`` instead (``saliency.face_lab_kernel``: the same values, no prepass).
-    Background pixels (hit == 0) have albedo 0 and normal 0 in the G-buffer; they take part in the gradient
-    terms as such (so silhouettes are sampled on both sides) but get no velocity term and no DoF factor (a
-    miss has no surface depth or motion).
-    """
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, velocity, position, reproj_uv, prev_dist,
-                       depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face, out_probability, out_saliency,
-                       out_sample, out_cache_hit, out_prev_index)
+        ``maps_only`` 0 (the frame): writes ``out_sample``, ``out_cache_hit`` and ``out_prev_index`` only. 1: writes
+        only ``out_probability`` and ``out_saliency``, the values the frame pass thresholds (the stage computes
+        them on request: nothing in the frame reads them).
+
+        ``lab`` is the CIE-Lab albedo from ``saliency.lab_kernel`` (any (H, W) vec3 array when use_albedo is 0);
+        with ``lab_by_face`` != 0 the albedo gradient reads the G-buffer's ``face`` and the scene's per-face Lab
+        table ``face_lab`` instead (``saliency.face_lab_kernel``: the same values, no prepass).
+        Background pixels (hit == 0) have albedo 0 and normal 0 in the G-buffer; they take part in the gradient
+        terms as such (so silhouettes are sampled on both sides) but get no velocity term and no DoF factor (a
+        miss has no surface depth or motion).
+        """
+        if wp.static(rows):
+            ty = wp.tid() + row0  # band offset (foveawarp.parallel)
+            fp = frame[0]
+            k = sp.block
+            y1 = wp.min(ty * k + k, depth.shape[0])
+            for y in range(ty * k, y1):
+                for x in range(depth.shape[1]):
+                    sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
+                                       prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
+                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
+            if maps_only == 0:
+                for tx in range(tile_counts.shape[1]):
+                    tile_counts[ty, tx] = tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
+            sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
+                               prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
+                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
+
+    return sampling_map
 
 
-@wp.kernel(enable_backward=False)
-def sampling_rows_kernel(
-    sp: SamplingParams,
-    frame: wp.array(dtype=FrameParams),
-    ranks: wp.array2d(dtype=wp.int32),
-    lab: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    depth: wp.array2d(dtype=float),
-    hit: wp.array2d(dtype=wp.uint8),
-    velocity: wp.array2d(dtype=wp.vec2),
-    position: wp.array2d(dtype=wp.vec3),
-    reproj_uv: wp.array2d(dtype=wp.vec2),
-    prev_dist: wp.array2d(dtype=float),
-    depth_prev: wp.array2d(dtype=float),
-    valid_prev: wp.array2d(dtype=wp.uint8),
-    face: wp.array2d(dtype=wp.int32),
-    face_lab: wp.array(dtype=wp.vec3),
-    lab_by_face: int,
-    no_map: wp.array2d(dtype=float),
-    out_sample: wp.array2d(dtype=wp.uint8),
-    out_cache_hit: wp.array2d(dtype=wp.uint8),
-    out_prev_index: wp.array2d(dtype=wp.int32),
-    tile_counts: wp.array2d(dtype=wp.vec2i),
-    row0: int,
-):
-    """The CPU's frame pass over whole rows of tiles (a launch of ``tiles_y`` threads, band-parallel in
-    ``foveawarp.parallel``): thread ty runs ``sampling_map_kernel``'s pixel pass over the ``block`` image rows
-    of tile row ty, then ``tile_guarantee`` on each of its tiles, writing their (samples, cache hits) to
-    ``tile_counts`` (``tile_counts_sum_kernel`` adds them up): the map and the tile pass in one launch, with
-    the same values as the two (``no_map``: any float array, the maps are not written)."""
-    ty = wp.tid() + row0  # band offset (foveawarp.parallel)
-    fp = frame[0]
-    k = sp.block
-    w = depth.shape[1]
-    y1 = wp.min(ty * k + k, depth.shape[0])
-    for y in range(ty * k, y1):
-        for x in range(w):
-            sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
-                               prev_dist, depth_prev, valid_prev, 0, face, face_lab, lab_by_face, no_map, no_map,
-                               out_sample, out_cache_hit, out_prev_index)
-    for tx in range(tile_counts.shape[1]):
-        tile_counts[ty, tx] = tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
+sampling_map_kernel = _make_sampling_map(False)
+sampling_rows_kernel = _make_sampling_map(True)

@@ -191,61 +191,52 @@ def shade_pixel(
             out_stoch[y, x] = st
 
 
-@wp.kernel(enable_backward=False)
-def shade_full_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    exposure: float,
-    white: float,
-    to_display: int,
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """Shade every pixel; ``to_display`` != 0: also write its tone-mapped value to ``display`` (the frame's
-    last pass when no indirect light or depth of field follows: no separate tone-map pass)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    sp = spa[0]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
-    if to_display != 0:
-        display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+def _make_shade_full(rows: bool):
+    """``shade_full_kernel`` (a thread per pixel, CUDA) or ``shade_full_rows_kernel`` (a thread per image row
+    looping over its pixels, the CPU: ``parallel.launch_rows``): one signature, one body."""
+
+    @wp.kernel(enable_backward=False, name="shade_full_rows_kernel" if rows else "shade_full_kernel")
+    def shade_full(
+        spa: wp.array(dtype=ShadeParams),
+        pos: wp.array2d(dtype=wp.vec3),
+        normal: wp.array2d(dtype=wp.vec3),
+        albedo: wp.array2d(dtype=wp.vec3),
+        face: wp.array2d(dtype=wp.int32),
+        hit: wp.array2d(dtype=wp.uint8),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        face_emission: wp.array(dtype=wp.vec3),
+        exposure: float,
+        white: float,
+        to_display: int,
+        out: wp.array2d(dtype=wp.vec3),
+        out_stoch: wp.array2d(dtype=wp.vec3),
+        display: wp.array2d(dtype=wp.vec3),
+        row0: int,
+    ):
+        """Shade every pixel; ``to_display`` != 0: also write its tone-mapped value to ``display`` (the frame's
+        last pass when no indirect light or depth of field follows: no separate tone-map pass)."""
+        if wp.static(rows):
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
+            sp = spa[0]
+            for x in range(out.shape[1]):
+                shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                            out_stoch)
+                if to_display != 0:
+                    display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
+            sp = spa[0]
+            shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+            if to_display != 0:
+                display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+
+    return shade_full
 
 
-@wp.kernel(enable_backward=False)
-def shade_full_rows_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    exposure: float,
-    white: float,
-    to_display: int,
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """``shade_full_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
-    y = wp.tid() + row0  # band offset (foveawarp.parallel)
-    sp = spa[0]
-    for x in range(out.shape[1]):
-        shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
-        if to_display != 0:
-            display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+shade_full_kernel = _make_shade_full(False)
+shade_full_rows_kernel = _make_shade_full(True)
 
 
 @wp.kernel(enable_backward=False)
@@ -277,53 +268,46 @@ def shade_list_kernel(
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
-@wp.kernel(enable_backward=False)
-def shade_masked_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    mask: wp.array2d(dtype=wp.uint8),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    if mask[y, x] == wp.uint8(0):
-        return
-    sp = spa[0]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+def _make_shade_masked(rows: bool):
+    """``shade_masked_kernel`` (a thread per pixel) or ``shade_masked_rows_kernel`` (a thread per row, the CPU)."""
 
-
-@wp.kernel(enable_backward=False)
-def shade_masked_rows_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    mask: wp.array2d(dtype=wp.uint8),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """``shade_masked_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
-    y = wp.tid() + row0  # band offset (foveawarp.parallel)
-    sp = spa[0]
-    for x in range(mask.shape[1]):
-        if mask[y, x] != wp.uint8(0):
+    @wp.kernel(enable_backward=False, name="shade_masked_rows_kernel" if rows else "shade_masked_kernel")
+    def shade_masked(
+        spa: wp.array(dtype=ShadeParams),
+        mask: wp.array2d(dtype=wp.uint8),
+        pos: wp.array2d(dtype=wp.vec3),
+        normal: wp.array2d(dtype=wp.vec3),
+        albedo: wp.array2d(dtype=wp.vec3),
+        face: wp.array2d(dtype=wp.int32),
+        hit: wp.array2d(dtype=wp.uint8),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        face_emission: wp.array(dtype=wp.vec3),
+        out: wp.array2d(dtype=wp.vec3),
+        out_stoch: wp.array2d(dtype=wp.vec3),
+        row0: int,
+    ):
+        """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
+        if wp.static(rows):
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
+            sp = spa[0]
+            for x in range(mask.shape[1]):
+                if mask[y, x] != wp.uint8(0):
+                    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                                out_stoch)
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
+            if mask[y, x] == wp.uint8(0):
+                return
+            sp = spa[0]
             shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+
+    return shade_masked
+
+
+shade_masked_kernel = _make_shade_masked(False)
+shade_masked_rows_kernel = _make_shade_masked(True)
 
 
 @wp.kernel(enable_backward=False)

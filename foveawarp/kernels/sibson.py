@@ -130,51 +130,44 @@ def sibson_gather_pixel(
 
 
 
-@wp.kernel(enable_backward=False)
-def sibson_gather_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    vor: wp.array2d(dtype=wp.vec3),
-    r2: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_in: wp.array2d(dtype=wp.vec3),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    exposure: float,
-    white: float,
-    to_display: int,
-    color_out: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
-    also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display, color_out,
-                        display)
+def _make_sibson_gather(rows: bool):
+    """``sibson_gather_kernel`` (a thread per pixel) or ``sibson_gather_rows_kernel`` (a thread per row, the
+    CPU: ``parallel.launch_rows``)."""
+
+    @wp.kernel(enable_backward=False, name="sibson_gather_rows_kernel" if rows else "sibson_gather_kernel")
+    def sibson_gather(
+        mask: wp.array2d(dtype=wp.uint8),
+        vor: wp.array2d(dtype=wp.vec3),
+        r2: wp.array2d(dtype=wp.int32),
+        tile_r2: wp.array2d(dtype=wp.int32),
+        color_in: wp.array2d(dtype=wp.vec3),
+        window: int,
+        max_r2: wp.array(dtype=wp.int32),
+        exposure: float,
+        white: float,
+        to_display: int,
+        color_out: wp.array2d(dtype=wp.vec3),
+        display: wp.array2d(dtype=wp.vec3),
+        row0: int,
+    ):
+        """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
+        also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
+        if wp.static(rows):
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
+            for x in range(mask.shape[1]):
+                sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
+                                    to_display, color_out, display)
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
+            sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
+                                color_out, display)
+
+    return sibson_gather
 
 
-@wp.kernel(enable_backward=False)
-def sibson_gather_rows_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    vor: wp.array2d(dtype=wp.vec3),
-    r2: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_in: wp.array2d(dtype=wp.vec3),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    exposure: float,
-    white: float,
-    to_display: int,
-    color_out: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """``sibson_gather_kernel`` a row per thread (the CPU's launch: ``parallel.launch_rows``)."""
-    y = wp.tid() + row0  # band offset (foveawarp.parallel)
-    for x in range(mask.shape[1]):
-        sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
-                            color_out, display)
+sibson_gather_kernel = _make_sibson_gather(False)
+sibson_gather_rows_kernel = _make_sibson_gather(True)
 
 
 @wp.kernel(enable_backward=False)

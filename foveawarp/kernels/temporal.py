@@ -286,72 +286,51 @@ def _make_resolve_kernels(stochastic: bool):
 
     # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
     # the single kernel this replaces used 136, so an SM held one block of 256 threads)
-    @wp.kernel(enable_backward=False, name="resolve_stoch_kernel" if stochastic else "resolve_kernel",
-               grid_stride=False)
-    def resolve(
-        tp: TemporalParams,
-        sample_map: wp.array2d(dtype=wp.uint8),
-        hit: wp.array2d(dtype=wp.uint8),
-        normal: wp.array2d(dtype=wp.vec3),
-        depth: wp.array2d(dtype=float),
-        reproj_uv: wp.array2d(dtype=wp.vec2),
-        prev_dist: wp.array2d(dtype=float),
-        velocity: wp.array2d(dtype=wp.vec2),
-        moved: wp.array2d(dtype=wp.uint8),
-        fresh: wp.array2d(dtype=wp.vec3),
-        fresh_stoch: wp.array2d(dtype=wp.vec3),
-        depth_prev: wp.array2d(dtype=float),
-        normal_prev: wp.array(dtype=wp.vec3),
-        meta_prev: wp.array(dtype=wp.int32),
-        color_prev: wp.array(dtype=wp.vec3),
-        stoch_prev: wp.array(dtype=wp.vec3),
-        out_color: wp.array(dtype=wp.vec3),
-        out_filled: wp.array2d(dtype=wp.uint8),
-        out_depth: wp.array2d(dtype=float),
-        out_normal: wp.array(dtype=wp.vec3),
-        out_meta: wp.array(dtype=wp.int32),
-        out_stoch: wp.array(dtype=wp.vec3),
-        row0: int,
-    ):
-        y, x = wp.tid()
-        y += row0  # band offset (foveawarp.parallel)
-        resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
-                      fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color, out_filled,
-                      out_depth, out_normal, out_meta, out_stoch)
+    def make(rows: bool):
+        kind = "resolve_stoch" if stochastic else "resolve"
 
-    @wp.kernel(enable_backward=False, name="resolve_stoch_rows_kernel" if stochastic else "resolve_rows_kernel")
-    def resolve_rows(
-        tp: TemporalParams,
-        sample_map: wp.array2d(dtype=wp.uint8),
-        hit: wp.array2d(dtype=wp.uint8),
-        normal: wp.array2d(dtype=wp.vec3),
-        depth: wp.array2d(dtype=float),
-        reproj_uv: wp.array2d(dtype=wp.vec2),
-        prev_dist: wp.array2d(dtype=float),
-        velocity: wp.array2d(dtype=wp.vec2),
-        moved: wp.array2d(dtype=wp.uint8),
-        fresh: wp.array2d(dtype=wp.vec3),
-        fresh_stoch: wp.array2d(dtype=wp.vec3),
-        depth_prev: wp.array2d(dtype=float),
-        normal_prev: wp.array(dtype=wp.vec3),
-        meta_prev: wp.array(dtype=wp.int32),
-        color_prev: wp.array(dtype=wp.vec3),
-        stoch_prev: wp.array(dtype=wp.vec3),
-        out_color: wp.array(dtype=wp.vec3),
-        out_filled: wp.array2d(dtype=wp.uint8),
-        out_depth: wp.array2d(dtype=float),
-        out_normal: wp.array(dtype=wp.vec3),
-        out_meta: wp.array(dtype=wp.int32),
-        out_stoch: wp.array(dtype=wp.vec3),
-        row0: int,
-    ):
-        y = wp.tid() + row0  # band offset (foveawarp.parallel)
-        for x in range(out_filled.shape[1]):
-            resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
-                      fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color, out_filled,
-                      out_depth, out_normal, out_meta, out_stoch)
+        @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel", grid_stride=False)
+        def resolve(
+            tp: TemporalParams,
+            sample_map: wp.array2d(dtype=wp.uint8),
+            hit: wp.array2d(dtype=wp.uint8),
+            normal: wp.array2d(dtype=wp.vec3),
+            depth: wp.array2d(dtype=float),
+            reproj_uv: wp.array2d(dtype=wp.vec2),
+            prev_dist: wp.array2d(dtype=float),
+            velocity: wp.array2d(dtype=wp.vec2),
+            moved: wp.array2d(dtype=wp.uint8),
+            fresh: wp.array2d(dtype=wp.vec3),
+            fresh_stoch: wp.array2d(dtype=wp.vec3),
+            depth_prev: wp.array2d(dtype=float),
+            normal_prev: wp.array(dtype=wp.vec3),
+            meta_prev: wp.array(dtype=wp.int32),
+            color_prev: wp.array(dtype=wp.vec3),
+            stoch_prev: wp.array(dtype=wp.vec3),
+            out_color: wp.array(dtype=wp.vec3),
+            out_filled: wp.array2d(dtype=wp.uint8),
+            out_depth: wp.array2d(dtype=float),
+            out_normal: wp.array(dtype=wp.vec3),
+            out_meta: wp.array(dtype=wp.int32),
+            out_stoch: wp.array(dtype=wp.vec3),
+            row0: int,
+        ):
+            if wp.static(rows):
+                y = wp.tid() + row0  # band offset (foveawarp.parallel)
+                for x in range(out_filled.shape[1]):
+                    resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved,
+                                  fresh, fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev,
+                                  out_color, out_filled, out_depth, out_normal, out_meta, out_stoch)
+            else:
+                y, x = wp.tid()
+                y += row0  # band offset (foveawarp.parallel)
+                resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
+                              fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
+                              out_filled, out_depth, out_normal, out_meta, out_stoch)
 
-    return resolve, resolve_rows
+        return resolve
+
+    return make(False), make(True)
 
 
 resolve_kernel, resolve_rows_kernel = _make_resolve_kernels(False)

@@ -358,21 +358,17 @@ class SamplingStage:
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
-        gin = [self.lab, g.normal, g.depth, g.hit, g.velocity, g.position, g.reproj_uv, g.prev_dist, dp, vp]
+        args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity, g.position,
+                g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
+        outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index, self.tile_counts]
         if parallel.use_row_kernels(dev):
             # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum
-            parallel.launch(sampling_rows_kernel, dim=self.tiles[0],
-                            inputs=[self.params, self.frame_params, self.ranks, *gin, g.face, table, by_face,
-                                    self._dummy_map],
-                            outputs=[self.sample_map, self.cache_hit, self.prev_index, self.tile_counts], device=dev,
+            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=outs, device=dev,
                             min_band_items=1)
             wp.launch(tile_counts_sum_kernel, dim=1, inputs=[self.tile_counts],
                       outputs=[self.num_samples, self.num_cache_hits], device=dev)
             return
-        parallel.launch(sampling_map_kernel, dim=(h, w),
-                        inputs=[self.params, self.frame_params, self.ranks, *gin, 0, g.face, table, by_face],
-                        outputs=[self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index],
-                        device=dev)
+        parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)
 
@@ -416,7 +412,7 @@ class SamplingStage:
                                     g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev,
                                     self.valid_prev, 1, g.face, self._no_face_lab, 0],
                             outputs=[self._probability, self._saliency, self.sample_map, self.cache_hit,
-                                     self.prev_index],
+                                     self.prev_index, self.tile_counts],
                             device=dev)
             self._maps_current = True
         return self._probability, self._saliency
