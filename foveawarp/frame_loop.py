@@ -174,10 +174,13 @@ class FrameLoop:
     def shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> ShadeParams:
         """The shading kernels' parameters for ``camera`` (required) and this frame; ``ao_samples`` in [0, 256]
         overrides ``ShadingConfig.ao_samples``."""
-        camera = self._require_camera(camera)
+        camera, ao_samples = self._shade_args(camera, ao_samples)
+        return self.shade.params(camera, self.frame_index, ao_samples)
+
+    def _shade_args(self, camera, ao_samples) -> tuple:
         if ao_samples is not None:
             ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
-        return self.shade.params(camera, self.frame_index, ao_samples)
+        return self._require_camera(camera), ao_samples
 
     def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -217,9 +220,7 @@ class FrameLoop:
     @_cpu_threads
     def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
         """Write ``shade_params(camera)`` to the (1,) device array the shading kernels read, and return it."""
-        camera = self._require_camera(camera)
-        if ao_samples is not None:
-            ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
+        camera, ao_samples = self._shade_args(camera, ao_samples)
         return self.shade.upload_frame(camera, self.frame_index, ao_samples)
 
     @_cpu_threads

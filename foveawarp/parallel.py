@@ -2,8 +2,9 @@
 
 Warp runs a CPU launch in the calling thread. :func:`launch` runs a kernel whose last argument is
 ``row0: int`` (its first launch index is ``wp.tid()[0] + row0``) as bands of its first dimension (image rows or
-ranges of a work list), one Warp launch per band on a team of threads (:class:`_Team`); the Warp CPU launch releases the GIL, so
-the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with ``row0 = 0``.
+ranges of a work list), one Warp launch per band on a team of threads (:class:`_Team`); the Warp CPU launch
+releases the GIL, so the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with
+``row0 = 0``.
 
 Which kernels may be split: each thread of the kernel writes only its own element(s) of its band (reads may
 be anywhere: JFA, Sibson and Sobel neighbourhoods read the whole arrays, which no band writes in the same
@@ -41,8 +42,8 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
     _bounds_of = _invoke = None
 import ctypes
 
-__all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads", "resolve_cpu_threads", "bands", "MAX_THREADS",
-           "ENV_VAR"]
+__all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads",
+           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
@@ -60,8 +61,8 @@ def bands_per_thread(n: int) -> int:
     return int(OVERSPLIT) if OVERSPLIT is not None else 4
 
 _context: contextvars.ContextVar[Optional[int]] = contextvars.ContextVar("foveawarp_cpu_threads", default=None)
-_pools: dict = {}
-_pool_lock = threading.Lock()
+_teams: dict = {}
+_team_lock = threading.Lock()
 _checked: dict = {}
 
 
@@ -171,10 +172,10 @@ class _Team:
 
 def _team(n: int) -> _Team:
     """The team of ``n - 1`` threads that work beside the calling thread at ``n`` threads."""
-    with _pool_lock:
-        t = _pools.get(n)
+    with _team_lock:
+        t = _teams.get(n)
         if t is None:
-            t = _pools[n] = _Team(n)
+            t = _teams[n] = _Team(n)
         return t
 
 
@@ -216,6 +217,12 @@ _pack_cache: dict = {}
 _PACK_CACHE_MAX = 256
 
 
+def _record(kernel, dims, inputs, outputs, dev):
+    """``_pack`` of a fresh recording (``wp.launch(..., record_cmd=True)`` checks and packs, launches nothing)."""
+    return _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
+                           device=dev, record_cmd=True))
+
+
 def _packed_args(kernel, dims, inputs, outputs, dev):
     """``_pack`` of this launch, reused when the same kernel is launched again with the same arrays (the same
     objects, checked through weak references, so a freed array's reused id cannot match) and the same numbers;
@@ -234,8 +241,7 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
             key.append(None)
             reset.append(i)
         else:
-            return _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs,
-                                   outputs=[*outputs, 0], device=dev, record_cmd=True))
+            return _record(kernel, dims, inputs, outputs, dev)
     key = tuple(key)
     hit = _pack_cache.get(key)
     if hit is not None:
@@ -247,8 +253,7 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
                 a = args[i]
                 setattr(st, fields[i][0], a.__ctype__() if hasattr(a, "__ctype__") else a)
             return packed
-    packed = _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
-                             device=dev, record_cmd=True))
+    packed = _record(kernel, dims, inputs, outputs, dev)
     if len(_pack_cache) >= _PACK_CACHE_MAX:
         _pack_cache.clear()
     _pack_cache[key] = ([weakref.ref(a) for a in arrays], packed)
@@ -261,7 +266,7 @@ _band_cache: dict = {}
 class _Bands:
     """The kept per-band launch state of one packed launch split one way."""
 
-    __slots__ = ("master", "last", "structs", "calls")
+    __slots__ = ("master", "last", "structs", "bounds", "calls")
 
 
 def _band_calls(packed, parts, dims):
@@ -273,12 +278,9 @@ def _band_calls(packed, parts, dims):
         st = _Bands()
         st.master, st.last = master, None
         st.structs = [struct_type() for _ in parts]
-        bounds = {}
-        for r0, r1 in parts:
-            if r1 - r0 not in bounds:
-                bounds[r1 - r0] = _bounds_of((r1 - r0, *dims[1:]), kdim)
-        st.calls = [(forward, ctypes.byref(bounds[r1 - r0]), ctypes.byref(a)) for a, (r0, r1) in zip(st.structs, parts)]
-        st.calls.append(bounds)  # kept alive with the byref objects that point into them
+        st.bounds = {r1 - r0: _bounds_of((r1 - r0, *dims[1:]), kdim) for r0, r1 in parts}  # at most two sizes
+        st.calls = [(forward, ctypes.byref(st.bounds[r1 - r0]), ctypes.byref(a))
+                    for a, (r0, r1) in zip(st.structs, parts)]
         if len(_band_cache) >= _PACK_CACHE_MAX:
             _band_cache.clear()
         _band_cache[key] = st
@@ -289,7 +291,7 @@ def _band_calls(packed, parts, dims):
             ctypes.memmove(ctypes.addressof(a), src, size)
             a.row0 = r0
         st.last = cur
-    return iter(st.calls[:-1])
+    return iter(st.calls)
 
 
 def _check_kernel(kernel) -> None:
@@ -383,13 +385,15 @@ def use_row_kernels(device) -> bool:
     return bool(ROW_KERNELS) and not wp.get_device(device).is_cuda
 
 
-def launch_rows(pixel_kernel, rows_kernel, shape, inputs: Sequence = (), outputs: Sequence = (), device=None) -> None:
+def launch_rows(pixel_kernel, rows_kernel, shape, inputs: Sequence = (), outputs: Sequence = (),
+                device=None) -> None:
     """A per-pixel pass over an image of ``shape`` = (H, W): on CUDA ``pixel_kernel`` over (H, W) (a thread per
     pixel); on the CPU ``rows_kernel`` over H (a thread per row, looping over its W pixels), in bands. Both take
-    the same arguments (the last ``row0``) and compute the same values (the rows kernel calls the pixel
-    kernel's body, a shared ``wp.func``, for x in [0, W)). On the CPU a Warp launch thread costs its kernel's
-    argument and struct loads every time: once per row instead of once per pixel is cheaper (the sampling
-    pass with its tile pass: 18.8 against ~30 ms, cornell 640x360, one core of the development machine)."""
+    the same arguments (the last ``row0``) and compute the same values (one factory makes both around a
+    shared per-pixel ``wp.func``; the rows form calls it for x in [0, W)). On the CPU a Warp launch thread
+    costs its kernel's argument and struct loads every time: once per row instead of once per pixel is cheaper
+    (the sampling pass with its tile pass: 18.8 against ~30 ms, cornell 640x360, one core of the development
+    machine)."""
     h, w = int(shape[0]), int(shape[1])
     dev = wp.get_device(device)
     if use_row_kernels(dev):

@@ -227,24 +227,30 @@ class Scene:
     def num_triangles(self) -> int:
         return int(self.faces.shape[0])
 
+    def _derived(self) -> tuple:
+        """(bounds, extent, centre) of the rest pose, computed once per vertex array."""
+        key = (id(self.vertices), self.vertices.shape)
+        if getattr(self, "_derived_key", None) != key:
+            lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+            extent = max(float(np.linalg.norm(hi - lo)), 1e-30)
+            self._derived_vals = ((lo, hi), extent, tuple(float(v) for v in (lo + hi) * 0.5))
+            self._derived_key = key
+        return self._derived_vals
+
     @property
     def bounds(self) -> tuple:
         """(min, max) corners of the rest-pose bounding box (computed once)."""
-        key = (id(self.vertices), self.vertices.shape)
-        if getattr(self, "_bounds_key", None) != key:
-            self._bounds = (self.vertices.min(axis=0), self.vertices.max(axis=0))
-            self._bounds_key = key
-        return self._bounds
+        return self._derived()[0]
 
     @property
     def extent(self) -> float:
         """Bounding-box diagonal (world units), > 0."""
-        lo, hi = self.bounds
-        key = self._bounds_key
-        if getattr(self, "_extent_key", None) != key:
-            self._extent = max(float(np.linalg.norm(hi - lo)), 1e-30)
-            self._extent_key = key
-        return self._extent
+        return self._derived()[1]
+
+    @property
+    def centre(self) -> tuple:
+        """Centre of the rest-pose bounding box, as floats."""
+        return self._derived()[2]
 
     @property
     def is_animated(self) -> bool:
@@ -351,22 +357,13 @@ class DeviceScene:
         self.ray_eps = 1.0e-4 * self.extent
         self.time = None
         self.moved_last_update = False
-        self._face_lab = None
+        # (F + 1,) vec3: the CIE-Lab of each face's albedo, then of the miss albedo (black); the sampling map reads
+        # its Lab albedo from it by the G-buffer's face index (kernels.saliency.face_lab_kernel)
+        from .kernels.saliency import face_lab_kernel
 
-    @property
-    def face_lab(self):
-        """(F + 1,) vec3 wp.array: the CIE-Lab of each face's albedo, then of the miss albedo (black), computed
-        once on the device (``kernels.saliency.face_lab_kernel``); the sampling map's Lab prepass gathers it
-        by the G-buffer's face index."""
-        if self._face_lab is None:
-            import warp as wp
-
-            from .kernels.saliency import face_lab_kernel
-
-            n = self.face_albedo.shape[0] + 1
-            self._face_lab = wp.empty(n, dtype=wp.vec3, device=self.device)
-            wp.launch(face_lab_kernel, dim=n, inputs=[self.face_albedo], outputs=[self._face_lab], device=self.device)
-        return self._face_lab
+        n = self.face_albedo.shape[0] + 1
+        self.face_lab = wp.empty(n, dtype=wp.vec3, device=dev)
+        wp.launch(face_lab_kernel, dim=n, inputs=[self.face_albedo], outputs=[self.face_lab], device=dev)
 
     def set_time(self, t: float) -> bool:
         """Move animated objects to time ``t``; previous positions go to ``points_prev``. Returns whether

@@ -2,8 +2,10 @@
 
 import numpy as np
 import pytest
+import warp as wp
 
 import foveawarp as fw
+from foveawarp.kernels.saliency import face_lab_at, sobel_lab_by_face, sobel_vec3
 from foveawarp.scene import find_named_mesh
 
 W, H = 64, 48
@@ -169,11 +171,6 @@ def _lab_reference(albedo):
     return rgb2lab(srgb)
 
 
-import warp as wp  # noqa: E402
-
-from foveawarp.kernels.saliency import face_lab_at, sobel_lab_by_face, sobel_vec3  # noqa: E402
-
-
 @wp.kernel(enable_backward=False)
 def _lab_by_face_kernel(face: wp.array2d(dtype=wp.int32), table: wp.array(dtype=wp.vec3),
                         lab: wp.array2d(dtype=wp.vec3), out_lab: wp.array2d(dtype=wp.vec3),
@@ -236,8 +233,6 @@ def test_frame_loop_sampling_map_equals_the_prepass_path(device):
 
 
 def test_sampling_launch_face_lab_is_checked(device):
-    import warp as wp
-
     loop = fw.FrameLoop("cornell", W, H, device=device, policy="foveated")
     loop.render()
     for bad in (wp.zeros((3, 3), dtype=wp.vec3, device=loop.device), wp.zeros(4, dtype=float, device=loop.device),

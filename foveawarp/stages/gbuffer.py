@@ -24,12 +24,7 @@ class GBufferStage:
     def max_t(self, camera: Camera) -> float:
         """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
         sc = self.dscene.scene
-        key = (id(sc.vertices), sc.vertices.shape)
-        if getattr(self, "_centre_key", None) != key:  # plain floats: this runs before every frame's G-buffer
-            lo, hi = sc.bounds
-            self._centre = tuple(float(v) for v in (lo + hi) * 0.5)
-            self._centre_key = key
-        c, e = self._centre, camera.eye
+        c, e = sc.centre, camera.eye  # plain floats: this runs before every frame's G-buffer
         far = math.sqrt((e[0] - c[0]) ** 2 + (e[1] - c[1]) ** 2 + (e[2] - c[2]) ** 2) + sc.extent
         return float(min(max(2.0 * far, 1.0), 1.0e30))
 
@@ -40,8 +35,9 @@ class GBufferStage:
         w, h = self.width, self.height
         inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                   camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
-        outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist, g.moved]
-        if parallel.use_row_kernels(self.device):  # a thread per row (parallel.launch_rows); CUDA: the recorded per-pixel launch
+        outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                   g.moved]
+        if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
             self._launch(dim=(h, w), inputs=inputs, outputs=outputs, device=self.device)

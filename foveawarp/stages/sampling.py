@@ -353,8 +353,9 @@ class SamplingStage:
         if face_lab is not None:
             if not (isinstance(face_lab, wp.array) and face_lab.dtype == wp.vec3 and face_lab.ndim == 1
                     and face_lab.device == dev):
-                raise ValueError(f"face_lab must be a 1-D vec3 wp.array on {dev} (DeviceScene.face_lab), got "
-                                 f"{getattr(face_lab, 'shape', type(face_lab).__name__)}")
+                got = (f"a {type(face_lab).__name__} of shape {getattr(face_lab, 'shape', None)}, dtype "
+                       f"{getattr(getattr(face_lab, 'dtype', None), '__name__', getattr(face_lab, 'dtype', None))}")
+                raise ValueError(f"face_lab must be a 1-D vec3 wp.array on {dev} (DeviceScene.face_lab), got {got}")
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)

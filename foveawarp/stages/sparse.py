@@ -78,8 +78,8 @@ class SparseGBufferStage:
         sampling.num_samples.zero_()
         sampling.num_cache_hits.zero_()
         parallel.launch(coarse_saliency_kernel, dim=(self.coarse_height, self.coarse_width),
-                        inputs=[sampling.params, sampling.frame_params, c.face, self.dscene.face_lab, c.normal, c.hit, c.velocity,
-                                c.position, c.reproj_uv],
+                        inputs=[sampling.params, sampling.frame_params, c.face, self.dscene.face_lab, c.normal, c.hit,
+                                c.velocity, c.position, c.reproj_uv],
                         outputs=[self.coarse_saliency], device=dev)
         parallel.launch(sparse_sampling_kernel, dim=(self.height, self.width),
                         inputs=[sampling.params, sampling.frame_params, sampling.ranks, self.coarse_saliency,
