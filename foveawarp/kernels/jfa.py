@@ -16,7 +16,7 @@ Cost is paid at the non-seed pixels only. A seed is its own nearest seed in ever
 * the first pass takes its candidates from the mask alone (it is the old "init" pass fused with step 1 of
   the schedule: a non-seed candidate has no seed yet);
 * the last pass also writes the squared nearest-seed radius and the Voronoi color (the finite color of the
-  nearest seed) of every non-seed pixel, and reduces, per
+  nearest seed) of every non-seed pixel (and radius -1 at the seeds: they reach no other pixel), and reduces, per
   ``RTILE`` x ``RTILE`` screen tile, the largest radius (``tile_r2``, no atomics) and the count of pixels
   without a seed; one atomic per tile folds them into the image maxima / count.
 
@@ -130,6 +130,7 @@ def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.v
     if mask[y, x] != wp.uint8(0):
         if from_mask != 0:
             nearest[y, x] = wp.vec2i(x, y)
+        r2_out[y, x] = -1  # a seed reaches no other pixel: the gather's taps need not read the mask
         if color_mode == 2:
             color_out[y, x] = finite_or_zero(color_in[y, x])
         return -2
@@ -196,8 +197,8 @@ def jfa_last_pass_kernel(
     tile b (row-major over the tile grid); with fewer threads than RTILE^2 (the CPU runs 1) each thread takes
     every block_dim-th pixel of the tile.
 
-    Writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels (seed entries of
-    ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass), ``tile_r2`` (the tile's
+    Writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels, -1 to ``r2_out`` at the
+    seeds (seed entries of ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass), ``tile_r2`` (the tile's
     largest r2, 0 when none) and, by ``color_mode``: 1: the Voronoi color (finite color of the nearest seed,
     0 without one) of the non-seed pixels to ``color_out`` (the gather's ``vor`` buffer); 2: the Voronoi
     color of every pixel (seeds: their own) to ``color_out`` (the Voronoi fill); 0: no color.
@@ -317,7 +318,7 @@ def voronoi_from_nearest_kernel(
 ):
     """What :func:`jfa_last_pass_kernel` leaves behind, from a given nearest map instead of JFA (the ops'
     ``nearest=`` argument): ``nearest`` = ``given``, ``seeds`` = the pixels that are their own nearest seed,
-    ``r2_out`` and ``vor`` (color mode 1) at the other pixels, ``tile_r2`` and the statistics (zeroed before
+    ``r2_out`` (-1 at the seeds) and ``vor`` (color mode 1) at the other pixels, ``tile_r2`` and the statistics (zeroed before
     the launch). Same tiling."""
     blk, lane = wp.tid()
     h = given.shape[0]
@@ -337,6 +338,7 @@ def voronoi_from_nearest_kernel(
             nearest[y, x] = s
             if s[0] == x and s[1] == y:
                 seeds[y, x] = wp.uint8(1)
+                r2_out[y, x] = -1
             else:
                 seeds[y, x] = wp.uint8(0)
                 r2 = int(-1)

@@ -11,11 +11,11 @@ Two forms of the same sum:
   of radius R. Every q that reaches p is still visited, in the same raster order, so the sum is the same.
 * ``sibson_scatter_kernel`` + ``sibson_resolve_kernel``: Park's scatter with atomics (the exact reference).
 
-Both read what the last JFA pass (``kernels/jfa.py``) leaves: the seed mask (nonzero = seed) and, at the
-non-seed pixels only (seed entries are never read: a seed's r_q is 0, so it reaches no pixel but itself),
-``vor`` (the finite color of q's nearest seed; 0 where q has none) and ``r2`` = ``r_q^2`` in pixels^2 (exact
-int32; -1 where q has no seed), plus ``tile_r2``. A tap of the gather reads the 1-byte mask, the 4-byte r2
-only at a non-seed q, and the 12-byte color only at the taps that cover p. Seeds output their own (finite)
+Both read what the last JFA pass (``kernels/jfa.py``) leaves: the seed mask (nonzero = seed), ``r2`` = ``r_q^2``
+in pixels^2 at the non-seed pixels (exact int32; -1 where q has no seed) and -1 at the seeds (a seed's r_q is 0:
+it reaches no pixel but itself, which keeps its own color), ``vor`` (the finite color of q's nearest seed; 0
+where q has none) at the non-seed pixels only, and ``tile_r2``. A tap of the gather reads the 4-byte r2, and the
+12-byte color only at the taps that cover p; the mask is read once, at p. Seeds output their own (finite)
 color after one mask read; pixels that received nothing output their Voronoi color (0 without a seed); a
 sum that overflows float32 (colors near float max) is redone with scaled terms, so no output is NaN/Inf.
 """
@@ -45,12 +45,14 @@ F32_MAX = wp.constant(3.4028234663852886e38)
 
 
 @wp.func
-def disc_sum(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int, scale: float) -> wp.vec4:
+def disc_sum(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int,
+             scale: float) -> wp.vec4:
     """(sum of ``scale * vor[q]``, count) over the non-seed q within the half window ``rw`` whose disc
     covers the non-seed p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every such
-    r_q^2). Raster order over (dy, dx)."""
-    h = mask.shape[0]
-    w = mask.shape[1]
+    r_q^2). Raster order over (dy, dx). A tap reads only ``r2``: it is -1 at the seeds (the last JFA pass writes
+    it so), and no offset's squared length is below 0."""
+    h = r2.shape[0]
+    w = r2.shape[1]
     y0 = wp.max(-rw, -y)
     y1 = wp.min(rw, h - 1 - y)
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -62,28 +64,28 @@ def disc_sum(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r
         qy = y + dy
         for dx in range(x0, x1 + 1):
             qx = x + dx
-            # both loads are independent; a seed's r2 entry may be stale and is discarded
-            if (dx * dx + dy * dy <= r2[qy, qx]) and (mask[qy, qx] == wp.uint8(0)):
+            if dx * dx + dy * dy <= r2[qy, qx]:
                 acc = acc + vor[qy, qx] * scale
                 n = n + 1
     return wp.vec4(acc[0], acc[1], acc[2], float(n))
 
 
 @wp.func
-def disc_mean(mask: wp.array2d(dtype=wp.uint8), vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int) -> wp.vec3:
+def disc_mean(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
+              rmax2: int) -> wp.vec3:
     """Mean of the colors q scatters onto the non-seed p (see :func:`disc_sum`); p's Voronoi color when
     none does (0 without a seed).
 
     Finite for any finite colors: when the plain float32 sum overflows (colors near float max), the sum is
     taken again with every term scaled by 0.5 / n, then doubled and clamped to +-float max."""
-    s = disc_sum(mask, vor, r2, x, y, rw, rmax2, 1.0)
+    s = disc_sum(vor, r2, x, y, rw, rmax2, 1.0)
     n = s[3]
     if n <= 0.0:
         return vor[y, x]
     out = wp.vec3(s[0], s[1], s[2]) / n
     if wp.isfinite(out):
         return out
-    t = disc_sum(mask, vor, r2, x, y, rw, rmax2, 0.5 / n)
+    t = disc_sum(vor, r2, x, y, rw, rmax2, 0.5 / n)
     return wp.vec3(wp.clamp(2.0 * t[0], -F32_MAX, F32_MAX), wp.clamp(2.0 * t[1], -F32_MAX, F32_MAX),
                    wp.clamp(2.0 * t[2], -F32_MAX, F32_MAX))
 
@@ -122,7 +124,7 @@ def sibson_gather_pixel(
         for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + rw, w - 1) // RTILE + 1):
             loc = wp.max(loc, tile_r2[ty, tx])
     rw = wp.min(rw, isqrt(loc))
-    c = disc_mean(mask, vor, r2, x, y, rw, loc)
+    c = disc_mean(vor, r2, x, y, rw, loc)
     color_out[y, x] = c
     if to_display != 0:
         display[y, x] = tonemap_rgb(c, exposure, white)
@@ -229,5 +231,5 @@ def sibson_resolve_kernel(
         c = wp.vec3(a[0], a[1], a[2]) / a[3]
         if not wp.isfinite(c):
             rmax2 = max_r2[0]
-            c = disc_mean(mask, vor, r2, x, y, isqrt(rmax2), rmax2)
+            c = disc_mean(vor, r2, x, y, isqrt(rmax2), rmax2)
         color_out[y, x] = c

@@ -150,8 +150,8 @@ class ReconstructStage:
         voronoi_color: (H, W) ``wp.vec3``, finite color of the nearest seed at the NON-seed pixels (0 where
             none was found), written when Sibson is on. Seed entries are not written (a seed's color is its own).
         radius_sq: (H, W) int32, squared distance r_q^2 to the nearest seed in pixels^2 at the NON-seed pixels
-            (-1 where none was found). Seed entries are not written (a seed's radius is 0; the mask says
-            which pixels are seeds).
+            (-1 where none was found), and -1 at the seeds (a seed reaches no other pixel; the mask says which
+            pixels are seeds), so the Sibson gather's taps read this array alone.
         tile_radius_sq: (ceil(H / 16), ceil(W / 16)) int32, the largest ``radius_sq`` of each 16 x 16 screen
             tile (0 when the tile has no reached non-seed pixel): the gather's local window bound.
         max_radius: (1,) float32, the largest nearest-seed distance r_q in pixels (0 without seeds).
