@@ -521,14 +521,18 @@ class FrameLoop:
             if strategy in ("scan", "tile", "rows", "rows+balance"):
                 self.reorder.run(smap)
         fused = self._tonemap_fused(strategy)
+        # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
+        shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade"):
-            self._trace(smap, strategy, display=self.image if fused and not foveated else None)
+            if not shade_in_resolve:
+                self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
-                                  stochastic=self._stochastic_shading(), background=cfg.shading.background)
+                                  stochastic=self._stochastic_shading(), background=cfg.shading.background,
+                                  shade=self.shade if shade_in_resolve else None)
         with self._stage("reconstruct"):
             if foveated:
                 sc = cfg.shading
@@ -546,6 +550,13 @@ class FrameLoop:
         with self._stage("tonemap"):
             if not fused:
                 self._tonemap(hdr, self.image)
+
+    def _shade_in_resolve(self, strategy: str) -> bool:
+        """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
+        CPU's rows kernels, deterministic shading) instead of a separate masked shading pass: the masked
+        strategy, with nothing (indirect light) added to the shading between the two."""
+        return (strategy == "none" and self.indirect is None
+                and self.temporal.can_shade(self._stochastic_shading()))
 
     def _tonemap_fused(self, strategy: str) -> bool:
         """Whether the frame's last pass writes the display image itself (no separate tone-map pass): nothing

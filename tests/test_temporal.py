@@ -333,3 +333,49 @@ def test_set_history_rejects_age_without_filled(device):
         st.set_history(color=np.zeros((12, 3)), stoch=np.zeros((12, 3)), normal=np.zeros((12, 3)),
                        age=np.ones(12, np.int32), stale=z.astype(np.int32), depth=np.zeros((3, 4)),
                        filled=np.zeros((3, 4), np.uint8))
+
+
+@pytest.mark.parametrize("scene", ["cornell", "eyechart"])
+def test_shading_in_the_resolve_equals_two_passes(monkeypatch, scene):
+    """The CPU's fused launch (deterministic shading: the masked shading of each sampled pixel just before its
+    resolve, ``TemporalStage.run(shade=...)``) against the two launches it replaces: whole moving-camera frames,
+    byte for byte (display image, shaded radiance, history colour / filled / depth), at 1 and 3 threads."""
+    from foveawarp.frame_loop import FrameLoop
+
+    w, h = 61, 35
+
+    def frames(threads):
+        fl = fw.FrameLoop(scene, w, h, device="cpu", cpu_threads=threads, timing=False, policy="foveated")
+        out, fused = [], []
+        for i in range(5):
+            fr = fl.render(fl.scene.camera_at(0.07 * i), gaze_px=(w * (0.2 + 0.12 * i), h * 0.5), time=0.07 * i)
+            fused.append(fl._shade_in_resolve(fr.stats["strategy"]))
+            out += [a.numpy().tobytes() for a in (fr.image, fl.radiance, fl.temporal.color, fl.temporal.filled,
+                                                    fl.temporal.depth)]
+        return out, fused
+
+    for threads in (1, 3):
+        one, fused = frames(threads)
+        assert all(fused)
+        monkeypatch.setattr(FrameLoop, "_shade_in_resolve", lambda self, strategy: False)
+        two, fused = frames(threads)
+        monkeypatch.undo()
+        assert not any(fused)
+        for i, (a, b) in enumerate(zip(one, two)):
+            assert a == b, (threads, i)
+
+
+def test_shading_in_the_resolve_rejected_where_it_cannot_run(device):
+    """``run(shade=...)`` needs the CPU's rows kernels and deterministic shading: anything else is a ValueError
+    naming ``shade``."""
+    fl = fw.FrameLoop("cornell", 24, 16, device=device, timing=False, policy="foveated")
+    fl.render(fl.scene.camera_at(0.0), gaze_px=(12, 8))
+    st = fl.temporal
+    args = (fl.sampling.sample_map, fl.gbuffer, fl.radiance, fl.radiance_stoch)
+    assert st.can_shade(True) is False
+    with pytest.raises(ValueError, match="shade must be None"):
+        st.run(*args, stochastic=True, shade=fl.shade)
+    if wp.get_device(device).is_cuda:
+        assert st.can_shade(False) is False
+        with pytest.raises(ValueError, match="shade must be None"):
+            st.run(*args, shade=fl.shade)

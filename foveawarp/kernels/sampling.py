@@ -464,10 +464,11 @@ def tile_pass_bands_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def tile_counts_sum_kernel(tile_counts: wp.array2d(dtype=wp.vec2i), num_samples: wp.array(dtype=wp.int32),
-                           num_cache_hits: wp.array(dtype=wp.int32)):
-    """One thread: add the per-tile counts of ``tile_pass_bands_kernel`` to the counters (integer sums: equal
-    to the tiled kernel's atomic adds)."""
+def tile_counts_sum_kernel(tile_counts: wp.array2d(dtype=wp.vec2i), accumulate: int,
+                           num_samples: wp.array(dtype=wp.int32), num_cache_hits: wp.array(dtype=wp.int32)):
+    """One thread: the per-tile counts of ``tile_pass_bands_kernel`` (or the per-tile-row sums of
+    ``sampling_rows_kernel``) summed into the counters, added to them (``accumulate`` != 0: equal to the tiled
+    kernel's atomic adds) or written (0: no zeroing needed first). Integer sums."""
     n = int(0)
     nc = int(0)
     for ty in range(tile_counts.shape[0]):
@@ -475,8 +476,11 @@ def tile_counts_sum_kernel(tile_counts: wp.array2d(dtype=wp.vec2i), num_samples:
             c = tile_counts[ty, tx]
             n += c[0]
             nc += c[1]
-    num_samples[0] = num_samples[0] + n
-    num_cache_hits[0] = num_cache_hits[0] + nc
+    if accumulate != 0:
+        n += num_samples[0]
+        nc += num_cache_hits[0]
+    num_samples[0] = n
+    num_cache_hits[0] = nc
 
 
 @wp.func
@@ -563,9 +567,9 @@ def sampling_map_pixel(
 def _make_sampling_map(rows: bool):
     """``sampling_map_kernel`` (a thread per pixel, CUDA) or ``sampling_rows_kernel`` (the CPU: a thread per row
     of ``block``-row tiles, launched over ``tiles_y`` in bands by ``foveawarp.parallel``, that runs the pixel pass
-    over its rows and then ``tile_guarantee`` on its tiles, writing their (samples, cache hits) to ``tile_counts``
-    for ``tile_counts_sum_kernel``: the map and the tile pass in one launch, with the same values as the two;
-    the pixel kernel does not touch ``tile_counts``)."""
+    over its rows and then ``tile_guarantee`` on its tiles, writing the sum of their (samples, cache hits) to
+    ``tile_counts[ty, 0]`` ((tiles_y, 1) vec2i) for ``tile_counts_sum_kernel``: the map and the tile pass in one
+    launch, with the same values as the two; the pixel kernel does not touch ``tile_counts``)."""
 
     # CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
     # loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
@@ -621,8 +625,10 @@ def _make_sampling_map(rows: bool):
                                        prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
                                        out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
             if maps_only == 0:
-                for tx in range(tile_counts.shape[1]):
-                    tile_counts[ty, tx] = tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
+                c = wp.vec2i(0, 0)
+                for tx in range(sp.tiles_x):
+                    c += tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
+                tile_counts[ty, 0] = c
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)

@@ -10,6 +10,7 @@ import warp as wp
 
 from .gbuffer import NO_REPROJ
 from .sampling import FrameParams
+from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
 
 # bilinear fractions closer than this (pixels) to a pixel centre snap to it
 SNAP_PX = wp.constant(1.0 / 128.0)
@@ -330,11 +331,60 @@ def _make_resolve_kernels(stochastic: bool):
 
         return resolve
 
-    return make(False), make(True)
+    return make(False), make(True), resolve_pixel
 
 
-resolve_kernel, resolve_rows_kernel = _make_resolve_kernels(False)
-resolve_stoch_kernel, resolve_stoch_rows_kernel = _make_resolve_kernels(True)
+resolve_kernel, resolve_rows_kernel, _resolve_pixel = _make_resolve_kernels(False)
+resolve_stoch_kernel, resolve_stoch_rows_kernel, _ = _make_resolve_kernels(True)
+
+
+@wp.kernel(enable_backward=False)
+def shade_resolve_rows_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    pos: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    tp: TemporalParams,
+    sample_map: wp.array2d(dtype=wp.uint8),
+    hit: wp.array2d(dtype=wp.uint8),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
+    velocity: wp.array2d(dtype=wp.vec2),
+    moved: wp.array2d(dtype=wp.uint8),
+    fresh: wp.array2d(dtype=wp.vec3),
+    fresh_stoch: wp.array2d(dtype=wp.vec3),
+    depth_prev: wp.array2d(dtype=float),
+    normal_prev: wp.array(dtype=wp.vec3),
+    meta_prev: wp.array(dtype=wp.int32),
+    color_prev: wp.array(dtype=wp.vec3),
+    stoch_prev: wp.array(dtype=wp.vec3),
+    out_color: wp.array(dtype=wp.vec3),
+    out_filled: wp.array2d(dtype=wp.uint8),
+    out_depth: wp.array2d(dtype=float),
+    out_normal: wp.array(dtype=wp.vec3),
+    out_meta: wp.array(dtype=wp.int32),
+    out_stoch: wp.array(dtype=wp.vec3),
+    row0: int,
+):
+    """The CPU's masked shading and deterministic resolve of one row in one launch (a thread per row, in bands:
+    ``parallel.launch``): each sampled pixel is shaded into ``fresh`` / ``fresh_stoch`` (``shade_pixel``, as
+    ``shade_masked_rows_kernel`` does), then every pixel of the row is resolved (``resolve_rows_kernel``). The
+    deterministic resolve reads ``fresh`` at its own pixel only, so each pixel's inputs are final when it is
+    resolved, and the values are those of the two launches (tests compare whole frames)."""
+    y = wp.tid() + row0  # band offset (foveawarp.parallel)
+    sp = spa[0]
+    for x in range(out_filled.shape[1]):
+        if sample_map[y, x] != wp.uint8(0):
+            shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, fresh,
+                        fresh_stoch)
+        _resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
+                       fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
+                       out_filled, out_depth, out_normal, out_meta, out_stoch)
 
 
 @wp.func

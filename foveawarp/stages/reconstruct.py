@@ -207,6 +207,7 @@ class ReconstructStage:
         # the CPU runs the last pass as bands of tiles (no tiles, no atomics: foveawarp.parallel); per-tile
         # counts of pixels without a seed, folded into ``unreached`` by a one-thread kernel
         self._tile_miss = None if dev.is_cuda else wp.zeros(tiles, dtype=wp.int32, device=dev)
+        self._stats_launch = parallel.Relaunch(jfa_tile_stats_kernel, bands=False)  # recorded once
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
@@ -270,8 +271,8 @@ class ReconstructStage:
             parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.shape, inputs=last,
                             outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, self._tile_miss],
                             device=dev, min_band_items=8)
-            wp.launch(jfa_tile_stats_kernel, dim=1, inputs=[self.tile_radius_sq, self._tile_miss],
-                      outputs=self._stats_args(), device=dev)
+            self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
+                               device=dev)
         else:
             wp.launch_tiled(
                 jfa_last_pass_kernel, dim=[self._num_tiles], inputs=last,

@@ -131,7 +131,7 @@ def launch_tile_pass(ranks, params: SamplingParams, frame_params, tiles: tuple, 
             tile_counts = wp.empty(tiles, dtype=wp.vec2i, device=device)
         parallel.launch(tile_pass_bands_kernel, dim=tiles, inputs=[ranks, params, frame_params, sample_map, cache_hit],
                         outputs=[tile_counts], device=device, min_band_items=128)  # a tile item = block^2 pixels
-        wp.launch(tile_counts_sum_kernel, dim=1, inputs=[tile_counts], outputs=[num_samples, num_cache_hits],
+        wp.launch(tile_counts_sum_kernel, dim=1, inputs=[tile_counts, 1], outputs=[num_samples, num_cache_hits],
                   device=device)
         return
     threads = TILE_PASS_THREADS if device.is_cuda else 1
@@ -223,6 +223,9 @@ class SamplingStage:
         self.num_cache_hits = wp.zeros(1, dtype=wp.int32, device=dev)
         # per-tile (samples, cache hits) of the CPU's band-parallel tile pass (see ``launch_tile_pass``)
         self.tile_counts = wp.zeros(self.tiles if dev.is_cpu else (1, 1), dtype=wp.vec2i, device=dev)
+        # per-tile-row sums of the CPU's rows pass (sampling_rows_kernel), and its one-thread count sum, recorded
+        self._row_counts = wp.zeros((self.tiles[0] if dev.is_cpu else 1, 1), dtype=wp.vec2i, device=dev)
+        self._sum_launch = parallel.Relaunch(tile_counts_sum_kernel, bands=False)
         self._setup_launch = parallel.Relaunch(frame_setup_kernel, bands=False)  # recorded once on CUDA
         self.skipped: dict = {}
         self._no_cam = CameraParams()
@@ -346,8 +349,10 @@ class SamplingStage:
         g, dev = self._check_gbuffer(gbuffer), self.device
         dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
-        self.num_samples.zero_()
-        self.num_cache_hits.zero_()
+        rows = parallel.use_row_kernels(dev)
+        if not rows:  # the rows path's count sum writes the counters
+            self.num_samples.zero_()
+            self.num_cache_hits.zero_()
         by_face = 0
         table = self._no_face_lab
         if face_lab is not None:
@@ -361,14 +366,16 @@ class SamplingStage:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
         args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity, g.position,
                 g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
-        outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index, self.tile_counts]
-        if parallel.use_row_kernels(dev):
-            # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum
-            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=outs, device=dev,
-                            min_band_items=1)
-            wp.launch(tile_counts_sum_kernel, dim=1, inputs=[self.tile_counts],
-                      outputs=[self.num_samples, self.num_cache_hits], device=dev)
+        outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index]
+        if rows:
+            # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum over the
+            # tile rows' sums
+            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=[*outs, self._row_counts],
+                            device=dev, min_band_items=1)
+            self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
+                             device=dev)
             return
+        outs.append(self.tile_counts)
         parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)

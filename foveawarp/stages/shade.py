@@ -85,7 +85,9 @@ class ShadeStage:
         self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)
         return self.params_dev
 
-    def _inputs(self, gbuffer):
+    def inputs(self, gbuffer) -> list:
+        """The scene and G-buffer arrays every shading launch reads, in kernel argument order: position, normal,
+        albedo, face, hit, lights, area lights, face emission."""
         g, ds = gbuffer, self.dscene
         return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
@@ -95,24 +97,24 @@ class ShadeStage:
         sc = self.config
         disp = self._dummy_display if display is None else display
         parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width),
-                             inputs=[self.params_dev, *self._inputs(gbuffer), float(sc.exposure), float(sc.white_point),
+                             inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
                                      0 if display is None else 1],
                              outputs=[out, out_stoch, disp], device=self.device)
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
         parallel.launch_rows(shade_masked_kernel, shade_masked_rows_kernel, (self.height, self.width),
-                             inputs=[self.params_dev, mask, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                             inputs=[self.params_dev, mask, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                              device=self.device)
 
     def rows(self, gbuffer, coords, counts, out, out_stoch) -> None:
         """Row-CSR launch (thesis strategies 1/2)."""
         parallel.launch(shade_rows_kernel, dim=(self.height, self.width),
-                        inputs=[self.params_dev, coords, counts, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                        inputs=[self.params_dev, coords, counts, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device)
 
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
         """The flat pixel indices ``work[0:count[0]]`` (count read on the device)."""
         parallel.launch(shade_list_kernel, dim=work.shape[0],
-                        inputs=[self.params_dev, work, count, *self._inputs(gbuffer)], outputs=[out, out_stoch],
+                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device, count=count)

@@ -15,6 +15,7 @@ from ..kernels.temporal import (
     resolve_rows_kernel,
     resolve_stoch_kernel,
     resolve_stoch_rows_kernel,
+    shade_resolve_rows_kernel,
 )
 
 __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
@@ -153,8 +154,13 @@ class TemporalStage:
         tp.background = wp.vec3(*(float(v) for v in background))
         return tp
 
+    def can_shade(self, stochastic: bool) -> bool:
+        """Whether ``run(..., shade=...)`` may shade the sampled pixels in its own launch: the CPU's rows kernels
+        with deterministic shading (the stochastic resolve reads its neighbours' fresh values)."""
+        return not stochastic and parallel.use_row_kernels(self.device)
+
     def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
-            background=(0.0, 0.0, 0.0)) -> None:
+            background=(0.0, 0.0, 0.0), shade=None) -> None:
         """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
@@ -165,11 +171,33 @@ class TemporalStage:
             use_history: False on the first frame and after a cut.
             stochastic: whether the shading has Monte Carlo terms.
             background: radiance of rays that miss (linear RGB).
+            shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
+                ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
+                ``shade.masked`` (its parameters as last uploaded); one pass over the image instead of two.
         """
         stochastic = bool(stochastic)
+        if shade is not None and not self.can_shade(stochastic):
+            raise ValueError("shade must be None unless can_shade(stochastic) (the CPU's rows kernels with "
+                             f"deterministic shading), got a {type(shade).__name__} with stochastic={stochastic} "
+                             f"on {self.device}")
         self._check_kind(stochastic)
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
+        if shade is not None:
+            pos, _, albedo, face, _, lights, area_lights, face_emission = shade.inputs(gbuffer)
+            parallel.launch(
+                shade_resolve_rows_kernel, self.height,
+                inputs=[shade.params_dev, pos, albedo, face, lights, area_lights, face_emission,
+                        self.params(use_history=use_history, stochastic=False, background=background), sample_map,
+                        g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch,
+                        self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
+                        self._stoch[prev]],
+                outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur],
+                         self._meta[cur], self._stoch[cur]],
+                device=self.device, min_band_items=max(1, -(-parallel.MIN_ITEMS_PER_BAND // self.width)),
+            )
+            self.swap()
+            return
         parallel.launch_rows(
             resolve_stoch_kernel if stochastic else resolve_kernel,
             resolve_stoch_rows_kernel if stochastic else resolve_rows_kernel,
