@@ -334,12 +334,13 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         row_items *= d
     min_items = MIN_ITEMS_PER_BAND if min_band_items is None else int(min_band_items)
     parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
-    if len(parts) == 1:
+    fast = dev.is_cpu and _invoke is not None and FAST_BANDS
+    if len(parts) == 1 and not fast:
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
     packed = None
-    if _invoke is not None and FAST_BANDS:
+    if fast:
         # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing) into the
         # CPU entry point's argument struct; each band copies it with its own row0 and launch bounds and calls
         # the entry point (a ctypes call: it releases the GIL). The packed struct is kept per kernel and
@@ -351,6 +352,10 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # the packed arguments and copied again only when those changed: a band is then one ctypes call, the
         # least Python a member thread runs under the GIL
         calls = _band_calls(packed, parts, dims)
+        if len(parts) == 1:  # one band: this thread, with the kept arguments (no packing)
+            for f, b, a in calls:
+                f(b, a)
+            return
 
         def worker():
             for f, b, a in calls:  # the list iterator is shared: each band goes to one thread
