@@ -81,13 +81,8 @@ def main(argv=None):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=360)
     p.add_argument("--frames", type=int, default=6)
-    p.add_argument("--strided", type=int, default=1, choices=(0, 1),
-                   help="1: interleaved rows for kernels with row_step (parallel.STRIDED, the default); 0: bands")
     args = p.parse_args(argv)
     import foveawarp as fw
-    from foveawarp import parallel
-
-    parallel.STRIDED = bool(args.strided)
 
     threads = [int(t) for t in args.threads.split(",")]
     records, rows = [], []
@@ -120,8 +115,8 @@ def main(argv=None):
     cols = ["scene", "path", "kernel"] + [f"ms_{n}t" for n in threads] + [f"scaling_{threads[-1]}t"]
     md = md_table(rows, cols)
     print(md)
-    write_results("cpu-launches", "cpu", {"threads": threads, "frames": args.frames, "strided": bool(args.strided),
-                                          "records": records}, md, args.out)
+    write_results("cpu-launches", "cpu", {"threads": threads, "frames": args.frames, "records": records}, md,
+                  args.out)
 
 
 if __name__ == "__main__":

@@ -4,10 +4,7 @@ Warp runs a CPU launch in the calling thread. :func:`launch` runs a kernel whose
 ``row0: int`` (its first launch index is ``wp.tid()[0] + row0``) as bands of its first dimension (image rows or
 ranges of a work list), one Warp launch per band on a team of threads (:class:`_Team`); the Warp CPU launch
 releases the GIL, so the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with
-``row0 = 0``. A kernel whose last two arguments are ``row0: int, row_step: int`` (its first launch index maps to
-``wp.tid()[0] * row_step + row0``: the per-pixel passes and their rows forms) runs instead as one part per
-thread, thread i taking rows i, i + n, i + 2n, ... of n threads: interleaved rows even out unequal row costs
-(sky above, geometry below) without more parts, and each thread's share is one call (one GIL round trip).
+``row0 = 0``.
 
 Which kernels may be split: each thread of the kernel writes only its own element(s) of its band (reads may
 be anywhere: JFA, Sibson and Sobel neighbourhoods read the whole arrays, which no band writes in the same
@@ -58,9 +55,6 @@ FAST_BANDS = True
 # below) even out; each band costs a few microseconds of Python under the GIL. None: 4 (16 cores, cornell
 # 640x360 at 3264d20: 8.23 ms a frame with 4 bands per thread, 8.96 ms with 2)
 OVERSPLIT: Optional[int] = None
-# kernels with a ``row_step`` argument after ``row0`` run as one interleaved part per thread (``_parts``); False:
-# contiguous bands like every other kernel
-STRIDED = True
 
 
 def bands_per_thread(n: int) -> int:
@@ -225,8 +219,8 @@ _PACK_CACHE_MAX = 256
 
 def _record(kernel, dims, inputs, outputs, dev):
     """``_pack`` of a fresh recording (``wp.launch(..., record_cmd=True)`` checks and packs, launches nothing)."""
-    return _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs,
-                           outputs=[*outputs, *_tail(kernel)], device=dev, record_cmd=True))
+    return _pack(wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0],
+                           device=dev, record_cmd=True))
 
 
 def _packed_args(kernel, dims, inputs, outputs, dev):
@@ -234,7 +228,7 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
     objects, checked through weak references, so a freed array's reused id cannot match) and the same numbers;
     Warp structs and vectors are set again in the kept argument struct on every call (their fields may have
     changed in place). Any other argument kind is packed afresh every time."""
-    args = [*inputs, *outputs, *_tail(kernel)]
+    args = [*inputs, *outputs, 0]
     key = [id(kernel), len(dims)]
     arrays, reset = [], []
     for i, a in enumerate(args):
@@ -276,8 +270,7 @@ class _Bands:
 
 
 def _band_calls(packed, parts, dims):
-    """An iterator over (entry point, bounds, arguments) per band of ``parts`` ((row0, row_step, rows) each) for
-    ``packed`` (see ``launch``)."""
+    """An iterator over (entry point, bounds, arguments) per band of ``parts`` for ``packed`` (see ``launch``)."""
     forward, struct_type, master, kdim = packed
     key = (id(master), tuple(parts), tuple(dims[1:]))
     st = _band_cache.get(key)
@@ -285,53 +278,29 @@ def _band_calls(packed, parts, dims):
         st = _Bands()
         st.master, st.last = master, None
         st.structs = [struct_type() for _ in parts]
-        st.bounds = {k: _bounds_of((k, *dims[1:]), kdim) for _, _, k in parts}  # at most two sizes
-        st.calls = [(forward, ctypes.byref(st.bounds[k]), ctypes.byref(a)) for a, (_, _, k) in zip(st.structs, parts)]
+        st.bounds = {r1 - r0: _bounds_of((r1 - r0, *dims[1:]), kdim) for r0, r1 in parts}  # at most two sizes
+        st.calls = [(forward, ctypes.byref(st.bounds[r1 - r0]), ctypes.byref(a))
+                    for a, (r0, r1) in zip(st.structs, parts)]
         if len(_band_cache) >= _PACK_CACHE_MAX:
             _band_cache.clear()
         _band_cache[key] = st
     cur = bytes(master)
     if cur != st.last:
         size, src = len(cur), ctypes.addressof(master)
-        strided = struct_type._fields_[-1][0] == "row_step"
-        for a, (r0, step, _) in zip(st.structs, parts):
+        for a, (r0, _) in zip(st.structs, parts):
             ctypes.memmove(ctypes.addressof(a), src, size)
             a.row0 = r0
-            if strided:
-                a.row_step = step
         st.last = cur
     return iter(st.calls)
 
 
-def _check_kernel(kernel) -> bool:
-    """Whether ``kernel`` ends in ``row0: int, row_step: int`` (its rows can be interleaved: True) or in
-    ``row0: int`` alone (contiguous bands: False); TypeError otherwise."""
-    mode = _checked.get(kernel.key)
-    if mode is None:
-        labels = [a.label for a in kernel.adj.args]
-        mode = 2 if labels[-2:] == ["row0", "row_step"] else 1 if labels[-1:] == ["row0"] else 0
-        _checked[kernel.key] = mode
-    if not mode:
+def _check_kernel(kernel) -> None:
+    ok = _checked.get(kernel.key)
+    if ok is None:
+        args = kernel.adj.args
+        ok = _checked[kernel.key] = bool(args) and args[-1].label == "row0"
+    if not ok:
         raise TypeError(f"kernel {kernel.key!r} has no trailing 'row0: int' argument; parallel.launch needs one")
-    return mode == 2
-
-
-def _tail(kernel) -> list:
-    """The trailing band arguments of one launch over all of ``kernel``'s rows: row0 = 0 (and row_step = 1)."""
-    return [0, 1] if _check_kernel(kernel) else [0]
-
-
-def _parts(rows: int, n: int, row_items: int, min_items: int, strided: bool) -> list:
-    """(row0, row_step, rows) per part of a launch over ``rows`` on ``n`` threads. ``strided`` (a kernel with
-    ``row_step``, and STRIDED): one part per thread, thread i taking rows i, i + n, i + 2n, ... (interleaved rows
-    even out unequal row costs, and a thread's whole share is one call); else ``bands_per_thread`` contiguous
-    bands per thread (``bands``). Fewer parts where one would hold under ``min_items`` work items."""
-    if strided and STRIDED:
-        k = max(1, min(n, rows))
-        if min_items > 0:
-            k = max(1, min(k, (rows * row_items) // min_items))
-        return [(i, k, (rows - i + k - 1) // k) for i in range(k)]
-    return [(r0, 1, r1 - r0) for r0, r1 in bands(rows, n * bands_per_thread(n), row_items, min_items)]
 
 
 def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
@@ -343,7 +312,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     reads, exiting past it): on the CPU only those rows are split into bands (the count is read straight from
     host memory, no ``.numpy()``: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim``
     is launched."""
-    strided = _check_kernel(kernel)
+    _check_kernel(kernel)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
     inputs, outputs = list(inputs), list(outputs)
@@ -364,11 +333,10 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     for d in dims[1:]:
         row_items *= d
     min_items = MIN_ITEMS_PER_BAND if min_band_items is None else int(min_band_items)
-    parts = _parts(dims[0], n, row_items, min_items, strided) if n > 1 else [(0, 1, dims[0])]
+    parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
     fast = dev.is_cpu and _invoke is not None and FAST_BANDS
     if len(parts) == 1 and not fast:
-        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, *_tail(kernel)],
-                  device=dev)
+        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
     packed = None
@@ -396,10 +364,9 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         queue = iter(parts)
 
         def worker():
-            for r0, step, k in queue:
-                d = (k, *dims[1:])
-                wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs,
-                          outputs=[*outputs, r0, step] if strided else [*outputs, r0], device=dev)
+            for r0, r1 in queue:
+                d = (r1 - r0, *dims[1:])
+                wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
     # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
     workers = min(n, len(parts))
@@ -461,7 +428,7 @@ class Relaunch:
         if self.bands and not dev.is_cuda:
             launch(self.kernel, dim, inputs, outputs, dev)
             return
-        outs = [*outputs, *_tail(self.kernel)] if self.bands else list(outputs)
+        outs = [*outputs, 0] if self.bands else list(outputs)
         args = [*inputs, *outs]
         key = (dim, dev, tuple(id(a) if isinstance(a, wp.array) else None for a in args))
         if self._cmd is None or key != self._key:

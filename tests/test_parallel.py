@@ -43,46 +43,6 @@ def test_bands_cover_rows_once(rows, threads, row_items, min_items):
         assert rows * row_items // len(b) >= min_items
 
 
-@settings(max_examples=200, deadline=None)
-@given(st.integers(1, 5000), st.integers(1, 64), st.integers(0, 300), st.integers(0, 5000), st.booleans())
-def test_parts_cover_rows_once(rows, threads, row_items, min_items, strided):
-    """``_parts``: every row in exactly one part; interleaved parts (one per thread, row_step = their count) for
-    a kernel with ``row_step``, contiguous bands otherwise; no part under ``min_items`` items when split."""
-    parts = parallel._parts(rows, threads, row_items, min_items, strided)
-    covered = np.concatenate([np.arange(r0, r0 + step * k, step) for r0, step, k in parts])
-    assert np.array_equal(np.sort(covered), np.arange(rows))
-    assert all(k >= 1 for _, _, k in parts)
-    if strided:
-        assert 1 <= len(parts) <= min(threads, rows) and all(step == len(parts) for _, step, _ in parts)
-    else:
-        assert all(step == 1 for _, step, _ in parts)
-    if min_items > 0 and len(parts) > 1:
-        assert rows * row_items // len(parts) >= min_items
-
-
-@wp.kernel
-def _strided_rows_kernel(a: wp.array2d(dtype=float), out: wp.array2d(dtype=float), row0: int, row_step: int):
-    y = wp.tid() * row_step + row0
-    for x in range(a.shape[1]):
-        # reads the row above (written by another part in no launch: ``a`` is read-only here)
-        out[y, x] = a[y, x] * 2.0 + a[wp.max(y - 1, 0), x] + float(y)
-
-
-@pytest.mark.parametrize("strided", [True, False])
-@pytest.mark.parametrize("h", [1, 2, 7, 33])
-def test_strided_rows_launch(every_band, monkeypatch, rng, strided, h):
-    """A kernel ending in ``row0, row_step`` launched over rows on 1, 2, 3, 7 and rows + 5 threads, interleaved
-    (``STRIDED``) or in contiguous bands: every row written once, equal to NumPy and to one thread."""
-    monkeypatch.setattr(parallel, "STRIDED", strided)
-    a_np = rng.random((h, 9)).astype(np.float32)
-    a = wp.array(a_np, dtype=float, device=DEV)
-    want = a_np * np.float32(2.0) + a_np[np.maximum(np.arange(h) - 1, 0)] + np.arange(h, dtype=np.float32)[:, None]
-    for n in (1, 2, 3, 7, h + 5):
-        out = wp.full((h, 9), -1.0, dtype=float, device=DEV)
-        parallel.launch(_strided_rows_kernel, h, inputs=[a], outputs=[out], device=DEV, threads=n)
-        np.testing.assert_array_equal(out.numpy(), want)
-
-
 # -- kernels: N threads == 1 thread, bit for bit -------------------------------------------------------------------
 
 

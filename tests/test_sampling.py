@@ -630,7 +630,7 @@ def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads):
               inputs=[stage.params, stage.frame_params, stage.ranks, lab, g.normal, g.depth, g.hit, g.velocity,
                       g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
                       stage._no_face_lab, 0],
-              outputs=[dummy, dummy, sm, ch, pi, stage.tile_counts, 0, 1], device="cpu")
+              outputs=[dummy, dummy, sm, ch, pi, stage.tile_counts, 0], device="cpu")
     with parallel.cpu_threads(1):
         launch_tile_pass(stage.ranks, stage.params, stage.frame_params, stage.tiles, sm, ch, ns, nc, dev)
     for a, b in zip(got, (sm.numpy(), ch.numpy(), pi.numpy())):

@@ -128,17 +128,16 @@ def _make_gbuffer(rows: bool):
         out_prev_dist: wp.array2d(dtype=float),
         out_moved: wp.array2d(dtype=wp.uint8),
         row0: int,
-        row_step: int,
     ):
         if wp.static(rows):
-            y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(out_depth.shape[1]):
                 trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
                               float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
                               out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
         else:
             y, x = wp.tid()
-            y = y * row_step + row0  # (foveawarp.parallel)
+            y += row0  # band offset (foveawarp.parallel)
             trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
                           float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face,
                           out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)

@@ -251,7 +251,6 @@ def jfa_last_pass_bands_kernel(
     color_out: wp.array2d(dtype=wp.vec3),
     tile_miss: wp.array2d(dtype=wp.int32),
     row0: int,
-    row_step: int,
 ):
     """``jfa_last_pass_kernel`` for the CPU's band-parallel launches (``foveawarp.parallel``): no tiles, no
     atomics. Thread (ty, tx) runs the same per-pixel step over screen tile (ty, tx) and writes the same
@@ -259,7 +258,7 @@ def jfa_last_pass_bands_kernel(
     ``tile_miss``; ``jfa_tile_stats_kernel`` then reduces ``tile_r2`` / ``tile_miss`` into the statistics
     (equal to the tiled kernel's atomics: integer max and sum, and sqrt of the max r2)."""
     ty, tx = wp.tid()
-    ty = ty * row_step + row0  # tile rows row0, row0 + row_step, ... (foveawarp.parallel)
+    ty += row0  # band offset (foveawarp.parallel)
     h = mask.shape[0]
     w = mask.shape[1]
     r2max = int(0)

@@ -600,7 +600,6 @@ def _make_sampling_map(rows: bool):
         out_prev_index: wp.array2d(dtype=wp.int32),
         tile_counts: wp.array2d(dtype=wp.vec2i),
         row0: int,
-        row_step: int,
     ):
         """Fused per-pixel pass: eq. 2 probability, eq. 3 saliency, stratified threshold, eq. 4 cache test.
 
@@ -616,7 +615,7 @@ def _make_sampling_map(rows: bool):
         miss has no surface depth or motion).
         """
         if wp.static(rows):
-            ty = wp.tid() * row_step + row0  # tile rows row0, row0 + row_step, ... (foveawarp.parallel)
+            ty = wp.tid() + row0  # band offset (foveawarp.parallel)
             fp = frame[0]
             k = sp.block
             y1 = wp.min(ty * k + k, depth.shape[0])
@@ -632,7 +631,7 @@ def _make_sampling_map(rows: bool):
                 tile_counts[ty, 0] = c
         else:
             y, x = wp.tid()
-            y = y * row_step + row0  # (foveawarp.parallel)
+            y += row0  # band offset (foveawarp.parallel)
             sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
                                prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
                                out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)

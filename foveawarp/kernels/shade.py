@@ -213,12 +213,11 @@ def _make_shade_full(rows: bool):
         out_stoch: wp.array2d(dtype=wp.vec3),
         display: wp.array2d(dtype=wp.vec3),
         row0: int,
-        row_step: int,
     ):
         """Shade every pixel; ``to_display`` != 0: also write its tone-mapped value to ``display`` (the frame's
         last pass when no indirect light or depth of field follows: no separate tone-map pass)."""
         if wp.static(rows):
-            y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
             sp = spa[0]
             for x in range(out.shape[1]):
                 shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
@@ -227,7 +226,7 @@ def _make_shade_full(rows: bool):
                     display[y, x] = tonemap_rgb(out[y, x], exposure, white)
         else:
             y, x = wp.tid()
-            y = y * row_step + row0  # (foveawarp.parallel)
+            y += row0  # band offset (foveawarp.parallel)
             sp = spa[0]
             shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
             if to_display != 0:
@@ -287,11 +286,10 @@ def _make_shade_masked(rows: bool):
         out: wp.array2d(dtype=wp.vec3),
         out_stoch: wp.array2d(dtype=wp.vec3),
         row0: int,
-        row_step: int,
     ):
         """The unreordered baseline: every pixel launched, unsampled threads exit at once."""
         if wp.static(rows):
-            y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
             sp = spa[0]
             for x in range(mask.shape[1]):
                 if mask[y, x] != wp.uint8(0):
@@ -299,7 +297,7 @@ def _make_shade_masked(rows: bool):
                                 out_stoch)
         else:
             y, x = wp.tid()
-            y = y * row_step + row0  # (foveawarp.parallel)
+            y += row0  # band offset (foveawarp.parallel)
             if mask[y, x] == wp.uint8(0):
                 return
             sp = spa[0]

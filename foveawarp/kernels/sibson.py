@@ -151,18 +151,17 @@ def _make_sibson_gather(rows: bool):
         color_out: wp.array2d(dtype=wp.vec3),
         display: wp.array2d(dtype=wp.vec3),
         row0: int,
-        row_step: int,
     ):
         """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
         also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
         if wp.static(rows):
-            y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+            y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(mask.shape[1]):
                 sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
                                     to_display, color_out, display)
         else:
             y, x = wp.tid()
-            y = y * row_step + row0  # (foveawarp.parallel)
+            y += row0  # band offset (foveawarp.parallel)
             sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
                                 color_out, display)
 

@@ -315,17 +315,16 @@ def _make_resolve_kernels(stochastic: bool):
             out_meta: wp.array(dtype=wp.int32),
             out_stoch: wp.array(dtype=wp.vec3),
             row0: int,
-            row_step: int,
         ):
             if wp.static(rows):
-                y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+                y = wp.tid() + row0  # band offset (foveawarp.parallel)
                 for x in range(out_filled.shape[1]):
                     resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved,
                                   fresh, fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev,
                                   out_color, out_filled, out_depth, out_normal, out_meta, out_stoch)
             else:
                 y, x = wp.tid()
-                y = y * row_step + row0  # (foveawarp.parallel)
+                y += row0  # band offset (foveawarp.parallel)
                 resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
                               fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
                               out_filled, out_depth, out_normal, out_meta, out_stoch)
@@ -371,14 +370,13 @@ def shade_resolve_rows_kernel(
     out_meta: wp.array(dtype=wp.int32),
     out_stoch: wp.array(dtype=wp.vec3),
     row0: int,
-    row_step: int,
 ):
     """The CPU's masked shading and deterministic resolve of one row in one launch (a thread per row, in bands:
     ``parallel.launch``): each sampled pixel is shaded into ``fresh`` / ``fresh_stoch`` (``shade_pixel``, as
     ``shade_masked_rows_kernel`` does), then every pixel of the row is resolved (``resolve_rows_kernel``). The
     deterministic resolve reads ``fresh`` at its own pixel only, so each pixel's inputs are final when it is
     resolved, and the values are those of the two launches (tests compare whole frames)."""
-    y = wp.tid() * row_step + row0  # rows row0, row0 + row_step, ... (foveawarp.parallel)
+    y = wp.tid() + row0  # band offset (foveawarp.parallel)
     sp = spa[0]
     for x in range(out_filled.shape[1]):
         if sample_map[y, x] != wp.uint8(0):
