@@ -530,9 +530,12 @@ class FrameLoop:
             self._indirect(smap, strategy)
         with self._stage("temporal"):
             if foveated:
+                listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background,
-                                  shade=self.shade if shade_in_resolve else None)
+                                  shade=self.shade if shade_in_resolve else None,
+                                  work=self.reorder.work if listed else None,
+                                  count=self.reorder.count if listed else None)
         with self._stage("reconstruct"):
             if foveated:
                 sc = cfg.shading

@@ -379,3 +379,73 @@ def test_shading_in_the_resolve_rejected_where_it_cannot_run(device):
         assert st.can_shade(False) is False
         with pytest.raises(ValueError, match="shade must be None"):
             st.run(*args, shade=fl.shade)
+
+
+@pytest.mark.parametrize("scene", ["cornell", "city"])
+def test_clip_boxes_by_list_equal_the_gathered_ones(monkeypatch, scene):
+    """Stochastic shading with a flat list of traced pixels (reorder "tile"): the clip boxes gathered by a launch
+    over the list (``stoch_box_list_kernel`` + ``resolve_stoch_boxed_kernel``, the CUDA path, run here on the
+    CPU) give the frames of the per-pixel gather, byte for byte: display image, history colour, stochastic
+    history, filled mask, over moving frames."""
+    w, h = 57, 33
+    cfg = fw.Config().with_(shading={"ao_samples": 2}, reorder={"strategy": "tile"})
+
+    def frames(by_list):
+        monkeypatch.setattr(TemporalStage, "list_boxes_on_cpu", by_list)
+        fl = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", timing=False, policy="foveated")
+        out = []
+        for i in range(6):
+            fr = fl.render(fl.scene.camera_at(0.06 * i), gaze_px=(w * (0.2 + 0.1 * i), h * 0.5), time=0.06 * i)
+            assert fr.stats["strategy"] == "tile"
+            st = fl.temporal
+            out += [a.numpy().tobytes() for a in (fr.image, st.color, st.filled, st._stoch[st._cur])]
+        return out, fl.temporal._box is not None
+
+    listed, used = frames(True)
+    assert used
+    gathered, used = frames(False)
+    assert not used
+    assert listed == gathered
+
+
+def test_clip_box_list_kernel_against_numpy(rng):
+    """``stoch_box_list_kernel`` against a NumPy box (mean +- gamma sd over the traced surface pixels of the 5 x 5
+    window, float64, rtol 1e-5): listed surface pixels get their box, listed ones with fewer than 3 traced
+    neighbours the empty box (lo > hi), misses and unlisted pixels nothing."""
+    from foveawarp.kernels.temporal import TemporalParams, stoch_box_list_kernel
+
+    h, w = 19, 23
+    smap = (rng.random((h, w)) < 0.3).astype(np.uint8)
+    smap[0:4, 0:4] = 0
+    smap[1, 1] = 1  # alone in its corner: fewer than 3 traced neighbours
+    hit = (rng.random((h, w)) < 0.85).astype(np.uint8)
+    hit[1, 1] = 1
+    stoch = rng.random((h, w, 3)).astype(np.float32)
+    work = np.flatnonzero(smap.ravel()).astype(np.int32)
+    tp = TemporalParams()
+    tp.box_radius = 2
+    tp.clamp_gamma = 1.25
+    lo = wp.full((h, w), wp.vec3(-7.0, -7.0, -7.0), dtype=wp.vec3, device="cpu")
+    hi = wp.full((h, w), wp.vec3(-7.0, -7.0, -7.0), dtype=wp.vec3, device="cpu")
+    wp.launch(stoch_box_list_kernel, dim=h * w,
+              inputs=[tp, wp.array(np.resize(work, h * w), dtype=wp.int32, device="cpu"),
+                      wp.array([len(work)], dtype=wp.int32, device="cpu"), w,
+                      wp.array(smap, dtype=wp.uint8, device="cpu"), wp.array(hit, dtype=wp.uint8, device="cpu"),
+                      wp.array(stoch, dtype=wp.vec3, device="cpu")],
+              outputs=[lo, hi], device="cpu")
+    lo, hi = lo.numpy(), hi.numpy()
+    traced = (smap != 0) & (hit != 0)
+    for y in range(h):
+        for x in range(w):
+            if not (smap[y, x] and hit[y, x]):
+                assert (lo[y, x] == -7).all() and (hi[y, x] == -7).all()
+                continue
+            win = traced[max(y - 2, 0):y + 3, max(x - 2, 0):x + 3]
+            vals = stoch[max(y - 2, 0):y + 3, max(x - 2, 0):x + 3][win].astype(np.float64)
+            if len(vals) < 3:
+                assert lo[y, x][0] > hi[y, x][0]
+                continue
+            mu, sd = vals.mean(0), np.sqrt(np.maximum((vals ** 2).mean(0) - vals.mean(0) ** 2, 0))
+            np.testing.assert_allclose(lo[y, x], mu - 1.25 * sd, rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(hi[y, x], mu + 1.25 * sd, rtol=1e-5, atol=1e-5)
+    assert lo[1, 1][0] > hi[1, 1][0]

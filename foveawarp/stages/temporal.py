@@ -13,9 +13,11 @@ from ..kernels.temporal import (
     refresh_thin_kernel,
     resolve_kernel,
     resolve_rows_kernel,
+    resolve_stoch_boxed_kernel,
     resolve_stoch_kernel,
     resolve_stoch_rows_kernel,
     shade_resolve_rows_kernel,
+    stoch_box_list_kernel,
 )
 
 __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
@@ -72,6 +74,10 @@ class TemporalStage:
     if it had one.
     """
 
+    # the clip boxes by list (``run(work=...)``) on the CPU too: False, the rows resolve gathers them without the
+    # divergence that the list avoids on CUDA; the tests set it to check the CUDA path's kernels on the CPU
+    list_boxes_on_cpu = False
+
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
         self.width, self.height, self.config, self.device = width, height, config, device
         n = width * height
@@ -86,6 +92,8 @@ class TemporalStage:
         self._meta = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]  # age | stale << 16
         self._cur = 0
         self._stochastic = None  # shading kind of the last run/refresh (None: none yet)
+        self._box = None  # the list-gathered clip boxes (lo, hi), allocated on the first run that uses them
+        self._no_box = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # box placeholder of the other kernels
 
     @property
     def color(self) -> wp.array:
@@ -160,7 +168,7 @@ class TemporalStage:
         return not stochastic and parallel.use_row_kernels(self.device)
 
     def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
-            background=(0.0, 0.0, 0.0), shade=None) -> None:
+            background=(0.0, 0.0, 0.0), shade=None, work=None, count=None) -> None:
         """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
@@ -174,6 +182,11 @@ class TemporalStage:
             shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
                 ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
                 ``shade.masked`` (its parameters as last uploaded); one pass over the image instead of two.
+            work, count: the flat list of the traced pixels (``ReorderStage.work`` / ``count``: indices y * W + x
+                of every nonzero ``sample_map`` pixel, ``count[0]`` of them) or None. With stochastic shading on
+                CUDA the clip boxes are then gathered by a launch over the list (a thread per traced pixel),
+                not inside the per-pixel resolve, where the few traced threads of each warp held all of it; the
+                same values. Two (H, W) vec3 box buffers are allocated on the first such run.
         """
         stochastic = bool(stochastic)
         if shade is not None and not self.can_shade(stochastic):
@@ -183,6 +196,9 @@ class TemporalStage:
         self._check_kind(stochastic)
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
+        if (work is None) != (count is None):
+            raise ValueError(f"work and count must be given together (ReorderStage.work and .count), got "
+                             f"{type(work).__name__} and {type(count).__name__}")
         if shade is not None:
             pos, _, albedo, face, _, lights, area_lights, face_emission = shade.inputs(gbuffer)
             parallel.launch(
@@ -198,18 +214,35 @@ class TemporalStage:
             )
             self.swap()
             return
-        parallel.launch_rows(
-            resolve_stoch_kernel if stochastic else resolve_kernel,
-            resolve_stoch_rows_kernel if stochastic else resolve_rows_kernel,
-            (self.height, self.width),
-            inputs=[self.params(use_history=use_history, stochastic=stochastic, background=background), sample_map,
-                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch,
-                    self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev], self._stoch[prev]],
-            outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
-                     self._stoch[cur]],
-            device=self.device,
-        )
+        tp = self.params(use_history=use_history, stochastic=stochastic, background=background)
+        inputs = [tp, sample_map, g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh,
+                  fresh_stoch, self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
+                  self._stoch[prev]]
+        outputs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
+                   self._stoch[cur]]
+        if stochastic and work is not None and (self.device.is_cuda or self.list_boxes_on_cpu):
+            box_lo, box_hi = self._boxes()
+            wp.launch(stoch_box_list_kernel, dim=work.shape[0],
+                      inputs=[tp, work, count, self.width, sample_map, g.hit, fresh_stoch],
+                      outputs=[box_lo, box_hi], device=self.device)
+            wp.launch(resolve_stoch_boxed_kernel, dim=(self.height, self.width), inputs=inputs,
+                      outputs=[*outputs, box_lo, box_hi, 0], device=self.device)
+        else:
+            parallel.launch_rows(
+                resolve_stoch_kernel if stochastic else resolve_kernel,
+                resolve_stoch_rows_kernel if stochastic else resolve_rows_kernel,
+                (self.height, self.width), inputs=inputs, outputs=[*outputs, self._no_box, self._no_box],
+                device=self.device,
+            )
         self.swap()
+
+    def _boxes(self):
+        """The (H, W) vec3 clip-box buffers of the list-gathered boxes (allocated on first use)."""
+        if self._box is None:
+            shape = (self.height, self.width)
+            self._box = (wp.zeros(shape, dtype=wp.vec3, device=self.device),
+                         wp.zeros(shape, dtype=wp.vec3, device=self.device))
+        return self._box
 
     def swap(self) -> None:
         """Make the history just written the current one (``run`` does it; a replayed CUDA graph of ``run``
