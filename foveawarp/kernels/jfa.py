@@ -392,3 +392,66 @@ def voronoi_color_kernel(
     y += row0  # band offset (foveawarp.parallel)
     if mask[y, x] == wp.uint8(0):
         vor[y, x] = voronoi_color(color_in, nearest[y, x])
+
+
+@wp.kernel(enable_backward=False)
+def holes_reset_kernel(num_holes: wp.array(dtype=wp.int32), max_r2: wp.array(dtype=wp.int32),
+                       max_radius: wp.array(dtype=wp.float32), unreached: wp.array(dtype=wp.int32)):
+    """One thread: zero the hole count and the statistics before a listed frame (one launch, not four memsets)."""
+    num_holes[0] = 0
+    max_r2[0] = 0
+    max_radius[0] = 0.0
+    unreached[0] = 0
+
+
+@wp.kernel(enable_backward=False)
+def hole_disc_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    holes: wp.array(dtype=wp.int32),
+    num_holes: wp.array(dtype=wp.int32),
+    offsets: wp.array(dtype=wp.vec2i),
+    color_in: wp.array2d(dtype=wp.vec3),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    r2_out: wp.array2d(dtype=wp.int32),
+    vor: wp.array2d(dtype=wp.vec3),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """The "disc" last pass over the listed non-seed pixels only (``holes[0:num_holes[0]]``, flat indices y * W +
+    x; ``resolve_listed_kernel`` lists them and writes the seeds' part): tiled over the list, a thread per hole
+    runs the disc scan (``nearest_in_disc``) and writes ``nearest``, ``r2_out`` and the Voronoi colour ``vor`` as
+    ``jfa_last_pass_kernel`` does; the tile maxima by atomic max into ``tile_r2`` (zeroed by the resolve), the
+    image statistics by block reductions and one atomic per block (zeroed by ``holes_reset_kernel``). The same
+    values as the full pass, in a launch whose threads all have work: the full pass ran the scan in a few
+    threads of every warp that held a hole."""
+    blk, lane = wp.tid()
+    k = blk * wp.block_dim() + lane
+    w = mask.shape[1]
+    r2max = int(0)
+    missing = int(0)
+    if k < num_holes[0]:
+        idx = holes[k]
+        y = idx // w
+        x = idx - y * w
+        s = nearest_in_disc(mask, x, y, offsets)
+        nearest[y, x] = s
+        r2 = int(-1)
+        if s[0] >= 0:
+            r2 = seed_dist2(x, y, s)
+            wp.atomic_max(tile_r2, y // RTILE, x // RTILE, r2)
+            r2max = r2
+        else:
+            missing = 1
+        r2_out[y, x] = r2
+        vor[y, x] = voronoi_color(color_in, s)
+    tmax = wp.tile_max(wp.tile(r2max))
+    tmiss = wp.tile_sum(wp.tile(missing))
+    if lane == 0:
+        m = tmax[0]
+        if m > 0:
+            wp.atomic_max(max_r2, 0, m)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+        if tmiss[0] > 0:
+            wp.atomic_add(unreached, 0, tmiss[0])
