@@ -528,30 +528,20 @@ class FrameLoop:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
-        sc = cfg.shading
-        tone = {"exposure": float(sc.exposure), "white_point": float(sc.white_point)}
-        # the resolve writes the reconstruction's seeds and lists its holes (see _holes_listed)
-        holes = foveated and self._holes_listed(strategy, shade_in_resolve)
         with self._stage("temporal"):
             if foveated:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
-                if holes:
-                    self.reconstruct.begin_holes()
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background,
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
-                                  count=self.reorder.count if listed else None,
-                                  holes=self.reconstruct if holes else None, recon=self.recon if holes else None,
-                                  display=self.image if holes and fused else None, **tone)
+                                  count=self.reorder.count if listed else None)
         with self._stage("reconstruct"):
             if foveated:
-                if holes:
-                    self.reconstruct.run_holes(self.temporal.color, self.temporal.filled, self.recon,
-                                               display=self.image if fused else None, **tone)
-                else:
-                    self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon,
-                                         display=self.image if fused else None, **tone)
+                sc = cfg.shading
+                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon,
+                                     display=self.image if fused else None, exposure=float(sc.exposure),
+                                     white_point=float(sc.white_point))
                 hdr = self.recon
             else:
                 hdr = self.radiance
@@ -563,19 +553,6 @@ class FrameLoop:
         with self._stage("tonemap"):
             if not fused:
                 self._tonemap(hdr, self.image)
-
-    def _holes_listed(self, strategy: str, shade_in_resolve: bool) -> bool:
-        """Whether the frame takes the listed reconstruction: the resolve also writes the seeds' outputs (colour,
-        tone-mapped colour, radius) and lists the holes, and the Voronoi step and Sibson gather run over the
-        holes only (``ReconstructStage.run_holes``), instead of two passes over every pixel. CUDA (the appends are
-        atomics; ``ReconstructStage.list_holes_on_cpu`` for the tests), the "disc" step with the bounded gather,
-        and with stochastic shading a flat list of the traced pixels for the clip boxes."""
-        rc = self.reconstruct
-        if shade_in_resolve or not rc.can_list():
-            return False
-        if not (self.device.is_cuda or rc.list_holes_on_cpu):
-            return False
-        return not self._stochastic_shading() or strategy in ("scan", "tile")
 
     def _shade_in_resolve(self, strategy: str) -> bool:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the

@@ -24,7 +24,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-import foveawarp as fw
 from foveawarp import ReconstructionConfig, ops
 from foveawarp.stages.reconstruct import ReconstructStage, jfa_start_step_for_block, sibson_window_for_block
 
@@ -337,58 +336,3 @@ def test_stage_properties(mc, variant, block, bounded, window):
     assert np.array_equal(out[m], colors[m])
     if not m.any():
         assert np.all(out == 0.0)
-
-
-@pytest.mark.parametrize("shading", [{}, {"ao_samples": 2}], ids=["default", "ao2"])
-@pytest.mark.parametrize("scene", ["cornell", "city", "eyechart"])
-def test_listed_reconstruction_equals_full_passes(monkeypatch, scene, shading):
-    """The listed path of a FrameLoop (the CUDA path, run here on the CPU: the resolve writes the seeds' colour,
-    display value and radius and lists the holes; ``run_holes`` runs the disc scan and the Sibson gather over the
-    holes) against the full passes: whole moving-camera frames, byte for byte (display, reconstruction, Voronoi
-    colours and radii at the holes, statistics), with holes in most frames."""
-    from foveawarp.stages.reconstruct import ReconstructStage as RS
-
-    w, h = 96, 54
-    # a small fovea: most pixels come from history or the reconstruction, holes in most frames
-    cfg = fw.Config().with_(shading=shading, reorder={"strategy": "tile"},
-                            foveation={"fovea_deg": 1.0, "falloff_deg": 4.0})
-
-    def frames(listed):
-        monkeypatch.setattr(RS, "list_holes_on_cpu", listed)
-        fl = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", timing=False, policy="foveated")
-        out, holes = [], []
-        for i in range(6):
-            fr = fl.render(fl.scene.camera_at(0.1 * i), gaze_px=(w * (0.2 + 0.1 * i), h * 0.5), time=0.1 * i)
-            rc = fl.reconstruct
-            empty = fl.temporal.filled.numpy() == 0
-            holes.append(int(empty.sum()))
-            r2 = rc.radius_sq.numpy()
-            out += [fr.image.numpy().tobytes(), fl.recon.numpy().tobytes(), r2[empty].tobytes(),
-                    (r2[~empty] == -1).all(), rc.voronoi_color.numpy()[empty].tobytes(),
-                    rc.tile_radius_sq.numpy().tobytes(), rc.max_radius_sq.numpy().tobytes(),
-                    rc.max_radius.numpy().tobytes(), rc.unreached.numpy().tobytes()]
-            if listed:
-                assert int(rc.hole_buffers()[1].numpy()[0]) == holes[-1]
-                assert np.array_equal(np.sort(rc.hole_buffers()[0].numpy()[:holes[-1]]), np.flatnonzero(empty))
-        return out, holes, fl.reconstruct._holes is not None
-
-    listed, holes, used = frames(True)
-    assert used and sum(n > 0 for n in holes) >= 4
-    full, holes2, used = frames(False)
-    assert not used and holes2 == holes
-    for i, (a, b) in enumerate(zip(listed, full)):
-        assert a == b, i
-
-
-def test_listed_reconstruction_rejects_bad_use():
-    """``run_holes`` needs the disc step with the bounded gather; the resolve's ``holes=`` needs ``recon``."""
-    st = ReconstructStage(16, 8, ReconstructionConfig(jfa_variant="1+jfa"), block=4, device="cpu")
-    assert not st.can_list()
-    a = wp.zeros((8, 16), dtype=wp.vec3, device="cpu")
-    m = wp.zeros((8, 16), dtype=wp.uint8, device="cpu")
-    with pytest.raises(ValueError, match="run_holes needs jfa_variant 'disc'"):
-        st.run_holes(a, m, wp.zeros((8, 16), dtype=wp.vec3, device="cpu"))
-    fl = fw.FrameLoop("cornell", 16, 8, device="cpu", timing=False, policy="foveated")
-    fl.render(fl.scene.camera_at(0.0), gaze_px=(8, 4))
-    with pytest.raises(ValueError, match="holes needs recon"):
-        fl.temporal.run(fl.sampling.sample_map, fl.gbuffer, fl.radiance, fl.radiance_stoch, holes=fl.reconstruct)

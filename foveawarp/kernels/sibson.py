@@ -173,38 +173,6 @@ sibson_gather_rows_kernel = _make_sibson_gather(True)
 
 
 @wp.kernel(enable_backward=False)
-def sibson_hole_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    vor: wp.array2d(dtype=wp.vec3),
-    r2: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    holes: wp.array(dtype=wp.int32),
-    num_holes: wp.array(dtype=wp.int32),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    exposure: float,
-    white: float,
-    to_display: int,
-    color_out: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-):
-    """The bounded Sibson gather (``sibson_gather_pixel``) at the listed non-seed pixels only (``holes[0:
-    num_holes[0]]``, flat y * W + x): a thread per hole, so every thread of a warp gathers (the per-pixel
-    kernel ran the disc loop in the few hole threads of every warp that held one). The seeds' outputs were
-    written by ``resolve_listed_kernel``."""
-    k = wp.tid()
-    if k >= num_holes[0]:
-        return
-    w = mask.shape[1]
-    idx = holes[k]
-    y = idx // w
-    x = idx - y * w
-    # a hole is no seed: the seed branch (which would read ``color_out`` as its colour) is never taken
-    sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_out, window, max_r2, exposure, white, to_display,
-                        color_out, display)
-
-
-@wp.kernel(enable_backward=False)
 def sibson_scatter_kernel(
     mask: wp.array2d(dtype=wp.uint8),
     vor: wp.array2d(dtype=wp.vec3),

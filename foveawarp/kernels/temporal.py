@@ -10,9 +10,7 @@ import warp as wp
 
 from .gbuffer import NO_REPROJ
 from .sampling import FrameParams
-from .jfa import RTILE, finite_or_zero
 from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
-from .tonemap import tonemap_rgb
 
 # bilinear fractions closer than this (pixels) to a pixel centre snap to it
 SNAP_PX = wp.constant(1.0 / 128.0)
@@ -356,91 +354,9 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
     return make(False), None if boxed else make(True), resolve_pixel
 
 
-def _make_resolve_listed(resolve_pixel, name: str):
-    """The resolve fused with the seed half of the reconstruction (``ReconstructStage.run_holes``), tiled (CUDA:
-    blocks of 256 threads over the flat pixel index; the CPU: blocks of one). Each pixel is resolved as by the
-    plain kernel; then a filled pixel (a seed of the reconstruction) also writes what the Voronoi pass and the
-    Sibson gather wrote for it: its finite colour to ``recon``, its tone-mapped colour to ``display`` (when
-    ``to_display``), radius -1 to ``r2_out`` (a seed reaches no other pixel); an empty pixel (a hole) is appended
-    to ``holes`` (one atomic per block on ``num_holes``: the list's order varies, the per-pixel results of
-    the hole passes do not). The thread of each 16 x 16 screen tile's corner pixel zeroes the tile's entry of
-    ``tile_r2`` for the hole pass's atomic maxima. ``num_holes`` must be zero before the launch."""
-
-    @wp.kernel(enable_backward=False, name=name)
-    def resolve_listed(
-        tp: TemporalParams,
-        sample_map: wp.array2d(dtype=wp.uint8),
-        hit: wp.array2d(dtype=wp.uint8),
-        normal: wp.array2d(dtype=wp.vec3),
-        depth: wp.array2d(dtype=float),
-        reproj_uv: wp.array2d(dtype=wp.vec2),
-        prev_dist: wp.array2d(dtype=float),
-        velocity: wp.array2d(dtype=wp.vec2),
-        moved: wp.array2d(dtype=wp.uint8),
-        fresh: wp.array2d(dtype=wp.vec3),
-        fresh_stoch: wp.array2d(dtype=wp.vec3),
-        depth_prev: wp.array2d(dtype=float),
-        normal_prev: wp.array(dtype=wp.vec3),
-        meta_prev: wp.array(dtype=wp.int32),
-        color_prev: wp.array(dtype=wp.vec3),
-        stoch_prev: wp.array(dtype=wp.vec3),
-        out_color: wp.array(dtype=wp.vec3),
-        out_filled: wp.array2d(dtype=wp.uint8),
-        out_depth: wp.array2d(dtype=float),
-        out_normal: wp.array(dtype=wp.vec3),
-        out_meta: wp.array(dtype=wp.int32),
-        out_stoch: wp.array(dtype=wp.vec3),
-        box_lo: wp.array2d(dtype=wp.vec3),
-        box_hi: wp.array2d(dtype=wp.vec3),
-        exposure: float,
-        white: float,
-        to_display: int,
-        recon: wp.array2d(dtype=wp.vec3),
-        display: wp.array2d(dtype=wp.vec3),
-        r2_out: wp.array2d(dtype=wp.int32),
-        tile_r2: wp.array2d(dtype=wp.int32),
-        holes: wp.array(dtype=wp.int32),
-        num_holes: wp.array(dtype=wp.int32),
-    ):
-        blk, lane = wp.tid()
-        i = blk * wp.block_dim() + lane
-        w = out_filled.shape[1]
-        h = out_filled.shape[0]
-        hole = int(0)
-        if i < w * h:
-            y = i // w
-            x = i - y * w
-            resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
-                          fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
-                          out_filled, out_depth, out_normal, out_meta, out_stoch, box_lo, box_hi)
-            if out_filled[y, x] != wp.uint8(0):
-                c = finite_or_zero(out_color[i])
-                recon[y, x] = c
-                if to_display != 0:
-                    display[y, x] = tonemap_rgb(c, exposure, white)
-                r2_out[y, x] = -1
-            else:
-                hole = 1
-            if (x & (RTILE - 1)) == 0 and (y & (RTILE - 1)) == 0:
-                tile_r2[y // RTILE, x // RTILE] = 0
-        # block-aggregated append: each hole's place in the block, one atomic for the block, its base to all
-        off = wp.untile(wp.tile_scan_exclusive(wp.tile(hole)))
-        tot = wp.tile_sum(wp.tile(hole))
-        base = int(0)
-        if lane == 0 and tot[0] > 0:
-            base = wp.atomic_add(num_holes, 0, tot[0])
-        b = wp.tile_sum(wp.tile(base))
-        if hole != 0:
-            holes[b[0] + off] = i
-
-    return resolve_listed
-
-
 resolve_kernel, resolve_rows_kernel, _resolve_pixel = _make_resolve_kernels(False)
 resolve_stoch_kernel, resolve_stoch_rows_kernel, _ = _make_resolve_kernels(True)
-resolve_stoch_boxed_kernel, _, _resolve_boxed_pixel = _make_resolve_kernels(True, boxed=True)
-resolve_listed_kernel = _make_resolve_listed(_resolve_pixel, "resolve_listed_kernel")
-resolve_stoch_listed_kernel = _make_resolve_listed(_resolve_boxed_pixel, "resolve_stoch_listed_kernel")
+resolve_stoch_boxed_kernel, _, _ = _make_resolve_kernels(True, boxed=True)
 
 
 @wp.kernel(enable_backward=False)

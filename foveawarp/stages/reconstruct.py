@@ -24,8 +24,6 @@ import numpy as np
 from ..config import VORONOI_VARIANTS, ReconstructionConfig, check_choice, check_int_range, resolve_voronoi_variant
 from ..kernels.jfa import (
     RTILE,
-    hole_disc_kernel,
-    holes_reset_kernel,
     jfa_last_pass_bands_kernel,
     jfa_last_pass_kernel,
     jfa_tile_stats_kernel,
@@ -37,7 +35,6 @@ from ..kernels.jfa import (
 from ..kernels.sibson import (
     sibson_gather_kernel,
     sibson_gather_rows_kernel,
-    sibson_hole_kernel,
     sibson_resolve_kernel,
     sibson_scatter_kernel,
 )
@@ -166,9 +163,6 @@ class ReconstructStage:
     # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
     # CUDA; the tests compare the two)
     cpu_bands = True
-    # the listed path (``run_holes``) in a FrameLoop on the CPU too: False (its appends are atomics, which the
-    # CPU's band-parallel launches cannot share); the tests set it to run the CUDA path's kernels on the CPU
-    list_holes_on_cpu = False
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -214,8 +208,6 @@ class ReconstructStage:
         # counts of pixels without a seed, folded into ``unreached`` by a one-thread kernel
         self._tile_miss = None if dev.is_cuda else wp.zeros(tiles, dtype=wp.int32, device=dev)
         self._stats_launch = parallel.Relaunch(jfa_tile_stats_kernel, bands=False)  # recorded once
-        self._holes = None  # the listed path's hole list and count (allocated on first use)
-        self._reset_launch = parallel.Relaunch(holes_reset_kernel, bands=False)
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
@@ -339,59 +331,6 @@ class ReconstructStage:
                              inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
                                      float(tone[0]), float(tone[1]), 0 if display is None else 1],
                              outputs=[color_out, self._dummy3 if display is None else display], device=dev)
-        return display is not None
-
-    # -- the listed path (a FrameLoop on CUDA): the resolve writes the seeds and lists the holes --------------
-    def can_list(self) -> bool:
-        """Whether this stage's configuration has a listed path: the exact "disc" Voronoi step and the bounded
-        Sibson gather (the frame loop's default)."""
-        return bool(self.disc and self.config.sibson and not self.exact_sibson)
-
-    def hole_buffers(self):
-        """(holes, num_holes): the flat list of the non-seed pixels (y * W + x, capacity W * H) and its (1,) int32
-        count, as ``TemporalStage.run(holes=...)`` fills them (allocated on first use)."""
-        if self._holes is None:
-            self._holes = (wp.zeros(self.width * self.height, dtype=wp.int32, device=self.device),
-                           wp.zeros(1, dtype=wp.int32, device=self.device))
-        return self._holes
-
-    def begin_holes(self) -> None:
-        """Zero the hole count and the statistics before a listed frame's resolve (one launch)."""
-        holes, num = self.hole_buffers()
-        self._reset_launch(1, inputs=[num, *self._stats_args()], device=self.device)
-
-    def run_holes(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,
-                  white_point: float = 1.0) -> bool:
-        """The reconstruction's hole half, after ``begin_holes`` and a resolve that wrote the seeds and listed the
-        holes (``TemporalStage.run(holes=self, ...)``): the disc scan over the listed holes (``nearest``,
-        ``radius_sq``, ``voronoi_color`` at the holes, ``tile_radius_sq`` and the statistics) and the bounded
-        Sibson gather at the holes into ``color_out`` (and, tone-mapped, ``display`` when given). The values of
-        :meth:`run` at every pixel of ``color_out`` / ``display``; ``nearest`` holds the holes' entries only.
-        Two launches over the list, whose threads all have work. Returns whether ``display`` was written."""
-        if not self.can_list():
-            raise ValueError(f"run_holes needs jfa_variant 'disc' (got {self.variant!r}), sibson=True (got "
-                             f"{self.config.sibson}) and the bounded gather (exact_sibson={self.exact_sibson})")
-        if color_in is color_out:
-            raise ValueError("color_out must be a different array from color_in")
-        self._check("seed_mask", seed_mask, wp.uint8)
-        self._check("color_in", color_in, wp.vec3)
-        self._check("color_out", color_out, wp.vec3)
-        if display is not None:
-            self._check("display", display, wp.vec3)
-        holes, num = self.hole_buffers()
-        n = self.width * self.height
-        dev = self.device
-        bd = _CUDA_BLOCK if dev.is_cuda else 1
-        wp.launch_tiled(hole_disc_kernel, dim=[(n + bd - 1) // bd],
-                        inputs=[seed_mask, holes, num, self._disc_offsets, color_in],
-                        outputs=[self.nearest, self.radius_sq, self.voronoi_color, self.tile_radius_sq,
-                                 *self._stats_args()], block_dim=bd, device=dev)
-        wp.launch(sibson_hole_kernel, dim=n,
-                  inputs=[seed_mask, self.voronoi_color, self.radius_sq, self.tile_radius_sq, holes, num,
-                          int(self.window), self.max_radius_sq, float(exposure), float(white_point),
-                          0 if display is None else 1],
-                  outputs=[color_out, self._dummy3 if display is None else display], device=dev)
-        self._mask = seed_mask
         return display is not None
 
     def run(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,

@@ -12,11 +12,9 @@ from ..kernels.temporal import (
     TemporalParams,
     refresh_thin_kernel,
     resolve_kernel,
-    resolve_listed_kernel,
     resolve_rows_kernel,
     resolve_stoch_boxed_kernel,
     resolve_stoch_kernel,
-    resolve_stoch_listed_kernel,
     resolve_stoch_rows_kernel,
     shade_resolve_rows_kernel,
     stoch_box_list_kernel,
@@ -170,8 +168,7 @@ class TemporalStage:
         return not stochastic and parallel.use_row_kernels(self.device)
 
     def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
-            background=(0.0, 0.0, 0.0), shade=None, work=None, count=None, holes=None, recon=None, display=None,
-            exposure: float = 1.0, white_point: float = 1.0) -> None:
+            background=(0.0, 0.0, 0.0), shade=None, work=None, count=None) -> None:
         """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
@@ -190,12 +187,6 @@ class TemporalStage:
                 CUDA the clip boxes are then gathered by a launch over the list (a thread per traced pixel),
                 not inside the per-pixel resolve, where the few traced threads of each warp held all of it; the
                 same values. Two (H, W) vec3 box buffers are allocated on the first such run.
-            holes: a :class:`ReconstructStage` whose :meth:`~ReconstructStage.begin_holes` just ran (the listed
-                path, with ``can_list()``; stochastic shading also needs ``work`` / ``count``): the resolve also
-                writes every filled pixel's reconstruction output, its colour to ``recon`` and (``display`` an
-                (H, W) vec3 array, or None) its tone-mapped colour (``exposure``, ``white_point``), and its radius
-                -1, and lists the empty pixels for ``holes.run_holes``; one launch in place of the full passes of
-                the Voronoi step and the Sibson gather over the seeds.
         """
         stochastic = bool(stochastic)
         if shade is not None and not self.can_shade(stochastic):
@@ -205,16 +196,6 @@ class TemporalStage:
         self._check_kind(stochastic)
         prev, cur = self._cur, 1 - self._cur
         g = gbuffer
-        if holes is not None:
-            if shade is not None or recon is None or not holes.can_list():
-                raise ValueError("holes needs recon, no shade, and a ReconstructStage with can_list() (the 'disc' "
-                                 f"step and the bounded Sibson gather); got recon={type(recon).__name__}, "
-                                 f"shade={type(shade).__name__}")
-            if stochastic and work is None:
-                raise ValueError("holes with stochastic shading needs work and count (the traced pixels' list)")
-            holes._check("recon", recon, wp.vec3)
-            if display is not None:
-                holes._check("display", display, wp.vec3)
         if (work is None) != (count is None):
             raise ValueError(f"work and count must be given together (ReorderStage.work and .count), got "
                              f"{type(work).__name__} and {type(count).__name__}")
@@ -239,25 +220,11 @@ class TemporalStage:
                   self._stoch[prev]]
         outputs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
                    self._stoch[cur]]
-        boxed = stochastic and work is not None and (self.device.is_cuda or self.list_boxes_on_cpu
-                                                     or holes is not None)
-        box_lo = box_hi = self._no_box
-        if boxed:
+        if stochastic and work is not None and (self.device.is_cuda or self.list_boxes_on_cpu):
             box_lo, box_hi = self._boxes()
             wp.launch(stoch_box_list_kernel, dim=work.shape[0],
                       inputs=[tp, work, count, self.width, sample_map, g.hit, fresh_stoch],
                       outputs=[box_lo, box_hi], device=self.device)
-        if holes is not None:
-            hl, num = holes.hole_buffers()
-            n = self.width * self.height
-            bd = 256 if self.device.is_cuda else 1
-            wp.launch_tiled(resolve_stoch_listed_kernel if stochastic else resolve_listed_kernel,
-                            dim=[(n + bd - 1) // bd],
-                            inputs=[*inputs, *outputs, box_lo, box_hi, float(exposure), float(white_point),
-                                    0 if display is None else 1, recon, self._no_box if display is None else display,
-                                    holes.radius_sq, holes.tile_radius_sq, hl, num],
-                            block_dim=bd, device=self.device)
-        elif boxed:
             wp.launch(resolve_stoch_boxed_kernel, dim=(self.height, self.width), inputs=inputs,
                       outputs=[*outputs, box_lo, box_hi, 0], device=self.device)
         else:
