@@ -236,6 +236,72 @@ def jfa_last_pass_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def jfa_last_pass_pixel_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    src: wp.array2d(dtype=wp.vec2i),
+    step: int,
+    from_mask: int,
+    settled: int,
+    color_in: wp.array2d(dtype=wp.vec3),
+    color_mode: int,
+    offsets: wp.array(dtype=wp.vec2i),
+    nearest: wp.array2d(dtype=wp.vec2i),
+    r2_out: wp.array2d(dtype=wp.int32),
+    color_out: wp.array2d(dtype=wp.vec3),
+):
+    """The last pass's per-pixel part (``last_pass_pixel``) as a plain launch, a thread per pixel (CUDA):
+    ``radius_tiles_kernel`` then reduces the radii per screen tile. The tiled ``jfa_last_pass_kernel`` does both in
+    one launch, but its 256-pixel blocks with their reductions held 56 registers per thread for a pass whose seeds
+    (most pixels) read one byte and write twelve."""
+    y, x = wp.tid()
+    last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest, r2_out,
+                    color_out)
+
+
+@wp.kernel(enable_backward=False)
+def radius_tiles_kernel(
+    mask: wp.array2d(dtype=wp.uint8),
+    r2: wp.array2d(dtype=wp.int32),
+    tile_r2: wp.array2d(dtype=wp.int32),
+    max_r2: wp.array(dtype=wp.int32),
+    max_radius: wp.array(dtype=wp.float32),
+    unreached: wp.array(dtype=wp.int32),
+):
+    """Tiled like ``jfa_last_pass_kernel`` (block b = RTILE x RTILE screen tile b): the tile's largest radius from
+    ``r2`` as ``jfa_last_pass_pixel_kernel`` left it (-1 at the seeds and at non-seed pixels without a seed) into
+    ``tile_r2`` (0 when none), its count of non-seed pixels without a seed, and one atomic per tile into the
+    statistics (zero before the launch): the reductions of the tiled last pass, the same values."""
+    blk, lane = wp.tid()
+    h = mask.shape[0]
+    w = mask.shape[1]
+    tiles_x = tile_r2.shape[1]
+    ty = blk // tiles_x
+    tx = blk - ty * tiles_x
+    bd = wp.block_dim()
+    r2max = int(0)
+    missing = int(0)
+    for k in range(lane, RTILE * RTILE, bd):
+        ly = k // RTILE
+        y = ty * RTILE + ly
+        x = tx * RTILE + (k - ly * RTILE)
+        if y < h and x < w:
+            r = r2[y, x]
+            r2max = wp.max(r2max, r)
+            if r == -1 and mask[y, x] == wp.uint8(0):
+                missing += 1
+    tmax = wp.tile_max(wp.tile(r2max))
+    tmiss = wp.tile_sum(wp.tile(missing))
+    if lane == 0:
+        m = tmax[0]
+        tile_r2[ty, tx] = m
+        if m > 0:
+            wp.atomic_max(max_r2, 0, m)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+        if tmiss[0] > 0:
+            wp.atomic_add(unreached, 0, tmiss[0])
+
+
+@wp.kernel(enable_backward=False)
 def jfa_last_pass_bands_kernel(
     mask: wp.array2d(dtype=wp.uint8),
     src: wp.array2d(dtype=wp.vec2i),
