@@ -26,10 +26,8 @@ from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
     jfa_last_pass_kernel,
-    jfa_last_pass_pixel_kernel,
     jfa_tile_stats_kernel,
     jfa_pass_kernel,
-    radius_tiles_kernel,
     voronoi_color_kernel,
     voronoi_fill_kernel,
     voronoi_from_nearest_kernel,
@@ -165,9 +163,6 @@ class ReconstructStage:
     # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
     # CUDA; the tests compare the two)
     cpu_bands = True
-    # elsewhere (CUDA), the last pass as a per-pixel launch followed by a tiled reduction of the radii (False: the
-    # one tiled kernel; the tests compare the two)
-    split_last_pass = True
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -278,11 +273,6 @@ class ReconstructStage:
                             device=dev, min_band_items=8)
             self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
                                device=dev)
-        elif self.split_last_pass:
-            wp.launch(jfa_last_pass_pixel_kernel, dim=(self.height, self.width), inputs=last,
-                      outputs=[self.nearest, self.radius_sq, cout], device=dev)
-            wp.launch_tiled(radius_tiles_kernel, dim=[self._num_tiles], inputs=[seed_mask, self.radius_sq],
-                            outputs=[self.tile_radius_sq, *self._stats_args()], block_dim=self._block_dim, device=dev)
         else:
             wp.launch_tiled(
                 jfa_last_pass_kernel, dim=[self._num_tiles], inputs=last,
