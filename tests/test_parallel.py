@@ -209,28 +209,33 @@ def test_thread_count_settings(monkeypatch):
 
 @pytest.mark.parametrize("size", [(33, 19), (64, 48), (16, 16), (1, 1)])
 @pytest.mark.parametrize("threads", [1, 2, 5])
-def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads):
-    """The CPU's band form of the last JFA pass (no tiles, no atomics) writes exactly what the tiled kernel
-    writes: nearest seeds, radii, tile radii, Voronoi colours and the statistics, for sparse, dense and empty
-    seed masks (the empty one leaves every pixel unreached)."""
+@pytest.mark.parametrize("variant", ["1+jfa", "disc"])
+def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, variant):
+    """The three forms of the last JFA pass write exactly the same: the CPU's bands (no tiles, no atomics), the
+    tiled kernel (block reductions), and the per-pixel launch with atomic tile maxima (``few_holes``): nearest
+    seeds, radii, tile radii, Voronoi colours and the statistics, for sparse, dense and empty seed masks (the
+    empty one leaves every pixel unreached), with the 1+JFA schedule and the disc scan; the stage reused on a
+    second mask (the tile maxima start again from zero)."""
     from foveawarp.stages.reconstruct import ReconstructStage
 
     w, h = size
     color = wp.array(rng.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=DEV)
-    for density in (0.0, 0.02, 0.3):
-        mask = wp.array((rng.random((h, w)) < density).astype(np.uint8), dtype=wp.uint8, device=DEV)
-        got = {}
-        for bands_on in (False, True):
-            st = ReconstructStage(w, h, device=DEV)
-            st.cpu_bands = bands_on
+    masks = [wp.array((rng.random((h, w)) < d).astype(np.uint8), dtype=wp.uint8, device=DEV) for d in (0.0, 0.02, 0.3)]
+    got = {}
+    for form in ("tiled", "bands", "atomic"):
+        st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant=variant), device=DEV)
+        st.cpu_bands = form == "bands"
+        st.few_holes = form == "atomic"
+        got[form] = []
+        for mask in masks[::-1] + masks:
             out = wp.zeros((h, w), dtype=wp.vec3, device=DEV)
             with parallel.cpu_threads(threads):
                 st.run_jfa(mask, color_in=color)
                 st.run_interpolate(color, out)
-            got[bands_on] = [a.numpy().tobytes() for a in (st.nearest, st.radius_sq, st.tile_radius_sq,
-                                                            st.voronoi_color, st.max_radius, st.max_radius_sq,
-                                                            st.unreached, out)]
-        assert got[True] == got[False], density
+            got[form] += [a.numpy().tobytes() for a in (st.nearest, st.radius_sq, st.tile_radius_sq,
+                                                         st.voronoi_color, st.max_radius, st.max_radius_sq,
+                                                         st.unreached, out)]
+    assert got["bands"] == got["tiled"] == got["atomic"]
 
 
 @pytest.mark.parametrize("size", [(33, 19), (64, 48), (5, 3), (1, 1)])

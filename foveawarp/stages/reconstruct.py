@@ -25,6 +25,7 @@ from ..config import VORONOI_VARIANTS, ReconstructionConfig, check_choice, check
 from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
+    jfa_last_pass_atomic_kernel,
     jfa_last_pass_kernel,
     jfa_tile_stats_kernel,
     jfa_pass_kernel,
@@ -163,6 +164,10 @@ class ReconstructStage:
     # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
     # CUDA; the tests compare the two)
     cpu_bands = True
+    # the caller expects few non-seed pixels (a FrameLoop with deterministic shading: history fills all but the
+    # disocclusions): elsewhere than the CPU's bands the last pass is then a per-pixel launch with atomic tile
+    # maxima (jfa_last_pass_atomic_kernel) instead of the tiled kernel's per-block reductions
+    few_holes = False
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -273,6 +278,11 @@ class ReconstructStage:
                             device=dev, min_band_items=8)
             self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
                                device=dev)
+        elif self.few_holes:
+            self.tile_radius_sq.zero_()
+            wp.launch(jfa_last_pass_atomic_kernel, dim=(self.height, self.width), inputs=last,
+                      outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
+                      device=dev)
         else:
             wp.launch_tiled(
                 jfa_last_pass_kernel, dim=[self._num_tiles], inputs=last,
