@@ -8,6 +8,9 @@ maxima and statistics; or the Voronoi fill of every pixel when Sibson is off), t
 one mask read, their color copied). n + 1 full-image launches in all (n with Sibson off) and no memset when
 n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-element memsets zero the
 statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
+With ``few_holes`` (a FrameLoop with deterministic shading) the last pass is instead a plain per-pixel launch that
+folds the radii into the tile maxima by atomic maxima (after a memset of the tile maxima); on the CPU the last pass
+runs in bands (``cpu_bands``).
 """
 
 from __future__ import annotations
