@@ -148,10 +148,11 @@ class FrameLoop:
         # 37.41 dB, 38.99 vs 38.96 dB) with 25 instead of up to 81 taps; an explicit sibson_window wins
         window = SPARSE_SIBSON_WINDOW if (self.sparse_gbuffer and cfg.reconstruction.sibson_window is None) else None
         self.reconstruct = ReconstructStage(w, h, cfg.reconstruction, block=cfg.foveation.block, device=dev,
-                                            window=window, guaranteed=True)  # the sample maps hold the guarantee
-        # deterministic shading leaves few holes (history fills all but disocclusions; stochastic shading
-        # leaves young history as holes: 16-26% of the pixels in motion)
-        self.reconstruct.few_holes = not self._stochastic_shading()
+                                            window=window, guaranteed=True,  # the sample maps hold the guarantee
+                                            # deterministic shading leaves few holes (history fills all but the
+                                            # disocclusions; with stochastic shading young history is left as
+                                            # holes: 16-26% of the pixels in motion)
+                                            few_holes=not self._stochastic_shading())
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         if self.sparse_gbuffer:
             from .stages.sparse import SparseGBufferStage

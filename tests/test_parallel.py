@@ -223,9 +223,9 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
     masks = [wp.array((rng.random((h, w)) < d).astype(np.uint8), dtype=wp.uint8, device=DEV) for d in (0.0, 0.02, 0.3)]
     got = {}
     for form in ("tiled", "bands", "atomic"):
-        st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant=variant), device=DEV)
+        st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant=variant), device=DEV,
+                              few_holes=form == "atomic")
         st.cpu_bands = form == "bands"
-        st.few_holes = form == "atomic"
         got[form] = []
         for mask in masks[::-1] + masks:
             out = wp.zeros((h, w), dtype=wp.vec3, device=DEV)
@@ -236,6 +236,19 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
                                                          st.voronoi_color, st.max_radius, st.max_radius_sq,
                                                          st.unreached, out)]
     assert got["bands"] == got["tiled"] == got["atomic"]
+
+
+def test_few_holes_follows_the_shading_and_is_checked():
+    """A FrameLoop asks for the atomic last pass with deterministic shading only (stochastic shading leaves many
+    holes); ``few_holes`` must be a bool."""
+    from foveawarp.stages.reconstruct import ReconstructStage
+
+    for cfg, few in ((fw.Config(), True), (fw.Config().with_(shading={"ao_samples": 2}), False)):
+        fl = fw.FrameLoop("cornell", 16, 8, config=cfg, device=DEV, timing=False, policy="foveated")
+        fl.render(fl.scene.camera_at(0.0), gaze_px=(8, 4))  # the foveated stages exist from the first render
+        assert fl.reconstruct.few_holes is few
+    with pytest.raises(ValueError, match="few_holes"):
+        ReconstructStage(16, 8, device=DEV, few_holes="yes")
 
 
 @pytest.mark.parametrize("size", [(33, 19), (64, 48), (5, 3), (1, 1)])

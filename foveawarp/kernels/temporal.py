@@ -300,13 +300,14 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                 out_stoch[i] = st
 
 
-    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72;
-    # the single kernel this replaces used 136, so an SM held one block of 256 threads)
+    # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72
+    # uncapped, 48 with the cap below (80 B spilled), boxed 40; the single kernel this replaces used 136, so an SM
+    # held one block of 256 threads)
     def make(rows: bool):
         kind = ("resolve_stoch_boxed" if boxed else "resolve_stoch") if stochastic else "resolve"
 
         # the stochastic kinds at most 48 registers per thread on CUDA (H100, 3840x2160, 8 AO rays: the gathering
-        # kernel 0.71 -> 0.58 ms on cornell, 1.02 -> 0.83 ms on city, same values)
+        # kernel 0.71 -> 0.58 ms on cornell, 1.02 -> 0.83 ms on city, same values; no change on the boxed one)
         @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel", grid_stride=False,
                    cuda_max_registers=48 if stochastic else None)
         def resolve(
