@@ -10,7 +10,11 @@ n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-
 statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
 With ``few_holes`` (a FrameLoop with deterministic shading) the last pass is instead a plain per-pixel launch that
 folds the radii into the tile maxima by atomic maxima (after a memset of the tile maxima); on the CPU the last pass
-runs in bands (``cpu_bands``).
+runs in bands (``cpu_bands``). Without ``few_holes`` on CUDA (stochastic shading leaves 16-26 % of the pixels
+without a seed) the last pass and the Sibson gather use per-tile lists of the non-seed pixels (``hole_lists``): a
+thread per pixel writes the seeds and appends each other pixel to its 16 x 16 tile's list, then a thread per listed
+pixel runs the nearest-seed scan and, after the seeds-only per-pixel gather, the Sibson gather, so that no warp
+idles beside seeds while a few of its threads scan.
 """
 
 from __future__ import annotations
@@ -154,7 +158,8 @@ class ReconstructStage:
         guaranteed: the masks hold the block guarantee (``"auto"`` may then pick the "disc" step).
         few_holes: the masks have few non-seed pixels (a FrameLoop with deterministic shading): off the CPU's
             bands the last pass is then a per-pixel launch with atomic tile maxima (the same values, without the
-            tiled kernel's per-block reductions; H100, 4K: 0.078 against 0.171 ms).
+            tiled kernel's per-block reductions; H100, 4K: 0.078 against 0.171 ms). Otherwise, on CUDA, the last
+            pass and the gather run over per-tile lists of the non-seed pixels (``hole_lists``; same values).
 
     Buffers (all on ``device``, overwritten by each ``run``):
         nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found (a seed
