@@ -211,9 +211,8 @@ def test_thread_count_settings(monkeypatch):
 @pytest.mark.parametrize("threads", [1, 2, 5])
 @pytest.mark.parametrize("variant", ["1+jfa", "disc"])
 def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, variant):
-    """The four forms of the last JFA pass write exactly the same: the CPU's bands (no tiles, no atomics), the
-    tiled kernel (block reductions), the per-pixel launch with atomic tile maxima (``few_holes``), and the per-tile
-    lists of non-seed pixels (``hole_lists``; with the Sibson gather over the lists): nearest
+    """The three forms of the last JFA pass write exactly the same: the CPU's bands (no tiles, no atomics), the
+    tiled kernel (block reductions), and the per-pixel launch with atomic tile maxima (``few_holes``): nearest
     seeds, radii, tile radii, Voronoi colours and the statistics, for sparse, dense and empty seed masks (the
     empty one leaves every pixel unreached), with the 1+JFA schedule and the disc scan; the stage reused on a
     second mask (the tile maxima start again from zero)."""
@@ -223,11 +222,10 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
     color = wp.array(rng.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=DEV)
     masks = [wp.array((rng.random((h, w)) < d).astype(np.uint8), dtype=wp.uint8, device=DEV) for d in (0.0, 0.02, 0.3)]
     got = {}
-    for form in ("tiled", "bands", "atomic", "listed"):
+    for form in ("tiled", "bands", "atomic"):
         st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant=variant), device=DEV,
                               few_holes=form == "atomic")
         st.cpu_bands = form == "bands"
-        st.hole_lists = form == "listed"
         got[form] = []
         for mask in masks[::-1] + masks:
             out = wp.zeros((h, w), dtype=wp.vec3, device=DEV)
@@ -237,37 +235,7 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
             got[form] += [a.numpy().tobytes() for a in (st.nearest, st.radius_sq, st.tile_radius_sq,
                                                          st.voronoi_color, st.max_radius, st.max_radius_sq,
                                                          st.unreached, out)]
-    assert got["bands"] == got["tiled"] == got["atomic"] == got["listed"]
-
-
-@pytest.mark.parametrize("scene", ["cornell", "city"])
-def test_hole_lists_give_the_same_frames(monkeypatch, scene):
-    """Stochastic shading (many non-seed pixels, the path that uses the per-tile hole lists on CUDA), run on the
-    CPU with the lists (``jfa_seed_list_kernel`` + ``jfa_hole_pass_kernel`` + the seeds-only and listed Sibson
-    gathers) and with the CPU's bands: the same display images, reconstructed colours, radii and Voronoi
-    colours, byte for byte, over moving frames."""
-    from foveawarp.stages.reconstruct import ReconstructStage
-
-    w, h = 61, 37
-    cfg = fw.Config().with_(shading={"ao_samples": 2})
-
-    def frames(lists):
-        monkeypatch.setattr(ReconstructStage, "hole_lists", lists)
-        fl = fw.FrameLoop(scene, w, h, config=cfg, device=DEV, timing=False, policy="foveated")
-        out, holes = [], 0
-        for i in range(5):
-            fr = fl.render(fl.scene.camera_at(0.07 * i), gaze_px=(w * (0.25 + 0.1 * i), h * 0.5), time=0.07 * i)
-            rc = fl.reconstruct
-            out += [a.numpy().tobytes() for a in (fr.image, rc.radius_sq, rc.voronoi_color, rc.tile_radius_sq,
-                                                   rc.max_radius_sq, rc.unreached)]
-            holes += int((rc.radius_sq.numpy() >= 0).sum())
-        return out, rc._listed, holes
-
-    listed, used, holes = frames(True)
-    assert used and holes > 0
-    banded, used, _ = frames(None)
-    assert not used
-    assert listed == banded
+    assert got["bands"] == got["tiled"] == got["atomic"]
 
 
 def test_few_holes_follows_the_shading_and_is_checked():

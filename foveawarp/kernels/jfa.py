@@ -121,41 +121,18 @@ def last_pass_seed(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.ve
 
 
 @wp.func
-def last_pass_at_seed(x: int, y: int, from_mask: int, color_in: wp.array2d(dtype=wp.vec3), color_mode: int,
-                      nearest: wp.array2d(dtype=wp.vec2i), r2_out: wp.array2d(dtype=wp.int32),
-                      color_out: wp.array2d(dtype=wp.vec3)):
-    """The last pass's outputs at the seed pixel (x, y)."""
-    if from_mask != 0:
-        nearest[y, x] = wp.vec2i(x, y)
-    r2_out[y, x] = -1  # a seed reaches no other pixel: the gather's taps need not read the mask
-    if color_mode == 2:
-        color_out[y, x] = finite_or_zero(color_in[y, x])
-
-
-@wp.func
-def fold_radius(r2: int, x: int, y: int, tile_r2: wp.array2d(dtype=wp.int32), max_r2: wp.array(dtype=wp.int32),
-                max_radius: wp.array(dtype=wp.float32), unreached: wp.array(dtype=wp.int32)):
-    """Fold a non-seed pixel's ``last_pass_pixel`` result into its tile's maximum (an atomic maximum) and into
-    the image statistics (only when it raised the tile's maximum); a pixel without a seed (-1) counts itself
-    into ``unreached``."""
-    if r2 > 0:
-        old = wp.atomic_max(tile_r2, y // RTILE, x // RTILE, r2)
-        if r2 > old:
-            wp.atomic_max(max_r2, 0, r2)
-            wp.atomic_max(max_radius, 0, wp.sqrt(float(r2)))
-    elif r2 == -1:
-        wp.atomic_add(unreached, 0, 1)
-
-
-@wp.func
 def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i), x: int, y: int, step: int,
                     from_mask: int, settled: int, color_in: wp.array2d(dtype=wp.vec3), color_mode: int,
                     offsets: wp.array(dtype=wp.vec2i), nearest: wp.array2d(dtype=wp.vec2i),
                     r2_out: wp.array2d(dtype=wp.int32), color_out: wp.array2d(dtype=wp.vec3)) -> int:
-    """The last pass at pixel (x, y), shared by the tiled, atomic, listed and band kernels: writes its outputs
-    there and returns its r_q^2 (>= 0), -1 for a non-seed pixel without a seed, -2 for a seed."""
+    """The last pass at pixel (x, y), shared by the tiled and the band kernels: writes its outputs there and
+    returns its r_q^2 (>= 0), -1 for a non-seed pixel without a seed, -2 for a seed."""
     if mask[y, x] != wp.uint8(0):
-        last_pass_at_seed(x, y, from_mask, color_in, color_mode, nearest, r2_out, color_out)
+        if from_mask != 0:
+            nearest[y, x] = wp.vec2i(x, y)
+        r2_out[y, x] = -1  # a seed reaches no other pixel: the gather's taps need not read the mask
+        if color_mode == 2:
+            color_out[y, x] = finite_or_zero(color_in[y, x])
         return -2
     s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
     nearest[y, x] = s
@@ -286,77 +263,13 @@ def jfa_last_pass_atomic_kernel(
     y, x = wp.tid()
     r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest, r2_out,
                          color_out)
-    fold_radius(r2, x, y, tile_r2, max_r2, max_radius, unreached)
-
-
-@wp.kernel(enable_backward=False)
-def jfa_seed_list_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    from_mask: int,
-    color_in: wp.array2d(dtype=wp.vec3),
-    color_mode: int,
-    nearest: wp.array2d(dtype=wp.vec2i),
-    r2_out: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    hole_count: wp.array(dtype=wp.int32),
-    holes: wp.array2d(dtype=wp.uint8),
-):
-    """First half of the listed last pass (masks with many non-seed pixels, CUDA), a thread per pixel: a seed
-    writes its outputs (``last_pass_pixel``'s seed branch); a non-seed pixel appends its index within its
-    RTILE x RTILE screen tile t (row-major, 0..255) to that tile's list, ``holes[t, :hole_count[t]]`` (an atomic
-    increment of ``hole_count[t]``, zeroed before the launch; the order within a list is that of the atomics,
-    which no result depends on). ``jfa_hole_pass_kernel`` and ``sibson_gather_list_kernel`` then run a thread
-    per listed pixel, so that their warps hold only non-seed pixels of one tile instead of idling beside seeds."""
-    y, x = wp.tid()
-    if mask[y, x] != wp.uint8(0):
-        last_pass_at_seed(x, y, from_mask, color_in, color_mode, nearest, r2_out, color_out)
-        return
-    ty = y // RTILE
-    tx = x // RTILE
-    t = ty * ((mask.shape[1] + RTILE - 1) // RTILE) + tx
-    slot = wp.atomic_add(hole_count, t, 1)
-    holes[t, slot] = wp.uint8((y - ty * RTILE) * RTILE + (x - tx * RTILE))
-
-
-@wp.func
-def listed_pixel(t: int, s: int, tiles_x: int, holes: wp.array2d(dtype=wp.uint8)) -> wp.vec2i:
-    """(x, y) of entry s of screen tile t's list of non-seed pixels (``jfa_seed_list_kernel``)."""
-    k = int(holes[t, s])
-    ty = t // tiles_x
-    ly = k // RTILE
-    return wp.vec2i((t - ty * tiles_x) * RTILE + (k - ly * RTILE), ty * RTILE + ly)
-
-
-@wp.kernel(enable_backward=False)
-def jfa_hole_pass_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    src: wp.array2d(dtype=wp.vec2i),
-    step: int,
-    from_mask: int,
-    settled: int,
-    color_in: wp.array2d(dtype=wp.vec3),
-    color_mode: int,
-    offsets: wp.array(dtype=wp.vec2i),
-    hole_count: wp.array(dtype=wp.int32),
-    holes: wp.array2d(dtype=wp.uint8),
-    nearest: wp.array2d(dtype=wp.vec2i),
-    r2_out: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    max_r2: wp.array(dtype=wp.int32),
-    max_radius: wp.array(dtype=wp.float32),
-    unreached: wp.array(dtype=wp.int32),
-):
-    """Second half of the listed last pass: launched over (tiles, RTILE^2), thread (t, s) runs
-    ``last_pass_pixel`` on entry s of tile t's list when there is one (else returns at once) and folds its
-    radius like ``jfa_last_pass_atomic_kernel`` (``tile_r2`` zeroed before, statistics zeroed before)."""
-    t, s = wp.tid()
-    if s >= hole_count[t]:
-        return
-    p = listed_pixel(t, s, tile_r2.shape[1], holes)
-    r2 = last_pass_pixel(mask, src, p[0], p[1], step, from_mask, settled, color_in, color_mode, offsets, nearest,
-                         r2_out, color_out)
-    fold_radius(r2, p[0], p[1], tile_r2, max_r2, max_radius, unreached)
+    if r2 > 0:
+        old = wp.atomic_max(tile_r2, y // RTILE, x // RTILE, r2)
+        if r2 > old:
+            wp.atomic_max(max_r2, 0, r2)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(r2)))
+    elif r2 == -1:
+        wp.atomic_add(unreached, 0, 1)
 
 
 @wp.kernel(enable_backward=False)

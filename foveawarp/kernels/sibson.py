@@ -22,7 +22,7 @@ sum that overflows float32 (colors near float max) is redone with scaled terms, 
 
 import warp as wp
 
-from .jfa import RTILE, finite_or_zero, listed_pixel
+from .jfa import RTILE, finite_or_zero
 from .tonemap import tonemap_rgb
 
 
@@ -148,15 +148,12 @@ def _make_sibson_gather(rows: bool):
         exposure: float,
         white: float,
         to_display: int,
-        seeds_only: int,
         color_out: wp.array2d(dtype=wp.vec3),
         display: wp.array2d(dtype=wp.vec3),
         row0: int,
     ):
         """Bounded Sibson gather (thesis Code 4) with half window ``window`` = J >= 0 pixels; ``to_display`` != 0:
-        also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass).
-        ``seeds_only`` != 0 (the per-pixel kernel only): the non-seed pixels are left to
-        ``sibson_gather_list_kernel``."""
+        also the tone-mapped value into ``display`` (the frame's last pass: no separate tone-map pass)."""
         if wp.static(rows):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(mask.shape[1]):
@@ -165,8 +162,6 @@ def _make_sibson_gather(rows: bool):
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
-            if seeds_only != 0 and mask[y, x] == wp.uint8(0):
-                return
             sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
                                 color_out, display)
 
@@ -175,35 +170,6 @@ def _make_sibson_gather(rows: bool):
 
 sibson_gather_kernel = _make_sibson_gather(False)
 sibson_gather_rows_kernel = _make_sibson_gather(True)
-
-
-@wp.kernel(enable_backward=False)
-def sibson_gather_list_kernel(
-    hole_count: wp.array(dtype=wp.int32),
-    holes: wp.array2d(dtype=wp.uint8),
-    mask: wp.array2d(dtype=wp.uint8),
-    vor: wp.array2d(dtype=wp.vec3),
-    r2: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_in: wp.array2d(dtype=wp.vec3),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    exposure: float,
-    white: float,
-    to_display: int,
-    color_out: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-):
-    """The bounded gather at the non-seed pixels listed per screen tile by ``jfa_seed_list_kernel``, launched
-    over (tiles, RTILE^2): thread (t, s) takes entry s of tile t's list when there is one (else returns at
-    once), so a warp's threads all gather (the per-pixel kernel, run with ``seeds_only``, writes the seeds).
-    The same values as ``sibson_gather_kernel``."""
-    t, s = wp.tid()
-    if s >= hole_count[t]:
-        return
-    p = listed_pixel(t, s, tile_r2.shape[1], holes)
-    sibson_gather_pixel(p[0], p[1], mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
-                        color_out, display)
 
 
 @wp.kernel(enable_backward=False)

@@ -10,11 +10,7 @@ n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-
 statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
 With ``few_holes`` (a FrameLoop with deterministic shading) the last pass is instead a plain per-pixel launch that
 folds the radii into the tile maxima by atomic maxima (after a memset of the tile maxima); on the CPU the last pass
-runs in bands (``cpu_bands``). Without ``few_holes`` on CUDA (stochastic shading leaves 16-26 % of the pixels
-without a seed) the last pass and the Sibson gather use per-tile lists of the non-seed pixels (``hole_lists``): a
-thread per pixel writes the seeds and appends each other pixel to its 16 x 16 tile's list, then a thread per listed
-pixel runs the nearest-seed scan and, after the seeds-only per-pixel gather, the Sibson gather, so that no warp
-idles beside seeds while a few of its threads scan.
+runs in bands (``cpu_bands``).
 """
 
 from __future__ import annotations
@@ -34,9 +30,7 @@ from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
     jfa_last_pass_atomic_kernel,
-    jfa_hole_pass_kernel,
     jfa_last_pass_kernel,
-    jfa_seed_list_kernel,
     jfa_tile_stats_kernel,
     jfa_pass_kernel,
     voronoi_color_kernel,
@@ -45,7 +39,6 @@ from ..kernels.jfa import (
 )
 from ..kernels.sibson import (
     sibson_gather_kernel,
-    sibson_gather_list_kernel,
     sibson_gather_rows_kernel,
     sibson_resolve_kernel,
     sibson_scatter_kernel,
@@ -158,8 +151,7 @@ class ReconstructStage:
         guaranteed: the masks hold the block guarantee (``"auto"`` may then pick the "disc" step).
         few_holes: the masks have few non-seed pixels (a FrameLoop with deterministic shading): off the CPU's
             bands the last pass is then a per-pixel launch with atomic tile maxima (the same values, without the
-            tiled kernel's per-block reductions; H100, 4K: 0.078 against 0.171 ms). Otherwise, on CUDA, the last
-            pass and the gather run over per-tile lists of the non-seed pixels (``hole_lists``; same values).
+            tiled kernel's per-block reductions; H100, 4K: 0.078 against 0.171 ms).
 
     Buffers (all on ``device``, overwritten by each ``run``):
         nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found (a seed
@@ -177,12 +169,9 @@ class ReconstructStage:
             bounded JFA start also flags a mask that broke the block guarantee).
     """
 
-    # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel; the tests
-    # compare the forms)
+    # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
+    # CUDA; the tests compare the two)
     cpu_bands = True
-    # per-tile lists of the non-seed pixels (the last pass and the Sibson gather as a thread per listed pixel):
-    # None = on CUDA unless few_holes; the tests set True to run the listed kernels on the CPU, False for the tiled
-    hole_lists = None
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -231,9 +220,6 @@ class ReconstructStage:
         # counts of pixels without a seed, folded into ``unreached`` by a one-thread kernel
         self._tile_miss = None if dev.is_cuda else wp.zeros(tiles, dtype=wp.int32, device=dev)
         self._stats_launch = parallel.Relaunch(jfa_tile_stats_kernel, bands=False)  # recorded once
-        self._hole_count = None  # per-tile lists of the non-seed pixels (``_lists``; allocated on first use)
-        self._holes = None
-        self._listed = False  # the last run_jfa built the lists (the gather then runs over them)
         self._mask = None  # the seed mask of the last run_jfa (a reference, for run_interpolate)
         self._dummy3 = wp.zeros((1, 1), dtype=wp.vec3, device=dev)  # color placeholder of run_jfa
         self._seeds = None  # seed mask derived from a given nearest map (ops path; allocated on first use)
@@ -253,19 +239,6 @@ class ReconstructStage:
     # -- passes ------------------------------------------------------------------------------------------------
     def _stats_args(self):
         return [self.max_radius_sq, self.max_radius, self.unreached]
-
-    def _use_lists(self) -> bool:
-        if self.hole_lists is None:
-            return self.device.is_cuda and not self.few_holes
-        return bool(self.hole_lists)
-
-    def _lists(self):
-        """(hole_count (tiles,) int32, holes (tiles, RTILE^2) uint8), allocated on first use (before a graph
-        capture: FrameLoop renders uncaptured frames first)."""
-        if self._hole_count is None:
-            self._hole_count = wp.zeros(self._num_tiles, dtype=wp.int32, device=self.device)
-            self._holes = wp.zeros((self._num_tiles, _CUDA_BLOCK), dtype=wp.uint8, device=self.device)
-        return self._hole_count, self._holes
 
     def run_jfa(self, seed_mask, *, color_in=None, color_out=None) -> None:
         """Jump flooding: ``nearest`` <- nearest seed of every pixel, plus ``radius_sq``, ``tile_radius_sq`` and
@@ -306,19 +279,7 @@ class ReconstructStage:
         step_last = -1 if self.disc else (int(steps[-1]) if n else 0)
         last = [seed_mask, src, step_last, 1 if n <= 1 else 0, settled[-1] if n else 1, cin, mode,
                 self._disc_offsets]
-        self._listed = self._use_lists()
-        if self._listed:
-            # a thread per pixel writes the seeds and lists the other pixels per tile, then a thread per listed
-            # pixel: warps of non-seed pixels only (many holes: stochastic shading)
-            count, holes = self._lists()
-            count.zero_()
-            self.tile_radius_sq.zero_()
-            wp.launch(jfa_seed_list_kernel, dim=dim, inputs=[seed_mask, last[3], cin, mode],
-                      outputs=[self.nearest, self.radius_sq, cout, count, holes], device=dev)
-            wp.launch(jfa_hole_pass_kernel, dim=(self._num_tiles, _CUDA_BLOCK), inputs=[*last, count, holes],
-                      outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
-                      device=dev)
-        elif self._tile_miss is not None and self.cpu_bands:
+        if self._tile_miss is not None and self.cpu_bands:
             parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.shape, inputs=last,
                             outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, self._tile_miss],
                             device=dev, min_band_items=8)
@@ -364,7 +325,6 @@ class ReconstructStage:
                             block_dim=self._block_dim, device=dev)
             mask = self._seeds
             vor_ready = True
-            self._listed = False  # the lists (if any) belong to the last run_jfa's mask
         else:
             if self._mask is None:
                 raise ValueError("nearest must be given (a (H, W) wp.array of vec2i) before run_jfa has run")
@@ -384,18 +344,10 @@ class ReconstructStage:
             parallel.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                             outputs=[color_out], device=dev)
             return False
-        gather_in = [*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq, float(tone[0]),
-                     float(tone[1]), 0 if display is None else 1]
-        gather_out = [color_out, self._dummy3 if display is None else display]
-        if self._listed:
-            # the seeds a thread per pixel, the listed non-seed pixels a thread each (same values)
-            parallel.launch(sibson_gather_kernel, dim, inputs=[*gather_in, 1], outputs=gather_out, device=dev)
-            count, holes = self._lists()
-            wp.launch(sibson_gather_list_kernel, dim=(self._num_tiles, _CUDA_BLOCK), inputs=[count, holes, *gather_in],
-                      outputs=gather_out, device=dev)
-        else:
-            parallel.launch_rows(sibson_gather_kernel, sibson_gather_rows_kernel, dim, inputs=[*gather_in, 0],
-                                 outputs=gather_out, device=dev)
+        parallel.launch_rows(sibson_gather_kernel, sibson_gather_rows_kernel, dim,
+                             inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
+                                     float(tone[0]), float(tone[1]), 0 if display is None else 1],
+                             outputs=[color_out, self._dummy3 if display is None else display], device=dev)
         return display is not None
 
     def run(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,
