@@ -392,7 +392,9 @@ def stoch_box_list_kernel(
     box_hi[y, x] = hi
 
 
-@wp.kernel(enable_backward=False)
+# a module of its own: only the CPU launches it, so CUDA never compiles it (in the temporal module it cost every CUDA
+# build of that module an sm_90 kernel of 232 registers)
+@wp.kernel(enable_backward=False, module="unique")
 def shade_resolve_rows_kernel(
     spa: wp.array(dtype=ShadeParams),
     pos: wp.array2d(dtype=wp.vec3),
