@@ -230,7 +230,9 @@ class ReconstructStage:
     # -- checks (host-side attribute reads only: no sync, no allocation) --------------------------------------
     def _check(self, name, arr, dtype):
         if not isinstance(arr, wp.array) or arr.dtype != dtype or tuple(arr.shape) != (self.height, self.width):
-            got = f"{type(arr).__name__} {getattr(arr, 'dtype', None)} {tuple(getattr(arr, 'shape', ()))}"
+            got = type(arr).__name__
+            if isinstance(arr, wp.array):
+                got = f"a {tuple(arr.shape)} wp.array of {getattr(arr.dtype, '__name__', arr.dtype)}"
             raise ValueError(f"{name} must be a ({self.height}, {self.width}) wp.array of {dtype.__name__}, "
                              f"got {got}")
         if arr.device != self.device:
