@@ -102,6 +102,8 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
         rec["fovea_psnr"].append(_fovea_key(m))
         rec["sampling_rate"].append(f.stats["sampling_rate"])
         rec["cache_hit_rate"].append(f.stats["cache_hit_rate"])
+        if "gbuffer_rays" in f.stats:  # the refined G-buffer's primary rays (coarse + traced), per pixel
+            rec.setdefault("gbuffer_rays_per_pixel", []).append(f.stats["gbuffer_rays"] / float(w * h))
         f = off.render(cam, gaze_px=g, time=t)
         m = metrics(f.image, ref_img, g, fov)
         rec["psnr_off"].append(m["psnr"])

@@ -98,6 +98,7 @@ class FrameLoop:
 
         cfg = self.config
         self.sparse_gbuffer = cfg.foveation.enabled and cfg.foveation.gbuffer == "sparse"
+        self.refined_gbuffer = cfg.foveation.enabled and cfg.foveation.gbuffer == "refined"
         if self.sparse_gbuffer and cfg.dof.enabled:
             raise ValueError(f"FoveationConfig.gbuffer 'sparse' needs a pinhole camera: DofConfig.aperture_m must be "
                              f"0, got {cfg.dof.aperture_m} (the DoF pass reads every pixel's depth)")
@@ -154,7 +155,7 @@ class FrameLoop:
                                             # holes: 16-26% of the pixels in motion)
                                             few_holes=not self._stochastic_shading())
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-        if self.sparse_gbuffer:
+        if self.sparse_gbuffer or self.refined_gbuffer:
             from .stages.sparse import SparseGBufferStage
 
             self.sparse = SparseGBufferStage(self.dscene, w, h, cfg.foveation.coarse_cell, dev)
@@ -365,16 +366,27 @@ class FrameLoop:
             skipped["bvh_refit"] = "static scene"
         foveated = cfg.foveation.enabled and mode == "foveated"
         sparse = foveated and self.sparse_gbuffer
+        refined = foveated and self.refined_gbuffer
         with self._stage("gbuffer"):
             if sparse:
                 self.sparse.trace_coarse(camera, prev_cam, self._max_t(camera))
+            elif refined:
+                max_t = self._max_t(camera)
+                self.sparse.trace_coarse(camera, prev_cam, max_t)
+                self.sparse.upsample(self.gbuffer, camera, prev_cam, max_t)
             else:
                 self._gbuffer(camera, prev_cam)
         if sparse:
             skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
             skipped["temporal"] = "sparse G-buffer: no per-pixel history (the reconstruction fills every gap)"
+        elif refined:
+            skipped["gbuffer"] = (f"refined G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
+                                  f"{cfg.foveation.coarse_cell} cell, the coarse hits' planes on smooth surfaces, the "
+                                  f"pixel's own ray elsewhere; the sampled pixels traced again with their shading")
         strategy = resolve_reorder_strategy(cfg.reorder.strategy, self.device) if foveated else "full"
+        if (sparse or refined) and strategy not in ("scan", "tile"):
+            strategy = "scan"  # the sampled pixels' primary rays are traced from a flat list
         tc = cfg.temporal
         still_boost = (foveated and not sparse and history and not moving and tc.enabled and tc.still_min_probability > 0.0
                        and self._stochastic_shading() and self._static_frames < tc.max_history_frames)
@@ -442,6 +454,11 @@ class FrameLoop:
             if sparse:
                 nc = self.sparse.num_coarse_rays
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
+            elif refined:
+                nc, tr = self.sparse.num_coarse_rays, self.sparse.traced
+                stats.defer("gbuffer_rays", lambda: nc + int(np.count_nonzero(tr.numpy())))
+                stats.defer("rays_traced", lambda: (nc + int(np.count_nonzero(tr.numpy()))
+                                                    + int(ns.numpy()[0]) * (1 + self._rays_per_sample())))
             else:
                 stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
         else:
@@ -461,6 +478,8 @@ class FrameLoop:
                       "coarse_gbuffer": self.sparse.coarse}
         elif foveated:
             extras = {"sparse": self.temporal.color, "filled": self.temporal.filled}
+            if refined:
+                extras.update(coarse_gbuffer=self.sparse.coarse, gbuffer_traced=self.sparse.traced)
         else:
             extras = {}
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
@@ -523,12 +542,16 @@ class FrameLoop:
                                           cfg.temporal.refresh_fraction, stochastic=self._stochastic_shading())
         with self._stage("reorder"):
             if strategy in ("scan", "tile", "rows", "rows+balance"):
-                self.reorder.run(smap)
+                self.reorder.run(smap, strategy=strategy)
         fused = self._tonemap_fused(strategy)
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade"):
-            if not shade_in_resolve:
+            if foveated and self.refined_gbuffer:
+                # the G-buffer is the coarse hits' planes away from edges: the sampled pixels trace their own ray
+                self.sparse.trace_shade(self.gbuffer, self.shade, self.reorder.work, self.reorder.count,
+                                        self.radiance, self.radiance_stoch)
+            elif not shade_in_resolve:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
@@ -562,7 +585,7 @@ class FrameLoop:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
         CPU's rows kernels, deterministic shading) instead of a separate masked shading pass: the masked
         strategy, with nothing (indirect light) added to the shading between the two."""
-        return (strategy == "none" and self.indirect is None
+        return (strategy == "none" and self.indirect is None and not self.refined_gbuffer
                 and self.temporal.can_shade(self._stochastic_shading()))
 
     def _tonemap_fused(self, strategy: str) -> bool:

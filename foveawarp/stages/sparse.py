@@ -10,12 +10,16 @@ from ..buffers import GBuffer
 from ..camera import Camera
 from ..config import check_int_range
 from ..kernels.sparse import (
+    REFINE_ALBEDO_TOL,
+    REFINE_DEPTH_TOL,
+    REFINE_NORMAL_COS,
     PrimaryParams,
     coarse_gbuffer_kernel,
     coarse_saliency_kernel,
     set_primary_params_kernel,
     sparse_sampling_kernel,
     trace_shade_list_kernel,
+    upsample_gbuffer_kernel,
 )
 from .sampling import launch_tile_pass
 
@@ -47,6 +51,7 @@ class SparseGBufferStage:
         self.coarse = GBuffer(self.coarse_width, self.coarse_height, device)
         self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
         self.primary = wp.zeros(1, dtype=PrimaryParams, device=device)
+        self.traced = None  # (H, W) uint8 of the refined mode: 1 where upsample traced the pixel's own ray
 
     @property
     def num_coarse_rays(self) -> int:
@@ -70,6 +75,26 @@ class SparseGBufferStage:
         pp = PrimaryParams()
         pp.cam, pp.cam_prev, pp.max_t = cam, cam_prev, float(max_t)
         wp.launch(set_primary_params_kernel, dim=1, inputs=[pp], outputs=[self.primary], device=self.device)
+
+    def upsample(self, gbuffer: GBuffer, camera: Camera, prev_camera: Camera, max_t: float,
+                 depth_tol: float = REFINE_DEPTH_TOL, normal_cos: float = REFINE_NORMAL_COS,
+                 albedo_tol: float = REFINE_ALBEDO_TOL) -> None:
+        """The refined mode's full-resolution ``gbuffer`` from the coarse one traced by ``trace_coarse`` for the
+        same cameras: the plane of the coarse hits on smooth static surfaces, the pixel's own primary ray
+        elsewhere (kernels/sparse.py ``upsample_gbuffer_kernel``; ``traced`` marks those pixels)."""
+        ds, w, h, c, g = self.dscene, self.width, self.height, self.coarse, gbuffer
+        if self.traced is None:
+            self.traced = wp.zeros((h, w), dtype=wp.uint8, device=self.device)
+        parallel.launch(
+            upsample_gbuffer_kernel,
+            dim=(h, w),
+            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+                    camera.params(w, h), prev_camera.params(w, h), float(max_t), self.cell, float(depth_tol),
+                    float(normal_cos), float(albedo_tol), c.position, c.normal, c.albedo, c.face, c.hit, c.moved],
+            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
+                     g.moved, self.traced],
+            device=self.device,
+        )
 
     def sample(self, sampling) -> None:
         """Fill ``sampling``'s probability, saliency and sample_map (and its sample counter; no cache hits) for
