@@ -162,12 +162,12 @@ def timing(fw, scene, w, h, dev, cfg, n):
                 if k.startswith("ms_") and k != "ms_frame":
                     stages.setdefault(k[3:], []).append(v)
     stage_ms = {k: float(np.median(v)) for k, v in stages.items()}
-    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "shade", "indirect", "indirect_build"))
+    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "gbuffer_samples", "shade", "indirect", "indirect_build"))
     out.update(ref_ms=ref_ms, fov_ms=fov_ms, auto_ms=auto_ms, auto_path=auto._pol_choice,
                auto_estimates=dict(auto._pol_est), stage_ms=stage_ms,
                overhead_ms=float(max(fov_ms - traced, 0.0)),
                overhead_stage_sum_ms=float(sum(v for k, v in stage_ms.items()
-                                               if k not in ("gbuffer", "shade", "indirect", "indirect_build", "scene"))),
+                                               if k not in ("gbuffer", "gbuffer_samples", "shade", "indirect", "indirect_build", "scene"))),
                timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms)
     return out
 

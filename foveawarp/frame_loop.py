@@ -383,7 +383,7 @@ class FrameLoop:
         elif refined:
             skipped["gbuffer"] = (f"refined G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, the coarse hits' planes on smooth surfaces, the "
-                                  f"pixel's own ray elsewhere; the sampled pixels traced again with their shading")
+                                  f"pixel's own ray elsewhere and at the sampled pixels")
         strategy = resolve_reorder_strategy(cfg.reorder.strategy, self.device) if foveated else "full"
         if (sparse or refined) and strategy not in ("scan", "tile"):
             strategy = "scan"  # the sampled pixels' primary rays are traced from a flat list
@@ -456,9 +456,10 @@ class FrameLoop:
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
             elif refined:
                 nc, tr = self.sparse.num_coarse_rays, self.sparse.traced
-                stats.defer("gbuffer_rays", lambda: nc + int(np.count_nonzero(tr.numpy())))
-                stats.defer("rays_traced", lambda: (nc + int(np.count_nonzero(tr.numpy()))
-                                                    + int(ns.numpy()[0]) * (1 + self._rays_per_sample())))
+                sm = self.sampling.sample_map
+                stats.defer("gbuffer_rays", lambda: (nc + int(np.count_nonzero(tr.numpy() | sm.numpy()))))
+                stats.defer("rays_traced", lambda: (nc + int(np.count_nonzero(tr.numpy() | sm.numpy()))
+                                                    + int(ns.numpy()[0]) * self._rays_per_sample()))
             else:
                 stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
         else:
@@ -543,15 +544,16 @@ class FrameLoop:
         with self._stage("reorder"):
             if strategy in ("scan", "tile", "rows", "rows+balance"):
                 self.reorder.run(smap, strategy=strategy)
+        if foveated and self.refined_gbuffer:
+            with self._stage("gbuffer_samples"):
+                # the plane entries are close enough for the cache test and the history, not for shading: the
+                # sampled pixels trace their own primary ray (those traced in the head are skipped)
+                self.sparse.trace_list(self.gbuffer, self.reorder.work, self.reorder.count, skip_traced=True)
         fused = self._tonemap_fused(strategy)
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade"):
-            if foveated and self.refined_gbuffer:
-                # the G-buffer is the coarse hits' planes away from edges: the sampled pixels trace their own ray
-                self.sparse.trace_shade(self.gbuffer, self.shade, self.reorder.work, self.reorder.count,
-                                        self.radiance, self.radiance_stoch)
-            elif not shade_in_resolve:
+            if not shade_in_resolve:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
@@ -585,7 +587,7 @@ class FrameLoop:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
         CPU's rows kernels, deterministic shading) instead of a separate masked shading pass: the masked
         strategy, with nothing (indirect light) added to the shading between the two."""
-        return (strategy == "none" and self.indirect is None and not self.refined_gbuffer
+        return (strategy == "none" and self.indirect is None
                 and self.temporal.can_shade(self._stochastic_shading()))
 
     def _tonemap_fused(self, strategy: str) -> bool:

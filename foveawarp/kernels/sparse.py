@@ -238,12 +238,6 @@ def corner_agrees(eye: wp.vec3, k0: float, n0: wp.vec3, a0: wp.vec3, pos: wp.vec
 
 @wp.kernel(enable_backward=False)
 def upsample_gbuffer_kernel(
-    mesh: wp.uint64,
-    indices: wp.array(dtype=wp.int32),
-    points_prev: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
     cam: CameraParams,
     cam_prev: CameraParams,
     max_t: float,
@@ -277,8 +271,9 @@ def upsample_gbuffer_kernel(
     through the pixel's own cell's hit and normal) and the pixel's ray meets that plane at a non-grazing angle,
     the entry is the plane's: position and depth where the pixel's ray meets it, the corners' normals blended
     bilinearly, albedo and face of the own cell's hit, reprojection of that position (static: it is its own
-    previous position). Anywhere else (an edge, a crease, object motion, a hit next to a miss) the pixel's own
-    primary ray is traced: exactly the full mode's entry. ``out_traced`` is 1 where a ray was traced."""
+    previous position). Anywhere else (an edge, a crease, object motion, a hit next to a miss) ``out_traced`` is
+    set to 1 and the entry is left for ``gbuffer_list_kernel``, which traces the pixel's own primary ray: exactly
+    the full mode's entry."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     cw = c_hit.shape[1]
@@ -323,10 +318,7 @@ def upsample_gbuffer_kernel(
                       * corner_agrees(cam.eye, k0, n0, a0, c_pos[cy1, cx1], c_normal[cy1, cx1], c_albedo[cy1, cx1],
                                       h11, c_moved[cy1, cx1], depth_tol, normal_cos, albedo_tol))
     if ok == 0:
-        trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, px, py, y, x,
-                      out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity, out_reproj,
-                      out_prev_dist, out_moved)
-        out_traced[y, x] = wp.uint8(1)
+        out_traced[y, x] = wp.uint8(1)  # gbuffer_list_kernel traces it (a thread per listed pixel: no divergence)
         return
     # bilinear weights between the bracketing rays' pixel centres (clamped: one ray at the image's edges)
     ax0 = float(cell_pixel(cx0, cell, cam.width)) + 0.5
@@ -351,3 +343,48 @@ def upsample_gbuffer_kernel(
     write_surface(cam_prev, px, py, y, x, p, p, n, t, c_face[oy, ox], c_albedo[oy, ox], out_pos, out_normal,
                   out_depth, out_albedo, out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
     out_traced[y, x] = wp.uint8(0)
+
+
+@wp.kernel(enable_backward=False)
+def gbuffer_list_kernel(
+    ppa: wp.array(dtype=PrimaryParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    skip: wp.array2d(dtype=wp.uint8),
+    use_skip: int,
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    points_prev: wp.array(dtype=wp.vec3),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    face_albedo: wp.array(dtype=wp.vec3),
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_albedo: wp.array2d(dtype=wp.vec3),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_velocity: wp.array2d(dtype=wp.vec2),
+    out_reproj: wp.array2d(dtype=wp.vec2),
+    out_prev_dist: wp.array2d(dtype=float),
+    out_moved: wp.array2d(dtype=wp.uint8),
+    row0: int,
+):
+    """The full mode's G-buffer entry (``trace_primary`` through the pixel centre, cameras from ``ppa[0]``) of
+    the flat pixel indices work[0:count[0]], except (``use_skip`` != 0) those where ``skip`` is nonzero."""
+    i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    w = out_depth.shape[1]
+    idx = work[i]
+    y = idx // w
+    x = idx - y * w
+    if use_skip != 0:
+        if skip[y, x] != wp.uint8(0):
+            return
+    pp = ppa[0]
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, pp.cam, pp.cam_prev, pp.max_t,
+                  float(x) + 0.5,
+                  float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity,
+                  out_reproj, out_prev_dist, out_moved)
