@@ -102,8 +102,6 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
         rec["fovea_psnr"].append(_fovea_key(m))
         rec["sampling_rate"].append(f.stats["sampling_rate"])
         rec["cache_hit_rate"].append(f.stats["cache_hit_rate"])
-        if "gbuffer_rays" in f.stats:  # the refined G-buffer's primary rays (coarse + traced), per pixel
-            rec.setdefault("gbuffer_rays_per_pixel", []).append(f.stats["gbuffer_rays"] / float(w * h))
         f = off.render(cam, gaze_px=g, time=t)
         m = metrics(f.image, ref_img, g, fov)
         rec["psnr_off"].append(m["psnr"])
@@ -162,12 +160,12 @@ def timing(fw, scene, w, h, dev, cfg, n):
                 if k.startswith("ms_") and k != "ms_frame":
                     stages.setdefault(k[3:], []).append(v)
     stage_ms = {k: float(np.median(v)) for k, v in stages.items()}
-    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "gbuffer_samples", "shade", "indirect", "indirect_build"))
+    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "shade", "indirect", "indirect_build"))
     out.update(ref_ms=ref_ms, fov_ms=fov_ms, auto_ms=auto_ms, auto_path=auto._pol_choice,
                auto_estimates=dict(auto._pol_est), stage_ms=stage_ms,
                overhead_ms=float(max(fov_ms - traced, 0.0)),
                overhead_stage_sum_ms=float(sum(v for k, v in stage_ms.items()
-                                               if k not in ("gbuffer", "gbuffer_samples", "shade", "indirect", "indirect_build", "scene"))),
+                                               if k not in ("gbuffer", "shade", "indirect", "indirect_build", "scene"))),
                timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms)
     return out
 

@@ -223,13 +223,8 @@ class FoveationConfig:
             its shading), so the frame's primary rays scale with the sampling rate. The sparse mode has no
             per-pixel history (no cache test, no temporal resolve: the unsampled pixels come from the
             reconstruction alone) and no depth of field (``DofConfig.aperture_m`` must be 0). Its Sibson half
-            window is 2 pixels unless ``ReconstructionConfig.sibson_window`` says otherwise. "refined" traces the
-            same coarse G-buffer and builds the full-resolution one from it: where the four coarse hits around a
-            pixel lie on one smooth static surface (depths within 0.5% of their plane, normals within cos 0.95),
-            the pixel's entry is that plane's; elsewhere (edges, creases, silhouettes, moving objects) the pixel
-            traces its own primary ray. It keeps the full mode's history, cache test and temporal resolve; the
-            sampled pixels trace their own primary ray again with their shading.
-        coarse_cell: cell edge in pixels of the sparse and refined modes' coarse G-buffer, in [1, 64]; default 4.
+            window is 2 pixels unless ``ReconstructionConfig.sibson_window`` says otherwise.
+        coarse_cell: cell edge in pixels of the sparse mode's coarse G-buffer, in [1, 64]; default 4.
     """
 
     mar_slope: float = 0.028
@@ -409,7 +404,7 @@ def resolve_voronoi_variant(variant: str, guaranteed: bool) -> str:
     return "disc" if guaranteed else "1+jfa"
 
 
-GBUFFER_MODES = ("full", "sparse", "refined")
+GBUFFER_MODES = ("full", "sparse")
 
 
 @dataclass(frozen=True)

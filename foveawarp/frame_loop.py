@@ -98,7 +98,6 @@ class FrameLoop:
 
         cfg = self.config
         self.sparse_gbuffer = cfg.foveation.enabled and cfg.foveation.gbuffer == "sparse"
-        self.refined_gbuffer = cfg.foveation.enabled and cfg.foveation.gbuffer == "refined"
         if self.sparse_gbuffer and cfg.dof.enabled:
             raise ValueError(f"FoveationConfig.gbuffer 'sparse' needs a pinhole camera: DofConfig.aperture_m must be "
                              f"0, got {cfg.dof.aperture_m} (the DoF pass reads every pixel's depth)")
@@ -155,7 +154,7 @@ class FrameLoop:
                                             # holes: 16-26% of the pixels in motion)
                                             few_holes=not self._stochastic_shading())
         self.recon = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-        if self.sparse_gbuffer or self.refined_gbuffer:
+        if self.sparse_gbuffer:
             from .stages.sparse import SparseGBufferStage
 
             self.sparse = SparseGBufferStage(self.dscene, w, h, cfg.foveation.coarse_cell, dev)
@@ -366,27 +365,16 @@ class FrameLoop:
             skipped["bvh_refit"] = "static scene"
         foveated = cfg.foveation.enabled and mode == "foveated"
         sparse = foveated and self.sparse_gbuffer
-        refined = foveated and self.refined_gbuffer
         with self._stage("gbuffer"):
             if sparse:
                 self.sparse.trace_coarse(camera, prev_cam, self._max_t(camera))
-            elif refined:
-                max_t = self._max_t(camera)
-                self.sparse.trace_coarse(camera, prev_cam, max_t)
-                self.sparse.upsample(self.gbuffer, camera, prev_cam, max_t)
             else:
                 self._gbuffer(camera, prev_cam)
         if sparse:
             skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
             skipped["temporal"] = "sparse G-buffer: no per-pixel history (the reconstruction fills every gap)"
-        elif refined:
-            skipped["gbuffer"] = (f"refined G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
-                                  f"{cfg.foveation.coarse_cell} cell, the coarse hits' planes on smooth surfaces, the "
-                                  f"pixel's own ray elsewhere and at the sampled pixels")
         strategy = resolve_reorder_strategy(cfg.reorder.strategy, self.device) if foveated else "full"
-        if (sparse or refined) and strategy not in ("scan", "tile"):
-            strategy = "scan"  # the sampled pixels' primary rays are traced from a flat list
         tc = cfg.temporal
         still_boost = (foveated and not sparse and history and not moving and tc.enabled and tc.still_min_probability > 0.0
                        and self._stochastic_shading() and self._static_frames < tc.max_history_frames)
@@ -454,12 +442,6 @@ class FrameLoop:
             if sparse:
                 nc = self.sparse.num_coarse_rays
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
-            elif refined:
-                nc, tr = self.sparse.num_coarse_rays, self.sparse.traced
-                sm = self.sampling.sample_map
-                stats.defer("gbuffer_rays", lambda: (nc + int(np.count_nonzero(tr.numpy() | sm.numpy()))))
-                stats.defer("rays_traced", lambda: (nc + int(np.count_nonzero(tr.numpy() | sm.numpy()))
-                                                    + int(ns.numpy()[0]) * self._rays_per_sample()))
             else:
                 stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
         else:
@@ -479,8 +461,6 @@ class FrameLoop:
                       "coarse_gbuffer": self.sparse.coarse}
         elif foveated:
             extras = {"sparse": self.temporal.color, "filled": self.temporal.filled}
-            if refined:
-                extras.update(coarse_gbuffer=self.sparse.coarse, gbuffer_traced=self.sparse.traced)
         else:
             extras = {}
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
@@ -543,12 +523,7 @@ class FrameLoop:
                                           cfg.temporal.refresh_fraction, stochastic=self._stochastic_shading())
         with self._stage("reorder"):
             if strategy in ("scan", "tile", "rows", "rows+balance"):
-                self.reorder.run(smap, strategy=strategy)
-        if foveated and self.refined_gbuffer:
-            with self._stage("gbuffer_samples"):
-                # the plane entries are close enough for the cache test and the history, not for shading: the
-                # sampled pixels trace their own primary ray (those traced in the head are skipped)
-                self.sparse.trace_list(self.gbuffer, self.reorder.work, self.reorder.count, skip_traced=True)
+                self.reorder.run(smap)
         fused = self._tonemap_fused(strategy)
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)

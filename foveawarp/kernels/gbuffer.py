@@ -28,83 +28,6 @@ def shading_normal(mesh: wp.uint64, face: int, u: float, v: float, face_n: wp.ve
 
 
 @wp.func
-def write_surface(
-    cam_prev: CameraParams,
-    px: float,
-    py: float,
-    y: int,
-    x: int,
-    p: wp.vec3,
-    pp: wp.vec3,
-    n: wp.vec3,
-    t: float,
-    face: int,
-    albedo: wp.vec3,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-):
-    """The G-buffer entry [y, x] of a surface point ``p`` (``pp``: the same point at the previous frame's vertex
-    positions) seen through the continuous pixel position (px, py) at distance ``t``."""
-    pr = camera_project(cam_prev, pp)
-    out_prev_dist[y, x] = wp.length(pp - cam_prev.eye)
-    # the surface point itself moved (object motion): its lighting may have changed too
-    moved = wp.uint8(0)
-    if wp.length(pp - p) > 1.0e-6 * t + 1.0e-7:
-        moved = wp.uint8(1)
-    out_moved[y, x] = moved
-    uv = wp.vec2(NO_REPROJ, NO_REPROJ)
-    vel = wp.vec2(0.0, 0.0)
-    if pr[2] > 0.0:
-        uv = wp.vec2(pr[0], pr[1])
-        vel = wp.vec2(px - pr[0], py - pr[1])
-    out_pos[y, x] = p
-    out_normal[y, x] = n
-    out_depth[y, x] = t
-    out_albedo[y, x] = albedo
-    out_face[y, x] = face
-    out_hit[y, x] = wp.uint8(1)
-    out_velocity[y, x] = vel
-    out_reproj[y, x] = uv
-
-
-@wp.func
-def write_miss(
-    max_t: float,
-    y: int,
-    x: int,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-):
-    """The G-buffer entry [y, x] of a ray that hit nothing."""
-    out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
-    out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
-    out_depth[y, x] = max_t
-    out_albedo[y, x] = wp.vec3(0.0, 0.0, 0.0)
-    out_face[y, x] = -1
-    out_hit[y, x] = wp.uint8(0)
-    out_velocity[y, x] = wp.vec2(0.0, 0.0)
-    out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
-    out_prev_dist[y, x] = 0.0
-    out_moved[y, x] = wp.uint8(0)
-
-
-@wp.func
 def trace_primary(
     mesh: wp.uint64,
     indices: wp.array(dtype=wp.int32),
@@ -146,11 +69,37 @@ def trace_primary(
         i2 = indices[q.face * 3 + 2]
         # the same surface point at the previous frame's vertex positions (object motion)
         pp = points_prev[i0] * q.u + points_prev[i1] * q.v + points_prev[i2] * (1.0 - q.u - q.v)
-        write_surface(cam_prev, px, py, y, x, p, pp, n, q.t, q.face, face_albedo[q.face], out_pos, out_normal,
-                      out_depth, out_albedo, out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+        pr = camera_project(cam_prev, pp)
+        out_prev_dist[y, x] = wp.length(pp - cam_prev.eye)
+        # the surface point itself moved (object motion): its lighting may have changed too
+        moved = wp.uint8(0)
+        if wp.length(pp - p) > 1.0e-6 * q.t + 1.0e-7:
+            moved = wp.uint8(1)
+        out_moved[y, x] = moved
+        uv = wp.vec2(NO_REPROJ, NO_REPROJ)
+        vel = wp.vec2(0.0, 0.0)
+        if pr[2] > 0.0:
+            uv = wp.vec2(pr[0], pr[1])
+            vel = wp.vec2(px - pr[0], py - pr[1])
+        out_pos[y, x] = p
+        out_normal[y, x] = n
+        out_depth[y, x] = q.t
+        out_albedo[y, x] = face_albedo[q.face]
+        out_face[y, x] = q.face
+        out_hit[y, x] = wp.uint8(1)
+        out_velocity[y, x] = vel
+        out_reproj[y, x] = uv
     else:
-        write_miss(max_t, y, x, out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity,
-                   out_reproj, out_prev_dist, out_moved)
+        out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_depth[y, x] = max_t
+        out_albedo[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        out_face[y, x] = -1
+        out_hit[y, x] = wp.uint8(0)
+        out_velocity[y, x] = wp.vec2(0.0, 0.0)
+        out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
+        out_prev_dist[y, x] = 0.0
+        out_moved[y, x] = wp.uint8(0)
 
 
 def _make_gbuffer(rows: bool):

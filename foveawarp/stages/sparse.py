@@ -10,17 +10,12 @@ from ..buffers import GBuffer
 from ..camera import Camera
 from ..config import check_int_range
 from ..kernels.sparse import (
-    REFINE_ALBEDO_TOL,
-    REFINE_DEPTH_TOL,
-    REFINE_NORMAL_COS,
     PrimaryParams,
     coarse_gbuffer_kernel,
     coarse_saliency_kernel,
-    gbuffer_list_kernel,
     set_primary_params_kernel,
     sparse_sampling_kernel,
     trace_shade_list_kernel,
-    upsample_gbuffer_kernel,
 )
 from .sampling import launch_tile_pass
 
@@ -52,8 +47,6 @@ class SparseGBufferStage:
         self.coarse = GBuffer(self.coarse_width, self.coarse_height, device)
         self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
         self.primary = wp.zeros(1, dtype=PrimaryParams, device=device)
-        self.traced = None  # (H, W) uint8 of the refined mode: 1 where upsample traced the pixel's own ray
-        self._compact = None  # the refined mode's compaction of ``traced`` (a ReorderStage, "tile" order)
 
     @property
     def num_coarse_rays(self) -> int:
@@ -77,50 +70,6 @@ class SparseGBufferStage:
         pp = PrimaryParams()
         pp.cam, pp.cam_prev, pp.max_t = cam, cam_prev, float(max_t)
         wp.launch(set_primary_params_kernel, dim=1, inputs=[pp], outputs=[self.primary], device=self.device)
-
-    def upsample(self, gbuffer: GBuffer, camera: Camera, prev_camera: Camera, max_t: float,
-                 depth_tol: float = REFINE_DEPTH_TOL, normal_cos: float = REFINE_NORMAL_COS,
-                 albedo_tol: float = REFINE_ALBEDO_TOL) -> None:
-        """The refined mode's full-resolution ``gbuffer`` from the coarse one traced by ``trace_coarse`` for the
-        same cameras: the plane of the coarse hits on smooth static surfaces of one colour
-        (kernels/sparse.py ``upsample_gbuffer_kernel``), and everywhere else the pixel's own primary ray, traced
-        from a compacted list in screen-tile order (``gbuffer_list_kernel``); ``traced`` marks those pixels."""
-        from ..config import ReorderConfig
-        from .reorder import ReorderStage
-
-        ds, w, h, c, g, dev = self.dscene, self.width, self.height, self.coarse, gbuffer, self.device
-        if self.traced is None:
-            self.traced = wp.zeros((h, w), dtype=wp.uint8, device=dev)
-            self._compact = ReorderStage(w, h, ReorderConfig(strategy="tile"), dev)
-        cam, cam_prev = camera.params(w, h), prev_camera.params(w, h)
-        parallel.launch(
-            upsample_gbuffer_kernel,
-            dim=(h, w),
-            inputs=[cam, cam_prev, float(max_t), self.cell, float(depth_tol), float(normal_cos), float(albedo_tol),
-                    c.position, c.normal, c.albedo, c.face, c.hit, c.moved],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved, self.traced],
-            device=dev,
-        )
-        lst = self._compact
-        lst.run(self.traced, strategy="tile")
-        self.trace_list(g, lst.work, lst.count, skip_traced=False)
-
-    def trace_list(self, gbuffer: GBuffer, work, count, skip_traced: bool) -> None:
-        """Trace the full mode's G-buffer entries of the flat pixel indices ``work[0:count[0]]`` with this
-        frame's cameras (``trace_coarse``); ``skip_traced`` leaves out the pixels ``upsample`` traced already.
-        Fixed arguments (capturable in a CUDA graph)."""
-        ds, g = self.dscene, gbuffer
-        parallel.launch(
-            gbuffer_list_kernel,
-            dim=work.shape[0],
-            inputs=[self.primary, work, count, self.traced, 1 if skip_traced else 0, ds.mesh.id, ds.indices,
-                    ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved],
-            device=self.device,
-            count=count,
-        )
 
     def sample(self, sampling) -> None:
         """Fill ``sampling``'s probability, saliency and sample_map (and its sample counter; no cache hits) for
