@@ -188,3 +188,80 @@ def test_compaction_exact_order_properties(mask, tile, kind):
     for y in range(h):
         np.testing.assert_array_equal(coords[y, :counts[y], 0], np.flatnonzero(mask[y]))
         assert np.all(coords[y, :counts[y], 1] == y)
+
+
+def _output_positions(h, w, tile, order):
+    """Output position of every pixel in the stage's order, computed here from the Morton reference: raster
+    (``order`` "scan") or tiles in Morton order with ``tile * tile`` slots each, raster inside a tile."""
+    ys, xs = np.mgrid[0:h, 0:w]
+    if order == "scan":
+        return ys * w + xs
+    tiles = sorted((morton_ref(tx, ty), ty, tx) for ty in range((h + tile - 1) // tile)
+                   for tx in range((w + tile - 1) // tile))
+    rank = np.zeros(((h + tile - 1) // tile, (w + tile - 1) // tile), np.int64)
+    for r, (_, ty, tx) in enumerate(tiles):
+        rank[ty, tx] = r
+    return rank[ys // tile, xs // tile] * tile * tile + (ys % tile) * tile + (xs % tile)
+
+
+def _onepass_stage(w, h, order, tile, device):
+    s = ReorderStage(w, h, fw.ReorderConfig(strategy=order, tile=tile), device, ordered=False)
+    s.ordered = False  # the one-pass kernel on every device (the CPU's constructor keeps the ordered form)
+    return s
+
+
+@pytest.mark.parametrize("order", ["scan", "tile"])
+@pytest.mark.parametrize("tile", [4, 8, 16])
+@pytest.mark.parametrize("shape", [(45, 67), (130, 70), (1, 300), (300, 1), (64, 64), (200, 256)])
+def test_onepass_compaction_holds_every_block_run(order, tile, shape, device, rng):
+    """The unordered one-pass list (ReorderStage(ordered=False)): every set pixel exactly once, the count exact,
+    and the list a concatenation of whole block runs (block = compaction block of output positions), each run in
+    the reference order. On the CPU (blocks of one thread, run in order) it is the ordered list itself."""
+    from foveawarp.stages import reorder as R
+
+    h, w = shape
+    per_block = (R._CUDA_BLOCK * R._CUDA_PER_THREAD) if wp.get_device(device).is_cuda else R._CPU_PER_THREAD
+    pos = _output_positions(h, w, tile, order)
+    st_ = _onepass_stage(w, h, order, tile, device)
+    for m in (filled_mask(h, w, rng), rng.random((h, w)) < 0.3, rng.random((h, w)) < 0.02, np.ones((h, w), bool),
+              np.zeros((h, w), bool)):
+        st_.run(wp.array(m.astype(np.uint8), dtype=wp.uint8, device=device))
+        n = int(st_.count.numpy()[0])
+        assert n == int(m.sum())
+        got = st_.work.numpy()[:n].astype(np.int64)
+        ref = tile_order_ref(m, tile) if order == "tile" else np.flatnonzero(m)
+        np.testing.assert_array_equal(np.sort(got), np.sort(ref))
+        if n == 0:
+            continue
+        blocks = pos.reshape(-1)[got] // per_block
+        # each block's pixels form one contiguous run of the list, in the reference order
+        starts = np.flatnonzero(np.r_[True, blocks[1:] != blocks[:-1]])
+        assert len(starts) == len(np.unique(blocks)), "a block's run is split"
+        ref_blocks = pos.reshape(-1)[ref] // per_block
+        for a, b in zip(starts, np.r_[starts[1:], n]):
+            np.testing.assert_array_equal(got[a:b], ref[ref_blocks == blocks[a]])
+        if not wp.get_device(device).is_cuda:
+            np.testing.assert_array_equal(got, ref)
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.bool_, st.tuples(st.integers(1, 40), st.integers(1, 40))),
+       st.sampled_from([2, 4, 8, 16, 64]), st.sampled_from(["scan", "tile"]))
+def test_onepass_compaction_properties(mask, tile, order):
+    """Degenerate shapes (one row, one column, one pixel), empty and full masks: the CPU's one-pass list equals
+    the reference order exactly, its count is exact, and a second run on the same stage is not offset by the first
+    (the count is reset per run)."""
+    h, w = mask.shape
+    st_ = _onepass_stage(w, h, order, tile, "cpu")
+    ref = tile_order_ref(mask, tile) if order == "tile" else np.flatnonzero(mask)
+    mk = wp.array(mask.astype(np.uint8), dtype=wp.uint8, device="cpu")
+    for _ in range(2):
+        st_.run(mk)
+        n = int(st_.count.numpy()[0])
+        assert n == len(ref)
+        np.testing.assert_array_equal(st_.work.numpy()[:n], ref)
+
+
+def test_ordered_flag_checked():
+    with pytest.raises(ValueError, match="ordered must be True or False, got 1"):
+        ReorderStage(8, 8, fw.ReorderConfig(), "cpu", ordered=1)
