@@ -141,8 +141,7 @@ class FrameLoop:
 
         w, h, dev, cfg = self.width, self.height, self.device, self.config
         self.sampling = SamplingStage(w, h, cfg, dev)
-        # the frame's consumers of the list write per pixel: its order within and between blocks is free
-        self.reorder = ReorderStage(w, h, cfg.reorder, dev, ordered=False)
+        self.reorder = ReorderStage(w, h, cfg.reorder, dev)
         self.temporal = TemporalStage(w, h, cfg.temporal, dev)
         # the sparse mode fills ~85-90% of the pixels from samples alone, where the bounded Sibson gather's window
         # sets the cost: J = 2 matched the block-exact window's PSNR (320x180, cornell and bunny in motion: 37.45 vs

@@ -190,26 +190,3 @@ def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.arra
     o = block_offsets[blk] + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
     if alone or c > 0:
         walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)
-
-
-@wp.kernel(enable_backward=False)
-def compact_onepass_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
-                           tiles_x: int, n: int, per_thread: int, count: wp.array(dtype=wp.int32),
-                           work: wp.array(dtype=wp.int32)):
-    """Tiled, one pass, the blocks of :func:`compact_count_kernel`: block b counts the set pixels of its positions,
-    takes their room in ``work`` with one atomic add on ``count[0]`` (zero before the launch; the total after it)
-    and writes their flat indices y * W + x there in the output order. Each block's run keeps the output order;
-    the runs lie in the order the blocks reached the atomic (blocks of one thread run in block order: then the
-    list is :func:`compact_scatter_kernel`'s)."""
-    blk, lane = wp.tid()
-    g0 = (blk * wp.block_dim() + lane) * per_thread
-    c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
-    tot = wp.tile_sum(wp.tile(c))
-    base = int(0)
-    if lane == 0:
-        if tot[0] > 0:
-            base = wp.atomic_add(count, 0, tot[0])
-    # lane 0's base reaches every lane through an inclusive scan (the other lanes add zeros)
-    o = wp.untile(wp.tile_scan_inclusive(wp.tile(base))) + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
-    if c > 0:
-        walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)

@@ -10,7 +10,6 @@ from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, resolve_re
 from ..kernels.reorder import (
     block_scan_kernel,
     compact_count_kernel,
-    compact_onepass_kernel,
     compact_scatter_kernel,
     rows_balance_kernel,
     rows_compact_kernel,
@@ -52,24 +51,14 @@ class ReorderStage:
     Launches per ``run``: "scan" / "tile": 3 (count, one-block scan of the per-block counts, scatter; the
     mask is read twice, the list written once); "rows": 1; "rows+balance": 2. No memset, no temporary
     allocation, no host read (CUDA-graph capturable).
-
-    ``ordered=False`` ("scan" / "tile" on CUDA): one launch after a 4-byte memset of ``count``; each block of 1024
-    output positions takes its room with one atomic, so the list holds the same pixels, each block's run in the
-    output order, the runs in the order the blocks finished counting. For consumers whose per-pixel results do
-    not depend on the list order (the frame's shading, resolve and indirect gather). On the CPU (blocks of one
-    thread, run in order) the list is the ordered one.
     """
 
-    def __init__(self, width: int, height: int, config: ReorderConfig, device, *, ordered: bool = True):
+    def __init__(self, width: int, height: int, config: ReorderConfig, device):
         width, height = check_image_size(width, height)
         if not isinstance(config, ReorderConfig):
             raise ValueError(f"config must be a ReorderConfig, got {show(config)} ({type(config).__name__})")
         device = get_device(device)
         self.width, self.height, self.config, self.device = width, height, config, device
-        if not isinstance(ordered, bool):
-            raise ValueError(f"ordered must be True or False, got {show(ordered)}")
-        # the CPU's launches run blocks in order: the three-launch form needs no memset there and gives the same list
-        self.ordered = ordered or not device.is_cuda
         n = width * height
         self.count = wp.zeros(1, dtype=wp.int32, device=device)
         self.work = wp.zeros(n, dtype=wp.int32, device=device)
@@ -123,11 +112,6 @@ class ReorderStage:
         nb, counts, offsets = self._blocks[s]
         tile = 0 if s == "scan" else self.config.tile
         common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
-        if not self.ordered:
-            self.count.zero_()
-            wp.launch_tiled(compact_onepass_kernel, dim=[nb], inputs=[*common, self.count], outputs=[self.work],
-                            block_dim=self._block_dim, device=dev)
-            return
         wp.launch_tiled(compact_count_kernel, dim=[nb], inputs=common, outputs=[counts],
                         block_dim=self._block_dim, device=dev)
         wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
