@@ -71,9 +71,6 @@ class FrameLoop:
     POLICY_WARM = 4  # untimed frames before each timed run of a path (compile, graph capture)
     POLICY_TIMED = 8  # timed frames per path; the median counts
     POLICY_MARGIN = 0.05  # foveation is chosen only when at least this fraction cheaper than full resolution
-    # the deterministic temporal resolve inside the sampling pass and the list shading (``_history_in_sampling``);
-    # False: its own pass, as before (the same values; the tests compare the two)
-    fuse_history = True
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
                  timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None,
@@ -515,17 +512,11 @@ class FrameLoop:
         if sparse:
             self._sparse_body(smap, strategy)
             return
-        fused_history = foveated and self._history_in_sampling(strategy)
         with self._stage("sampling"):
             if foveated:
-                hist = None
-                if fused_history:
-                    hist = self.temporal.history_args(self.gbuffer, use_history=history,
-                                                      background=cfg.shading.background)
                 # the cache test's previous depth and valid mask: the temporal history's, as last resolved
                 self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
-                                     face_lab=self.dscene.face_lab,  # Lab albedo by face: no cube roots
-                                     history=hist)
+                                     face_lab=self.dscene.face_lab)  # Lab albedo by face: no cube roots
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
@@ -538,14 +529,11 @@ class FrameLoop:
         shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade"):
             if not shade_in_resolve:
-                self._trace(smap, strategy, display=self.image if fused and not foveated else None,
-                            history=fused_history)
+                self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect"):
             self._indirect(smap, strategy)
         with self._stage("temporal"):
-            if fused_history:
-                self.temporal.swap()  # resolved by the sampling pass and the shading
-            elif foveated:
+            if foveated:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background,
@@ -569,15 +557,6 @@ class FrameLoop:
         with self._stage("tonemap"):
             if not fused:
                 self._tonemap(hdr, self.image)
-
-    def _history_in_sampling(self, strategy: str) -> bool:
-        """Whether the temporal resolve has no pass of its own (``TemporalStage.history_args``): the sampling pass
-        resolves every pixel from history and the list shading writes the traced ones. Needs deterministic
-        shading (a traced pixel's value ignores its history), a flat list ("scan", "tile"), nothing added to the
-        shading after it (indirect light) and the per-pixel sampling kernel (CUDA; the CPU's rows kernels fuse the
-        shading with the resolve instead). ``fuse_history = False`` (class or instance) turns it off."""
-        return (self.fuse_history and strategy in ("scan", "tile") and self.indirect is None
-                and not self._stochastic_shading() and not parallel.use_row_kernels(self.device))
 
     def _shade_in_resolve(self, strategy: str) -> bool:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
@@ -654,10 +633,9 @@ class FrameLoop:
         r += self.dscene.num_area_lights * sc.area_light_samples * (1 if sc.shadows else 0)
         return r + sc.ao_samples
 
-    def _trace(self, smap, strategy: str, display=None, history: bool = False) -> None:
+    def _trace(self, smap, strategy: str, display=None) -> None:
         """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``
-        (``display``: the full-resolution shading also writes the tone-mapped image; ``history``: the list
-        shading also writes the traced pixels' history entries, ``_history_in_sampling``)."""
+        (``display``: the full-resolution shading also writes the tone-mapped image)."""
         g, out, st = self.gbuffer, self.radiance, self.radiance_stoch
         if strategy == "full":
             self.shade.full(g, out, st, display)
@@ -666,8 +644,7 @@ class FrameLoop:
         elif strategy in ("rows", "rows+balance"):
             self.shade.rows(g, self.reorder.coords, self.reorder.counts, out, st)
         else:
-            self.shade.list(g, self.reorder.work, self.reorder.count, out, st,
-                            history=self.temporal.traced_outputs() if history else None)
+            self.shade.list(g, self.reorder.work, self.reorder.count, out, st)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

@@ -15,7 +15,7 @@ from foveawarp.stages.temporal import TemporalStage
 BG = np.array([0.02, 0.02, 0.03])
 
 
-def ref_resolve(inp, prev, cfg, use_history, stochastic, bg=BG):
+def ref_resolve(inp, prev, cfg, use_history, stochastic):
     """Per-pixel loop of the rule in TemporalStage's docstring (NumPy, float64)."""
     h, w = inp["hit"].shape
     out = np.zeros((h, w, 3))
@@ -24,7 +24,7 @@ def ref_resolve(inp, prev, cfg, use_history, stochastic, bg=BG):
     for y in range(h):
         for x in range(w):
             if not inp["hit"][y, x]:
-                out[y, x] = bg
+                out[y, x] = BG
                 filled[y, x] = 1
                 continue
             sampled = bool(inp["smap"][y, x])
@@ -449,124 +449,3 @@ def test_clip_box_list_kernel_against_numpy(rng):
             np.testing.assert_allclose(lo[y, x], mu - 1.25 * sd, rtol=1e-5, atol=1e-5)
             np.testing.assert_allclose(hi[y, x], mu + 1.25 * sd, rtol=1e-5, atol=1e-5)
     assert lo[1, 1][0] > hi[1, 1][0]
-
-
-def _fused_frames(monkeypatch, scene, cfg, fuse, n=7, static_from=None, size=(53, 31)):
-    """Moving frames (then a still view from frame ``static_from`` on) of a FrameLoop on the CPU with the per-pixel
-    kernels (the CUDA path) and ``fuse_history`` as given: per frame, whether the history was resolved in the
-    sampling pass, and the bytes of the display image, the shaded radiance and the whole history slot (colour,
-    filled, depth, age / staleness, and the normal where the history is non-empty)."""
-    from foveawarp import parallel
-    from foveawarp.frame_loop import FrameLoop
-
-    monkeypatch.setattr(parallel, "ROW_KERNELS", False)
-    monkeypatch.setattr(FrameLoop, "fuse_history", fuse)
-    w, h = size
-    fl = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", cpu_threads=2, timing=False, policy="foveated")
-    out, used = [], []
-    for i in range(n):
-        t = 0.06 * (i if static_from is None else min(i, static_from))
-        fr = fl.render(fl.scene.camera_at(t), gaze_px=(w * (0.2 + 0.09 * min(i, static_from or n)), h * 0.45),
-                       time=t)
-        used.append(fl._history_in_sampling(fr.stats["strategy"]))
-        hist = fl.temporal.history()
-        live = hist["age"] > 0
-        out.append([fr.image.numpy().tobytes(), fl.radiance.numpy().tobytes(), hist["color"].tobytes(),
-                    hist["filled"].tobytes(), hist["depth"].tobytes(), hist["age"].tobytes(), hist["stale"].tobytes(),
-                    hist["normal"][live].tobytes()])
-    monkeypatch.undo()
-    return out, used, fl
-
-
-@pytest.mark.parametrize("scene,strategy", [("cornell", "tile"), ("earth", "tile"), ("eyechart", "scan")])
-def test_history_in_the_sampling_pass_equals_the_resolve_pass(monkeypatch, scene, strategy):
-    """Deterministic shading with a flat list (the CUDA path, run here on the CPU with the per-pixel kernels):
-    the sampling pass resolving every pixel from history and the list shading writing the traced pixels
-    (``FrameLoop.fuse_history``) give the frames of the separate resolve pass, byte for byte: display image,
-    radiance and the whole history slot, over moving frames (earth: a moving object) and, on cornell, a still
-    view long enough for the refresh thinning to drop samples."""
-    cfg = fw.Config().with_(reorder={"strategy": strategy})
-    static_from = 3 if scene == "cornell" else None
-    n = 22 if scene == "cornell" else 7
-    fused, used, fl = _fused_frames(monkeypatch, scene, cfg, True, n=n, static_from=static_from)
-    assert all(used)
-    apart, used, _ = _fused_frames(monkeypatch, scene, cfg, False, n=n, static_from=static_from)
-    assert not any(used)
-    for i, (a, b) in enumerate(zip(fused, apart)):
-        for k, (x, y) in enumerate(zip(a, b)):
-            assert x == y, (i, k)
-    if scene == "cornell":
-        assert "trace" in fl.render(fl.scene.camera_at(0.18), gaze_px=(53 * 0.47, 31 * 0.45),
-                                    time=0.18).stats["skipped"]  # the refresh thinning ran in the still view
-
-
-@pytest.mark.parametrize("over", [{"temporal": {"enabled": False}}, {"foveation": {"fovea_deg": 1.0}},
-                                  {"dof": {"aperture_m": 0.02, "focus_depth_m": 3.0}}])
-def test_history_in_the_sampling_pass_equals_the_resolve_pass_configs(monkeypatch, over):
-    """The same comparison with history off, a small fovea (most pixels from history) and depth of field."""
-    cfg = fw.Config().with_(reorder={"strategy": "tile"}, **over)
-    fused, used, _ = _fused_frames(monkeypatch, "cornell", cfg, True, n=5)
-    assert all(used)
-    apart, _, _ = _fused_frames(monkeypatch, "cornell", cfg, False, n=5)
-    assert fused == apart
-
-
-def test_history_in_the_sampling_pass_matches_numpy_rule(monkeypatch):
-    """The fused path against the NumPy rule (``ref_resolve``), frame by frame in motion: the history slot a
-    frame leaves is the rule applied to that frame's G-buffer, sample map and shaded radiance and to the history
-    the previous frame left."""
-    from foveawarp import parallel
-
-    monkeypatch.setattr(parallel, "ROW_KERNELS", False)
-    w, h = 64, 40
-    cfg = fw.Config().with_(reorder={"strategy": "tile"}, foveation={"fovea_deg": 1.0, "falloff_deg": 4.0})
-    fl = fw.FrameLoop("cornell", w, h, config=cfg, device="cpu", timing=False, policy="foveated")
-    bg = np.asarray(cfg.shading.background, np.float64)
-    reused = 0
-    fl.render(fl.scene.camera_at(0.0), gaze_px=(8, 12), time=0.0)
-    for i in range(1, 6):
-        before = fl.temporal.history()
-        fr = fl.render(fl.scene.camera_at(0.03 * i), gaze_px=(12 + 6 * i, 18), time=0.03 * i)
-        assert fl._history_in_sampling(fr.stats["strategy"])
-        g = fl.gbuffer
-        inp = {"smap": fr.sampling_map.numpy(), "hit": g.hit.numpy(), "normal": g.normal.numpy().astype(np.float64),
-               "depth": g.depth.numpy().astype(np.float64), "uv": g.reproj_uv.numpy().astype(np.float64),
-               "prev_dist": g.prev_dist.numpy().astype(np.float64), "vel": g.velocity.numpy().astype(np.float64),
-               "moved": g.moved.numpy(), "fresh": fl.radiance.numpy(), "stoch": np.zeros((h, w, 3), np.float32)}
-        prev = {"color": before["color"].reshape(-1, 3).astype(np.float64), "stoch": before["stoch"],
-                "normal": before["normal"].astype(np.float64), "age": before["age"], "stale": before["stale"],
-                "depth": before["depth"].astype(np.float64), "valid": before["filled"]}
-        ref, rfilled = ref_resolve(inp, prev, cfg.temporal, True, False, bg=bg)
-        after = fl.temporal.history()
-        np.testing.assert_array_equal(after["filled"], rfilled)
-        np.testing.assert_allclose(after["color"], ref, atol=2e-5, rtol=1e-5)
-        reused += int((rfilled.astype(bool) & (inp["smap"] == 0) & (inp["hit"] != 0)).sum())
-    assert reused > 0
-
-
-def test_history_in_the_sampling_pass_only_where_it_holds(monkeypatch):
-    """The fused path is taken only with deterministic shading, a flat list, no indirect light and the per-pixel
-    sampling kernel; ``SamplingStage.launch(history=...)`` refuses the CPU's rows kernels and a malformed tuple
-    with a ValueError naming ``history``."""
-    from foveawarp import parallel
-
-    fl = fw.FrameLoop("cornell", 24, 16, config=fw.Config().with_(reorder={"strategy": "tile"}), device="cpu",
-                      timing=False, policy="foveated")
-    fl.render(fl.scene.camera_at(0.0), gaze_px=(12, 8))
-    assert not fl._history_in_sampling("tile")  # the CPU's rows kernels
-    hist = fl.temporal.history_args(fl.gbuffer)
-    with pytest.raises(ValueError, match="history needs the per-pixel sampling kernel"):
-        fl.sampling.launch(fl.gbuffer, history=hist)
-    monkeypatch.setattr(parallel, "ROW_KERNELS", False)
-    assert fl._history_in_sampling("tile") and fl._history_in_sampling("scan")
-    assert not fl._history_in_sampling("none") and not fl._history_in_sampling("rows")
-    with pytest.raises(ValueError, match="history must be"):
-        fl.sampling.launch(fl.gbuffer, history=hist[:4])
-    ao = fw.FrameLoop("cornell", 24, 16, config=fw.Config().with_(reorder={"strategy": "tile"},
-                                                                  shading={"ao_samples": 2}),
-                      device="cpu", timing=False, policy="foveated")
-    assert not ao._history_in_sampling("tile")
-    ind = fw.FrameLoop("cornell", 24, 16, config=fw.Config().with_(reorder={"strategy": "tile"},
-                                                                   shading={"indirect": "lighttree"}),
-                       device="cpu", timing=False, policy="foveated")
-    assert not ind._history_in_sampling("tile")

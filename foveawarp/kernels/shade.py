@@ -239,60 +239,33 @@ shade_full_kernel = _make_shade_full(False)
 shade_full_rows_kernel = _make_shade_full(True)
 
 
-def _make_shade_list(history: bool):
-    """``shade_list_kernel``, or with ``history`` ``shade_list_history_kernel``: the same shading, and each traced
-    surface pixel's entry of the temporal history slot written as the deterministic resolve writes a traced pixel
-    (its fresh colour, filled, ``traced_meta`` = age 1 and not stale, its normal). The frame uses it after
-    ``sampling_history_kernel`` resolved every pixel from history (``kernels.temporal``); a miss keeps the
-    background that pass wrote."""
-
-    # sm_90: the plain kernel takes 128 registers per thread (2 blocks of 256 threads per SM); the history writes
-    # took the other to 137 (1 block), so it is capped at 128
-    @wp.kernel(enable_backward=False, name="shade_list_history_kernel" if history else "shade_list_kernel",
-               cuda_max_registers=128 if history else None)
-    def shade_list(
-        spa: wp.array(dtype=ShadeParams),
-        work: wp.array(dtype=wp.int32),
-        count: wp.array(dtype=wp.int32),
-        pos: wp.array2d(dtype=wp.vec3),
-        normal: wp.array2d(dtype=wp.vec3),
-        albedo: wp.array2d(dtype=wp.vec3),
-        face: wp.array2d(dtype=wp.int32),
-        hit: wp.array2d(dtype=wp.uint8),
-        lights: wp.array(dtype=LightParams),
-        area_lights: wp.array(dtype=AreaLightParams),
-        face_emission: wp.array(dtype=wp.vec3),
-        traced_meta: wp.int32,
-        out: wp.array2d(dtype=wp.vec3),
-        out_stoch: wp.array2d(dtype=wp.vec3),
-        hist_color: wp.array(dtype=wp.vec3),
-        hist_filled: wp.array2d(dtype=wp.uint8),
-        hist_normal: wp.array(dtype=wp.vec3),
-        hist_meta: wp.array(dtype=wp.int32),
-        row0: int,
-    ):
-        """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
-        i = wp.tid()
-        i += row0  # band offset (foveawarp.parallel)
-        if i >= count[0]:
-            return
-        sp = spa[0]
-        idx = work[i]
-        y = idx // sp.width
-        x = idx - y * sp.width
-        shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
-        if wp.static(history):
-            if hit[y, x] != wp.uint8(0):
-                hist_color[idx] = out[y, x]
-                hist_filled[y, x] = wp.uint8(1)
-                hist_normal[idx] = normal[y, x]
-                hist_meta[idx] = traced_meta
-
-    return shade_list
-
-
-shade_list_kernel = _make_shade_list(False)
-shade_list_history_kernel = _make_shade_list(True)
+@wp.kernel(enable_backward=False)
+def shade_list_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
+    i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    sp = spa[0]
+    idx = work[i]
+    y = idx // sp.width
+    x = idx - y * sp.width
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 def _make_shade_masked(rows: bool):

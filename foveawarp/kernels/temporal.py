@@ -9,7 +9,7 @@ the G-buffer depth (also the next frame's cache test inputs)."""
 import warp as wp
 
 from .gbuffer import NO_REPROJ
-from .sampling import FrameParams, SamplingParams, sampling_map_pixel
+from .sampling import FrameParams
 from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
 
 # bilinear fractions closer than this (pixels) to a pixel centre snap to it
@@ -161,7 +161,6 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
     def resolve_pixel(
         x: int,
         y: int,
-        sampled: bool,
         tp: TemporalParams,
         sample_map: wp.array2d(dtype=wp.uint8),
         hit: wp.array2d(dtype=wp.uint8),
@@ -200,6 +199,7 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         age = int(0)
         stale = int(0)
         filled = wp.uint8(0)
+        sampled = sample_map[y, x] != wp.uint8(0)
         if hit[y, x] == wp.uint8(0):
             # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
             col = tp.background
@@ -340,15 +340,13 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
             if wp.static(rows):
                 y = wp.tid() + row0  # band offset (foveawarp.parallel)
                 for x in range(out_filled.shape[1]):
-                    resolve_pixel(x, y, sample_map[y, x] != wp.uint8(0), tp, sample_map, hit, normal, depth, reproj_uv,
-                                  prev_dist, velocity, moved,
+                    resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved,
                                   fresh, fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev,
                                   out_color, out_filled, out_depth, out_normal, out_meta, out_stoch, box_lo, box_hi)
             else:
                 y, x = wp.tid()
                 y += row0  # band offset (foveawarp.parallel)
-                resolve_pixel(x, y, sample_map[y, x] != wp.uint8(0), tp, sample_map, hit, normal, depth, reproj_uv,
-                              prev_dist, velocity, moved, fresh,
+                resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
                               fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
                               out_filled, out_depth, out_normal, out_meta, out_stoch, box_lo, box_hi)
 
@@ -360,63 +358,6 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
 resolve_kernel, resolve_rows_kernel, _resolve_pixel = _make_resolve_kernels(False)
 resolve_stoch_kernel, resolve_stoch_rows_kernel, _ = _make_resolve_kernels(True)
 resolve_stoch_boxed_kernel, _, _ = _make_resolve_kernels(True, boxed=True)
-
-
-# CUDA: a thread per pixel and at most 64 registers (sm_90; the sampling pass alone is capped at 48, the
-# deterministic resolve takes 32)
-@wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=48)
-def sampling_history_kernel(
-    sp: SamplingParams,
-    frame: wp.array(dtype=FrameParams),
-    ranks: wp.array2d(dtype=wp.int32),
-    lab: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    depth: wp.array2d(dtype=float),
-    hit: wp.array2d(dtype=wp.uint8),
-    velocity: wp.array2d(dtype=wp.vec2),
-    position: wp.array2d(dtype=wp.vec3),
-    reproj_uv: wp.array2d(dtype=wp.vec2),
-    prev_dist: wp.array2d(dtype=float),
-    depth_prev: wp.array2d(dtype=float),
-    valid_prev: wp.array2d(dtype=wp.uint8),
-    face: wp.array2d(dtype=wp.int32),
-    face_lab: wp.array(dtype=wp.vec3),
-    lab_by_face: int,
-    no_map: wp.array2d(dtype=float),
-    tp: TemporalParams,
-    moved: wp.array2d(dtype=wp.uint8),
-    normal_prev: wp.array(dtype=wp.vec3),
-    meta_prev: wp.array(dtype=wp.int32),
-    color_prev: wp.array(dtype=wp.vec3),
-    no_color: wp.array2d(dtype=wp.vec3),
-    out_sample: wp.array2d(dtype=wp.uint8),
-    out_cache_hit: wp.array2d(dtype=wp.uint8),
-    out_prev_index: wp.array2d(dtype=wp.int32),
-    out_color: wp.array(dtype=wp.vec3),
-    out_filled: wp.array2d(dtype=wp.uint8),
-    out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.vec3),
-    out_meta: wp.array(dtype=wp.int32),
-    row0: int,
-):
-    """The sampling pass (``sampling_map_kernel``, frame mode) and the history half of the deterministic resolve
-    (``resolve_kernel``) in one pass over the pixels, which both read the G-buffer at: every pixel is resolved
-    as if it were not traced this frame (the background at a miss, else the validated bilinear history or
-    empty). With deterministic shading a traced pixel's resolve is its fresh value, whatever its history, so
-    the shading of the traced pixels then overwrites their entries (``shade_list_history_kernel``) and the
-    result equals the sampling pass, tile pass, shading and resolve run apart; samples the tile pass adds or the
-    refresh thinning drops need nothing more. Writes the sampling outputs and the history slot of this frame
-    (``out_*`` as the resolve writes them). ``no_map`` and ``no_color``: placeholders of the maps-only outputs
-    and of the fresh values (neither read nor written here); the deterministic resolve reads no stochastic
-    history, so ``normal_prev`` stands in for it."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, velocity, position, reproj_uv, prev_dist,
-                       depth_prev, valid_prev, 0, face, face_lab, lab_by_face, no_map, no_map, out_sample,
-                       out_cache_hit, out_prev_index)
-    _resolve_pixel(x, y, False, tp, out_sample, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, no_color,
-                   no_color, depth_prev, normal_prev, meta_prev, color_prev, normal_prev, out_color, out_filled,
-                   out_depth, out_normal, out_meta, out_normal, no_color, no_color)
 
 
 @wp.kernel(enable_backward=False)
@@ -497,8 +438,7 @@ def shade_resolve_rows_kernel(
         if sample_map[y, x] != wp.uint8(0):
             shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, fresh,
                         fresh_stoch)
-        _resolve_pixel(x, y, sample_map[y, x] != wp.uint8(0), tp, sample_map, hit, normal, depth, reproj_uv, prev_dist,
-                       velocity, moved, fresh,
+        _resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, velocity, moved, fresh,
                        fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
                        out_filled, out_depth, out_normal, out_meta, out_stoch, fresh, fresh)
 

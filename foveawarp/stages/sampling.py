@@ -16,7 +16,6 @@ from ..camera import Camera, _check_gaze
 from ..config import Config, check_bool, check_int_range, check_range, check_vec, show
 from ..kernels.camera import CameraParams
 from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
-from ..kernels.temporal import sampling_history_kernel
 from ..kernels.sampling import (
     FrameParams,
     SamplingParams,
@@ -332,7 +331,7 @@ class SamplingStage:
                                    do_cache, rot, phase, xi, float(fc.fovea_deg)],
                            outputs=[self.frame_params], device=self.device)
 
-    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, face_lab=None, history=None) -> None:
+    def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, face_lab=None) -> None:
         """The per-pixel work of the frame set by ``set_frame``: Lab prepass, fused pass, tile pass, counters.
 
         Every argument is fixed (buffers and constants; the per-frame values are read from
@@ -345,23 +344,12 @@ class SamplingStage:
                 wp.arrays on this device, for the cache test; None (default): this stage's own ``depth_prev``
                 and ``valid_prev`` (kept by ``end_frame``). ``FrameLoop`` passes the temporal history's
                 ``depth`` and ``filled``, which the resolve already holds, instead of copying them.
-            history: None, or ``TemporalStage.history_args(...)``: the same pass also resolves every pixel from
-                the temporal history (``kernels.temporal.sampling_history_kernel``; deterministic shading, the
-                per-pixel kernels: CUDA, or the CPU with ``parallel.ROW_KERNELS`` off).
         """
         w, h = self.width, self.height
         g, dev = self._check_gbuffer(gbuffer), self.device
         dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         rows = parallel.use_row_kernels(dev)
-        if history is not None:
-            if rows:
-                raise ValueError("history needs the per-pixel sampling kernel, but the CPU's rows kernels are on "
-                                 "(parallel.ROW_KERNELS): resolve with TemporalStage.run there")
-            if not isinstance(history, tuple) or len(history) != 10:
-                got = (f"a {type(history).__name__} of {len(history)}" if isinstance(history, (tuple, list))
-                       else type(history).__name__)
-                raise ValueError(f"history must be TemporalStage.history_args(...) (a tuple of 10), got {got}")
         if not rows:  # the rows path's count sum writes the counters
             self.num_samples.zero_()
             self.num_cache_hits.zero_()
@@ -387,24 +375,10 @@ class SamplingStage:
             self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
                              device=dev)
             return
-        if history is not None:
-            tp, moved, normal_prev, meta_prev, color_prev, *hist_out = history
-            del args[13]  # maps_only: the fused kernel runs the frame mode only
-            parallel.launch(sampling_history_kernel, dim=(h, w),
-                            inputs=[*args, self._dummy_map, tp, moved, normal_prev, meta_prev, color_prev,
-                                    self._no_color()],
-                            outputs=[*outs[2:], *hist_out], device=dev)
-        else:
-            outs.append(self.tile_counts)
-            parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
+        outs.append(self.tile_counts)
+        parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)
-
-    def _no_color(self) -> wp.array:
-        """A (1, 1) vec3 placeholder (the fused history pass's unread fresh values)."""
-        if getattr(self, "_no_color_array", None) is None:
-            self._no_color_array = wp.zeros((1, 1), dtype=wp.vec3, device=self.device)
-        return self._no_color_array
 
     def _lab_array(self) -> wp.array:
         if tuple(self.lab.shape) != (self.height, self.width):

@@ -14,7 +14,6 @@ from ..kernels.shade import (
     set_shade_params_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
-    shade_list_history_kernel,
     shade_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
@@ -38,9 +37,6 @@ class ShadeStage:
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
         self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
         self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
-        # ``list`` without history outputs: placeholders of its history arguments (not written)
-        self._no_history = (wp.zeros(1, dtype=wp.vec3, device=device), wp.zeros((1, 1), dtype=wp.uint8, device=device),
-                            wp.zeros(1, dtype=wp.vec3, device=device), wp.zeros(1, dtype=wp.int32, device=device))
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -117,15 +113,8 @@ class ShadeStage:
                         inputs=[self.params_dev, coords, counts, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device)
 
-    def list(self, gbuffer, work, count, out, out_stoch, history=None) -> None:
-        """The flat pixel indices ``work[0:count[0]]`` (count read on the device). ``history``: also write each
-        traced surface pixel's entry of a temporal history slot: ``TemporalStage.traced_outputs()``, (age-1 meta,
-        colour, filled, normal, meta) (deterministic shading; ``shade_list_history_kernel``)."""
-        if history is None:
-            kernel, meta, hist = shade_list_kernel, 0, self._no_history
-        else:
-            kernel, meta, hist = shade_list_history_kernel, history[0], history[1:]
-        parallel.launch(kernel, dim=work.shape[0],
-                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer), meta],
-                        outputs=[out, out_stoch, *hist],
+    def list(self, gbuffer, work, count, out, out_stoch) -> None:
+        """The flat pixel indices ``work[0:count[0]]`` (count read on the device)."""
+        parallel.launch(shade_list_kernel, dim=work.shape[0],
+                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device, count=count)

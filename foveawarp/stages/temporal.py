@@ -31,8 +31,6 @@ __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 STOCHASTIC_MIN_AGE = 4
 # the variance clipping box of stochastic shading is over the 5 x 5 neighbourhood
 CLIP_BOX_RADIUS = 2
-# the history state of a pixel traced with deterministic shading: age 1, not stale (kernels.temporal.pack_meta)
-TRACED_META = 1
 
 
 class TemporalStage:
@@ -237,26 +235,6 @@ class TemporalStage:
                 device=self.device,
             )
         self.swap()
-
-    def history_args(self, gbuffer, *, use_history: bool = True, background=(0.0, 0.0, 0.0)) -> tuple:
-        """The temporal arguments of ``kernels.temporal.sampling_history_kernel`` (``SamplingStage.launch(...,
-        history=...)``): (TemporalParams, moved, previous normal, meta and colour; this frame's colour, filled,
-        depth, normal, meta). That pass resolves every pixel from history as if it were not traced, and
-        ``ShadeStage.list(..., history=traced_outputs())`` then writes the traced pixels: together the
-        deterministic resolve of ``run`` (same values), without its pass over the image. Deterministic shading
-        only (it forgets a stochastic history first, as ``run`` does). The frame then calls ``swap`` instead of
-        ``run``."""
-        self._check_kind(False)
-        prev, cur = self._cur, 1 - self._cur
-        tp = self.params(use_history=use_history, stochastic=False, background=background)
-        return (tp, gbuffer.moved, self._normal[prev], self._meta[prev], self._color_flat[prev], self._color_flat[cur],
-                self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur])
-
-    def traced_outputs(self) -> tuple:
-        """(meta of a traced pixel, colour, filled, normal, meta of this frame's history slot): what the shading
-        writes at each traced surface pixel when ``history_args`` resolved the rest (``ShadeStage.list``)."""
-        cur = 1 - self._cur
-        return (int(TRACED_META), self._color_flat[cur], self._filled[cur], self._normal[cur], self._meta[cur])
 
     def _boxes(self):
         """The (H, W) vec3 clip-box buffers of the list-gathered boxes (allocated on first use)."""
