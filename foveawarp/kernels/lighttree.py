@@ -55,7 +55,7 @@ import warp as wp
 
 from .gbuffer import shading_normal
 from .rng import onb_from
-from .shade import LightParams, spot_factor
+from .shade import LightParams, list_pixel, spot_factor
 
 
 @wp.struct
@@ -761,9 +761,7 @@ def indirect_list_kernel(
     i += row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
-    idx = work[i]
-    y = idx // width
-    x = idx - y * width
+    x, y = list_pixel(work[i], width)
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])

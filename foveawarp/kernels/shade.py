@@ -239,6 +239,13 @@ shade_full_kernel = _make_shade_full(False)
 shade_full_rows_kernel = _make_shade_full(True)
 
 
+@wp.func
+def list_pixel(idx: int, width: int):
+    """(x, y) of the flat pixel index ``idx`` = y * width + x of a work list (the reorder's lists)."""
+    y = idx // width
+    return idx - y * width, y
+
+
 @wp.kernel(enable_backward=False)
 def shade_list_kernel(
     spa: wp.array(dtype=ShadeParams),
@@ -262,9 +269,7 @@ def shade_list_kernel(
     if i >= count[0]:
         return
     sp = spa[0]
-    idx = work[i]
-    y = idx // sp.width
-    x = idx - y * sp.width
+    x, y = list_pixel(work[i], sp.width)
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 

@@ -18,7 +18,7 @@ from .camera import CameraParams
 from .gbuffer import trace_primary
 from .saliency import sobel_lab_by_face, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
-from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
+from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
 
 @wp.struct
@@ -179,9 +179,7 @@ def trace_shade_list_kernel(
         return
     pp = ppa[0]
     sp = spa[0]
-    idx = work[i]
-    y = idx // sp.width
-    x = idx - y * sp.width
+    x, y = list_pixel(work[i], sp.width)
     trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, pp.cam, pp.cam_prev, pp.max_t,
                   float(x) + 0.5, float(y) + 0.5, y, x, g_pos, g_normal, g_depth, g_albedo, g_face, g_hit,
                   g_velocity, g_reproj, g_prev_dist, g_moved)

@@ -10,7 +10,7 @@ import warp as wp
 
 from .gbuffer import NO_REPROJ
 from .sampling import FrameParams
-from .shade import AreaLightParams, LightParams, ShadeParams, shade_pixel
+from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
 # bilinear fractions closer than this (pixels) to a pixel centre snap to it
 SNAP_PX = wp.constant(1.0 / 128.0)
@@ -379,9 +379,7 @@ def stoch_box_list_kernel(
     i = wp.tid()
     if i >= count[0]:
         return
-    idx = work[i]
-    y = idx // width
-    x = idx - y * width
+    x, y = list_pixel(work[i], width)
     if hit[y, x] == wp.uint8(0):
         return  # a miss is the background: the resolve reads no box there
     lo, hi, cnt = neighbourhood_box(x, y, tp.box_radius, sample_map, hit, fresh_stoch, tp.clamp_gamma)
