@@ -7,7 +7,9 @@
   hit agreement.
 
 Frames follow the scene's camera path (1/30 s per frame) with the gaze at the screen centre, after warm-up
-frames; the policy is fixed ("foveated" / ``render_reference``), ``timing=False``. Writes
+frames; the policy is fixed ("foveated" / ``render_reference``), ``timing=False``, except in the per-scene rows'
+"default policy" column (``FrameLoop``'s default with ``timing=False``: "auto", timed after its measurement
+frames, with the path it chose). Writes
 ``results/cpu-<device>.json`` and ``.md`` and a scaling plot ``cpu-scaling-<device>.png`` (matplotlib).
 
     python benchmarks/cpu.py --device cpu                 # 640x360, cornell + bunny, 1..cores threads
@@ -228,16 +230,25 @@ def main(argv=None):
             fl = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
             fl_ref = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",
                                   cpu_threads=tmax)
-            m = interleaved({"fov": (fl, False), "ref": (fl_ref, True)}, frames, warmup, rounds)
+            # the default policy ("auto" with timing=False): its measurement (both paths, a few frames each)
+            # runs first, so the timed frames render the path it chose
+            fl_auto = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, cpu_threads=tmax)
+            frame_ms(fl_auto, 2 * (fl_auto.POLICY_WARM + fl_auto.POLICY_TIMED) + 1, False)
+            m = interleaved({"fov": (fl, False), "ref": (fl_ref, True), "auto": (fl_auto, False)}, frames, warmup,
+                            rounds)
             frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
-            fov, ref = m["fov"]["median_ms"], m["ref"]["median_ms"]
+            fov, ref, auto = m["fov"]["median_ms"], m["ref"]["median_ms"], m["auto"]["median_ms"]
+            pol = fl_auto.render(fl_auto.scene.camera_at(0.0)).stats["policy"]  # the path it renders, estimates
             row = {"scene": sc, "shading": label, "threads": tmax, "foveated_ms": fov, "reference_ms": ref,
                    "reference_over_foveated": ref / fov, "foveated_best_ms": m["fov"]["best_ms"],
                    "reference_best_ms": m["ref"]["best_ms"],
                    "reference_over_foveated_best": m["ref"]["best_ms"] / m["fov"]["best_ms"],
-                   "sampled_fraction": frac}
+                   "sampled_fraction": frac, "auto_ms": auto, "auto_path": pol["path"],
+                   "reference_over_auto": ref / auto,
+                   "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol}}
             versus.append(row)
-            print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x)", flush=True)
+            print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x), "
+                  f"default policy {auto:.1f} ms ({pol['path']}, {ref / auto:.2f}x)", flush=True)
     payload["foveated_vs_reference"] = versus
 
     rays = []
@@ -286,7 +297,7 @@ def main(argv=None):
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
                             "foveated_best_ms", "reference_best_ms", "reference_over_foveated_best",
-                            "sampled_fraction"])
+                            "sampled_fraction", "auto_ms", "auto_path", "reference_over_auto"])
     if rays:
         md += "\n### Primary rays (scene camera, one ray per pixel)\n\n"
         cols = ["scene", "rays", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s", "embree_1t_mrays_s",

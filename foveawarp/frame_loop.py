@@ -59,9 +59,9 @@ class FrameLoop:
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
             both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
-            on CUDA with ``timing=False``, else "foveated" (per-stage timing distorts the comparison; on the CPU
-            device the foveated frame is not yet cheaper than full resolution with default shading, docs/cpu.md,
-            so "auto" would render full frames there: the choice is left to the user).
+            with ``timing=False`` (on CUDA and on the CPU device: where the foveated frame costs more than full
+            resolution, as on the CPU with default shading, docs/cpu.md, the user gets the exact full frame at
+            the lower cost), "foveated" with ``timing=True`` (per-stage synchronization distorts the comparison).
         cpu_threads: threads of the band-parallel CPU launches (``foveawarp.parallel``), in [1, 1024]; None
             (default): the environment variable ``FOVEAWARP_CPU_THREADS``, else the usable cores. 1 = one
             thread per launch. The output does not depend on it (bit-identical). Ignored on CUDA.
@@ -122,7 +122,7 @@ class FrameLoop:
         self._graph_error: Optional[str] = None
         self._static_frames = 0
         if policy is None:
-            policy = "auto" if (dev.is_cuda and not self.timing) else "foveated"
+            policy = "foveated" if self.timing else "auto"
         self.policy = check_choice("policy", policy, ("auto", "foveated", "full"))
         self._pol_frame = 0  # frames since the last policy measurement began
         self._pol_ms = {"foveated": [], "full": []}

@@ -284,8 +284,11 @@ def test_policy_full_equals_reference_and_validation():
     np.testing.assert_allclose(f.numpy(), ref, atol=1e-6)
     with pytest.raises(ValueError, match="policy"):
         fw.FrameLoop(scene, W, H, device="cpu", policy="fastest")
-    # the default on the CPU (and with per-stage timing) is the foveated frame
+    # the default with per-stage timing (timing=True, the default) is the foveated frame; without it the cost
+    # policy, on the CPU device as on CUDA (never slower than full resolution by default)
     assert fw.FrameLoop(scene, 8, 8, device="cpu").policy == "foveated"
+    assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=False).policy == "auto"
+    assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=False, policy="foveated").policy == "foveated"
 
 
 def test_policy_auto_measures_both_paths_and_renders_the_cheaper():

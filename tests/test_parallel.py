@@ -79,7 +79,8 @@ def test_launch_without_row0_is_refused():
 
 def test_work_list_count(every_band):
     """A work list launched with ``count``: only the live entries are split, the rest stay untouched."""
-    loops = {n: fw.FrameLoop("cornell", 24, 16, device=DEV, cpu_threads=n, timing=False) for n in (1, 3, 40)}
+    loops = {n: fw.FrameLoop("cornell", 24, 16, device=DEV, cpu_threads=n, timing=False, policy="foveated")
+             for n in (1, 3, 40)}
     outs = {}
     for n, fl in loops.items():
         cam = fl.scene.camera_at(0.0)
@@ -102,7 +103,7 @@ def test_work_list_count(every_band):
 
 def _frames(n, config, size=(40, 24), frames=4, scene="cornell"):
     w, h = size
-    fl = fw.FrameLoop(scene, w, h, config=config, device=DEV, cpu_threads=n, timing=False)
+    fl = fw.FrameLoop(scene, w, h, config=config, device=DEV, cpu_threads=n, timing=False, policy="foveated")
     out = []
     for i in range(frames):
         cam = fl.scene.camera_at(0.1 * i)
@@ -133,7 +134,7 @@ def test_frames_bit_identical(every_band, config):
 def test_stage_outputs_bit_identical(every_band):
     """Every G-buffer field, the sampling stage's outputs and the temporal history after a few frames."""
     def state(n):
-        fl = fw.FrameLoop("bunny", 33, 19, device=DEV, cpu_threads=n, timing=False)
+        fl = fw.FrameLoop("bunny", 33, 19, device=DEV, cpu_threads=n, timing=False, policy="foveated")
         for i in range(3):
             fl.render(fl.scene.camera_at(0.2 * i), gaze_px=(5.0 + 9.0 * i, 9.0))
         g = fl.gbuffer
