@@ -1,0 +1,76 @@
+"""What a full-resolution frame costs through ``FrameLoop.render`` against ``render_reference`` (issues 14, 16).
+
+Where the cost policy ("auto") picks full resolution, ``render`` draws the same image as ``render_reference``
+but through the foveated frame's head (policy, history and stats bookkeeping in Python, the body's graph on CUDA).
+This times the two frame by frame, taking turns along the scene's camera path (1/30 s per frame), after
+warm-up: two loops of the same scene, size and shading, one rendering with ``policy="full"``, the other
+calling ``render_reference``; each frame synchronized; medians, and the median of the per-frame differences.
+
+    python benchmarks/policy_cost.py --device cpu --threads 2 --scenes cornell,bunny
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import warp as wp  # noqa: E402
+
+from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+
+import foveawarp as fw  # noqa: E402
+
+
+def main(argv=None) -> None:
+    p = base_parser(__doc__.split("\n")[0])
+    p.add_argument("--scenes", default="cornell,bunny")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=360)
+    p.add_argument("--frames", type=int, default=60, help="timed frames per loop")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: the usable cores)")
+    p.add_argument("--shadings", default="default,ao8")
+    args = p.parse_args(argv)
+    dev = wp.get_device(args.device)
+    w, h = (96, 54) if args.quick else (args.width, args.height)
+    frames = 6 if args.quick else args.frames
+    rows = []
+    for sc in [s for s in args.scenes.split(",") if s]:
+        for shading in args.shadings.split(","):
+            cfg = fw.Config() if shading == "default" else fw.Config().with_(shading={"ao_samples": 8})
+            full = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=args.threads)
+            ref = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=args.threads)
+            t_full, t_ref = [], []
+            for i in range(args.warmup + frames):
+                t = i / 30.0
+                cam = full.scene.camera_at(t)
+                for loop, out, is_ref in ((full, t_full, False), (ref, t_ref, True)):
+                    wp.synchronize_device(dev)
+                    t0 = time.perf_counter()
+                    if is_ref:
+                        loop.render_reference(cam, time=t)
+                    else:
+                        loop.render(cam, time=t)
+                    wp.synchronize_device(dev)
+                    if i >= args.warmup:
+                        out.append((time.perf_counter() - t0) * 1e3)
+            diff = [a - b for a, b in zip(t_full, t_ref)]
+            row = {"scene": sc, "width": w, "height": h, "shading": shading, "frames": frames,
+                   "threads": full.cpu_threads if dev.is_cpu else None,
+                   "reference_ms": statistics.median(t_ref), "render_full_ms": statistics.median(t_full),
+                   "median_diff_ms": statistics.median(diff)}
+            row["ratio"] = row["render_full_ms"] / row["reference_ms"]
+            rows.append(row)
+            print(row, flush=True)
+    cols = ["scene", "width", "height", "shading", "threads", "reference_ms", "render_full_ms", "ratio",
+            "median_diff_ms"]
+    md = f"## render(policy='full') against render_reference, {dev.alias}\n\n" + md_table(rows, cols)
+    print(md)
+    write_results("policy-cost", dev, {"rows": rows}, md, args.out)
+
+
+if __name__ == "__main__":
+    main()
