@@ -79,6 +79,11 @@ def test_cpu_benchmark_quick(tmp_path):
     assert all(r["foveated_ms"] > 0 and r["reference_ms"] > 0 for r in res["scaling"])
     assert [(r["scene"], r["shading"]) for r in res["foveated_vs_reference"]] == [("cornell", "default"),
                                                                                ("cornell", "ao_samples=8")]
+    # the default-policy loop ("auto"): timed after its measurement, with the path it chose and its estimates
+    for r in res["foveated_vs_reference"]:
+        assert r["auto_path"] in ("foveated", "full") and r["auto_ms"] > 0
+        assert set(r["auto_estimates_ms"]) == {"foveated_ms", "full_ms"}
+        assert r["reference_over_auto"] == r["reference_ms"] / r["auto_ms"]
     (rays,) = res["primary_rays"]
     assert rays["rays"] == 96 * 54 and 0 < rays["hit_fraction"] < 1
     if "embree_1t_mrays_s" in rays:
@@ -86,6 +91,20 @@ def test_cpu_benchmark_quick(tmp_path):
     else:
         assert "not installed" in rays["embree"]
     assert [r["oversplit"] for r in res["oversplit_sweep"]] == [2]
+
+
+def test_policy_cost_quick(tmp_path):
+    """benchmarks/policy_cost.py: render(policy="full") against render_reference, frame by frame (no speed
+    assertion); the two loops draw the same image, so both are timed on the same work."""
+    _run([str(REPO / "benchmarks" / "policy_cost.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
+          "--shadings", "default"], tmp_path)
+    res = json.loads((tmp_path / "policy-cost-cpu.json").read_text())
+    assert res["benchmark"] == "policy-cost" and res["commit"]
+    (row,) = res["rows"]
+    assert (row["scene"], row["shading"], row["width"], row["height"], row["frames"]) == ("cornell", "default", 96,
+                                                                                          54, 6)
+    assert row["reference_ms"] > 0 and row["render_full_ms"] > 0
+    assert row["ratio"] == row["render_full_ms"] / row["reference_ms"]
 
 
 def test_cpu_dispatch_quick(tmp_path):
