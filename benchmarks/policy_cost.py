@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -21,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import warp as wp  # noqa: E402
 
 from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks.cpu import frame_ms  # noqa: E402
 
 import foveawarp as fw  # noqa: E402
 
@@ -44,19 +44,11 @@ def main(argv=None) -> None:
             full = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=args.threads)
             ref = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=args.threads)
             t_full, t_ref = [], []
-            for i in range(args.warmup + frames):
-                t = i / 30.0
-                cam = full.scene.camera_at(t)
-                for loop, out, is_ref in ((full, t_full, False), (ref, t_ref, True)):
-                    wp.synchronize_device(dev)
-                    t0 = time.perf_counter()
-                    if is_ref:
-                        loop.render_reference(cam, time=t)
-                    else:
-                        loop.render(cam, time=t)
-                    wp.synchronize_device(dev)
-                    if i >= args.warmup:
-                        out.append((time.perf_counter() - t0) * 1e3)
+            for i in range(args.warmup + frames):  # the two loops take turns frame by frame
+                a, b = frame_ms(full, 1, False, start=i), frame_ms(ref, 1, True, start=i)
+                if i >= args.warmup:
+                    t_full += a
+                    t_ref += b
             diff = [a - b for a, b in zip(t_full, t_ref)]
             row = {"scene": sc, "width": w, "height": h, "shading": shading, "frames": frames,
                    "threads": full.cpu_threads if dev.is_cpu else None,
