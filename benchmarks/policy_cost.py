@@ -34,6 +34,11 @@ def main(argv=None) -> None:
     p.add_argument("--threads", type=int, default=None, help="CPU threads (default: the usable cores)")
     p.add_argument("--shadings", default="default,ao8")
     args = p.parse_args(argv)
+    if args.frames < 1:
+        p.error(f"--frames must be an integer >= 1, got {args.frames}")
+    bad = [s for s in args.shadings.split(",") if s not in ("default", "ao8")]
+    if bad:
+        p.error(f"--shadings must be a comma list of 'default' and 'ao8', got {args.shadings!r}")
     dev = wp.get_device(args.device)
     w, h = (96, 54) if args.quick else (args.width, args.height)
     frames = 6 if args.quick else args.frames
