@@ -146,7 +146,7 @@ def timing_4k(fw, dev, repeats, quick, scene_name=None, settings=None, size=None
         row["reference_ms"] = time_ms(lambda: ref.render_reference(scene.camera), dev, max(3, repeats // 2), 1)[
             "median_ms"]
         row["speedup"] = row["reference_ms"] / row["foveated_ms"]
-        timed = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=True)
+        timed = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=True, policy="foveated")
         for i in range(3):
             st = timed.render(scene.camera_at(i / 240.0), gaze_px=g).stats
         row["stages_ms"] = {k: v for k, v in st.items() if k.startswith("ms_")}

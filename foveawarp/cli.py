@@ -111,7 +111,8 @@ def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: P
 
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = fw.load_scene(scene_name)
-    loop = fw.FrameLoop(scene, width, height, device=device)
+    # the demo shows foveation: the default "auto" policy would render full frames where they are cheaper
+    loop = fw.FrameLoop(scene, width, height, device=device, policy="foveated")
     ref_loop = fw.FrameLoop(scene, width, height, device=device) if panel else None
     all_stats, pngs = [], []
     fps = 30.0

@@ -58,10 +58,13 @@ class FrameLoop:
         policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
-            both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto"
-            with ``timing=False`` (on CUDA and on the CPU device: where the foveated frame costs more than full
-            resolution, as on the CPU with default shading, docs/cpu.md, the user gets the exact full frame at
-            the lower cost), "foveated" with ``timing=True`` (per-stage synchronization distorts the comparison).
+            both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto",
+            on every device and with or without ``timing``: where the foveated frame costs more than full
+            resolution (cheap shading, small scenes, the CPU with default shading, docs/cpu.md), the user gets
+            the exact full frame at the lower cost. With ``timing=True`` the policy compares the two paths as
+            this loop runs them (per-stage synchronization, no CUDA graphs), which costs the foveated path's
+            many launches more than the full path's few, so it picks full resolution more often than a loop
+            without timing would. Stage-by-stage study of the foveated frame passes ``policy="foveated"``.
         cpu_threads: threads of the band-parallel CPU launches (``foveawarp.parallel``), in [1, 1024]; None
             (default): the environment variable ``FOVEAWARP_CPU_THREADS``, else the usable cores. 1 = one
             thread per launch. The output does not depend on it (bit-identical). Ignored on CUDA.
@@ -122,7 +125,7 @@ class FrameLoop:
         self._graph_error: Optional[str] = None
         self._static_frames = 0
         if policy is None:
-            policy = "foveated" if self.timing else "auto"
+            policy = "auto"
         self.policy = check_choice("policy", policy, ("auto", "foveated", "full"))
         self._pol_frame = 0  # frames since the last policy measurement began
         self._pol_ms = {"foveated": [], "full": []}

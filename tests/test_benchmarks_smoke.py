@@ -115,3 +115,25 @@ def test_cpu_dispatch_quick(tmp_path):
     assert [r["threads"] for r in res["rows"]] == [1, 2]
     assert all(0 < r["launch_us_median"] <= r["launch_us_p90"] for r in res["rows"])
     assert res["rows"][1]["bands"] > 1
+
+
+def test_default_loop_quick(tmp_path):
+    """benchmarks/default_loop.py: the API example's loop (every FrameLoop default) against render_reference and
+    the forced foveated frame (no speed assertion). The default loop is the cost policy with timing on; its
+    timed frames follow the policy's 24 measurement frames, and a full-resolution frame equals the reference."""
+    _run([str(REPO / "benchmarks" / "default_loop.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
+          "--shadings", "default"], tmp_path)
+    res = json.loads((tmp_path / "default-loop-cpu.json").read_text())
+    assert res["benchmark"] == "default-loop" and res["commit"]
+    (row,) = res["rows"]
+    assert (row["scene"], row["shading"], row["width"], row["height"], row["frames"]) == ("cornell", "default", 64,
+                                                                                          36, 3)
+    assert row["timing"] is True and row["policy"] == "auto"
+    assert set(row["default_paths"]) <= {"full", "foveated"} and sum(row["default_paths"].values()) == 3
+    assert row["policy_foveated_ms"] > 0 and row["policy_full_ms"] > 0
+    assert all(len(v) == 3 and min(v) > 0 for v in row["frame_ms"].values())
+    assert row["default_over_reference"] == row["default_ms"] / row["reference_ms"]
+    paths, ps = row["default_path_series"], row["default_psnr_series"]
+    assert len(paths) == len(ps) == len(row["foveated_psnr_series"]) == 3
+    for path, db in zip(paths, ps):  # a full-resolution frame is the reference's image, exactly
+        assert db == float("inf") if path == "full" else db > 20.0

@@ -11,9 +11,11 @@ STRATEGIES = ["none", "rows", "rows+balance", "scan", "tile"]
 
 
 def _loop(scene="cornell", device="cpu", **stage_overrides):
+    """A loop that always renders the foveated frame (these tests study its stages over many frames; the default
+    "auto" policy would trace every pixel in its measurement frames and wherever that is cheaper)."""
     cfg = fw.Config().with_(**stage_overrides) if stage_overrides else fw.Config()
     return fw.FrameLoop(scene if not isinstance(scene, str) else fw.load_scene(scene), W, H, config=cfg,
-                        device=device)
+                        device=device, policy="foveated")
 
 
 def test_all_strategies_give_identical_images(device):
@@ -284,9 +286,10 @@ def test_policy_full_equals_reference_and_validation():
     np.testing.assert_allclose(f.numpy(), ref, atol=1e-6)
     with pytest.raises(ValueError, match="policy"):
         fw.FrameLoop(scene, W, H, device="cpu", policy="fastest")
-    # the default with per-stage timing (timing=True, the default) is the foveated frame; without it the cost
-    # policy, on the CPU device as on CUDA (never slower than full resolution by default)
-    assert fw.FrameLoop(scene, 8, 8, device="cpu").policy == "foveated"
+    # the default is the cost policy, with or without per-stage timing, on the CPU device as on CUDA (never
+    # slower than full resolution by default); an explicit policy wins
+    assert fw.FrameLoop(scene, 8, 8, device="cpu").policy == "auto"
+    assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=True).policy == "auto"
     assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=False).policy == "auto"
     assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=False, policy="foveated").policy == "foveated"
 

@@ -227,7 +227,8 @@ def test_still_stochastic_view_converges_with_progressive_sampling():
     w, h = 128, 72
     scene = fw.load_scene("cornell")
     cfg = fw.Config().with_(shading={"ao_samples": 4, "ambient": (0.3, 0.3, 0.3)})
-    loop = fw.FrameLoop(scene, w, h, config=cfg, device="cpu")
+    # the foveated frame every time (the default "auto" policy traces every pixel in its measurement frames)
+    loop = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", policy="foveated")
     conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": 256}), device="cpu")
     ref = conv.render_reference(scene.camera).numpy()
     rates, ps, boosted = [], [], []

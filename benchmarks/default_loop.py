@@ -1,0 +1,147 @@
+"""What the API example's loop gives a user: ``FrameLoop(scene, w, h, config=cfg, device=dev)`` with every other
+constructor argument left at its default (``timing=True``, ``policy`` None = "auto"), against ``render_reference``
+of a loop built the same way, and against the foveated frame forced on (``policy="foveated"``: what the default
+was with ``timing=True`` before session 14).
+
+Per scene x size x shading, the three loops take turns frame by frame along the scene's camera path (1/30 s a
+frame) with a moving gaze (``benchmarks/frame.py``'s Lissajous path), each frame synchronized. The default
+loop's first 24 frames are its policy's measurement (12 foveated, 12 full resolution); then ``--warmup`` frames,
+then ``--frames`` timed frames, whose medians are reported with the path the default loop took and the
+policy's estimates. Quality of the same timed frames against the reference frame of the same camera, time and
+gaze: PSNR, foveal PSNR (eccentricity <= 5 deg) and (on CUDA) SSIM, mean and min (identical frames count as 100 dB
+in the mean).
+
+    python benchmarks/default_loop.py --device cuda:0 --sizes 1920x1080,3840x2160
+    python benchmarks/default_loop.py --device cpu --sizes 640x360 --scenes cornell,bunny
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import warp as wp  # noqa: E402
+
+from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks.frame import ALL_SCENES, _fovea_key, _metric_fn, _summ, gaze_path  # noqa: E402
+
+import foveawarp as fw  # noqa: E402
+
+SHADINGS = {"default": {}, "ao8": {"shading": {"ao_samples": 8}}}
+
+
+def _timed(fn, dev) -> tuple:
+    wp.synchronize_device(dev)
+    t0 = time.perf_counter()
+    out = fn()
+    wp.synchronize_device(dev)
+    return (time.perf_counter() - t0) * 1e3, out
+
+
+def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict:
+    cfg = fw.Config().with_(**SHADINGS[shading]) if SHADINGS[shading] else fw.Config()
+    kw = {} if threads is None else {"cpu_threads": threads}
+    dflt = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)  # the defaults under test
+    fov = fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="foveated", **kw)
+    ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)
+    n_pol = 2 * (dflt.POLICY_WARM + dflt.POLICY_TIMED) if dflt.policy == "auto" else 0
+    total = n_pol + warmup + frames
+    t = {"reference": [], "default": [], "foveated": []}
+    q = {"default": [], "foveated": []}
+    paths = []
+    for i in range(total):
+        ts = i / 30.0
+        cam = scene.camera_at(ts)
+        g = gaze_path(i, total, w, h)
+        # the order of the three rotates, so that no loop always runs right after another's frame
+        order = [("reference", lambda: ref.render_reference(cam, time=ts, gaze_px=g)),
+                 ("default", lambda: dflt.render(cam, gaze_px=g, time=ts)),
+                 ("foveated", lambda: fov.render(cam, gaze_px=g, time=ts))]
+        order = order[i % 3:] + order[:i % 3]
+        got = {}
+        for name, fn in order:
+            ms, frame = _timed(fn, dev)
+            got[name] = frame
+            if i >= n_pol + warmup:
+                t[name].append(ms)
+        if i >= n_pol + warmup:
+            paths.append(got["default"].stats["policy"]["path"])
+            for name in q:
+                q[name].append(metric(got[name].image, got["reference"].image, g, cam.fov_y_deg))
+    pol = got["default"].stats["policy"]
+    row = {"scene": scene.name, "width": w, "height": h, "shading": shading, "frames": frames,
+           "threads": dflt.cpu_threads if dev.is_cpu else None, "timing": dflt.timing, "policy": dflt.policy,
+           "default_paths": {p: paths.count(p) for p in sorted(set(paths))}, "default_path_series": paths,
+           "policy_foveated_ms": pol.get("foveated_ms"), "policy_full_ms": pol.get("full_ms"),
+           "reference_ms": statistics.median(t["reference"]), "default_ms": statistics.median(t["default"]),
+           "foveated_ms": statistics.median(t["foveated"]), "frame_ms": t}
+    row["default_over_reference"] = row["default_ms"] / row["reference_ms"]
+    row["foveated_over_reference"] = row["foveated_ms"] / row["reference_ms"]
+    for name, ms in q.items():
+        ps = [m["psnr"] for m in ms]
+        fp = [_fovea_key(m) for m in ms]
+        row[f"{name}_psnr"] = _summ(ps)
+        row[f"{name}_ssim"] = _summ([m["ssim"] for m in ms])
+        row[f"{name}_fovea_psnr"] = _summ(fp)
+        row[f"{name}_psnr_series"] = ps
+    return row
+
+
+def main(argv=None) -> None:
+    p = base_parser(__doc__.split("\n")[0])
+    p.add_argument("--scenes", default=ALL_SCENES)
+    p.add_argument("--sizes", default="1920x1080,3840x2160")
+    p.add_argument("--shadings", default="default,ao8")
+    p.add_argument("--frames", type=int, default=30, help="timed frames per loop (after the policy's 24)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: the usable cores)")
+    p.add_argument("--name", default="default-loop")
+    args = p.parse_args(argv)
+    if args.frames < 1:
+        p.error(f"--frames must be an integer >= 1, got {args.frames}")
+    bad = [s for s in args.shadings.split(",") if s not in SHADINGS]
+    if bad:
+        p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
+    try:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
+        if any(len(s) != 2 for s in sizes):
+            raise ValueError
+    except ValueError:
+        p.error(f"--sizes must be a comma list of WxH, got {args.sizes!r}")
+    dev = wp.get_device(args.device)
+    if args.quick:
+        sizes, frames, warmup = [(64, 36)], 3, 1
+    else:
+        frames, warmup = args.frames, args.warmup
+    metric, metric_kind = _metric_fn(fast=not dev.is_cuda)  # CUDA: PSNR and SSIM on the device
+    rows = []
+    for name in [s for s in args.scenes.split(",") if s]:
+        try:
+            scene = fw.load_scene(name)
+        except (FileNotFoundError, ValueError) as e:  # a shared mesh that is not on this machine
+            print(f"skip {name}: {e}", flush=True)
+            continue
+        for w, h in sizes:
+            for shading in args.shadings.split(","):
+                row = run_case(scene, w, h, shading, dev, frames, warmup, args.threads, metric)
+                rows.append(row)
+                print({k: v for k, v in row.items() if not k.endswith("_series") and k != "frame_ms"}, flush=True)
+    cols = ["scene", "width", "height", "shading", "reference_ms", "default_ms", "default_over_reference",
+            "default_paths", "foveated_ms", "foveated_over_reference", "default_psnr_mean", "default_psnr_min",
+            "foveated_psnr_mean", "foveated_psnr_min"]
+    flat = [{**r, "default_psnr_mean": r["default_psnr"]["mean"], "default_psnr_min": r["default_psnr"]["min"],
+             "foveated_psnr_mean": r["foveated_psnr"]["mean"], "foveated_psnr_min": r["foveated_psnr"]["min"]}
+            for r in rows]
+    md = (f"## The API example's loop (every FrameLoop default: timing=True, policy 'auto'), {dev.alias}\n\n"
+          f"Medians of {frames} synchronized frames after the policy's 24, the three loops taking turns; PSNR in "
+          f"dB against the reference frame of the same camera, time and gaze ({metric_kind}).\n\n"
+          + md_table(flat, cols))
+    print(md)
+    write_results(args.name, dev, {"rows": rows, "metric": metric_kind}, md, args.out)
+
+
+if __name__ == "__main__":
+    main()
