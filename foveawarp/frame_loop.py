@@ -164,9 +164,12 @@ class FrameLoop:
 
     # -- helpers ---------------------------------------------------------------------------------------
     @contextlib.contextmanager
-    def _stage(self, name: str):
-        """Time a stage into ``stats['ms_<name>']`` (synchronized) when timing is on."""
-        if not self.timing:
+    def _stage(self, name: str, active: bool = True):
+        """Time a stage into ``stats['ms_<name>']`` (synchronized) when timing is on and the stage has work this
+        frame (``active``): a stage that launches nothing costs no synchronization and reports no time (the
+        frame's ``skipped`` says why), so a full-resolution frame through ``render`` synchronizes as often as
+        ``render_reference``."""
+        if not (self.timing and active):
             yield
             return
         wp.synchronize_device(self.device)
@@ -278,7 +281,7 @@ class FrameLoop:
         dof = check_bool("dof", dof)
         self._stats = {}
         t0 = _now()
-        with self._stage("scene"):
+        with self._stage("scene", self.scene.is_animated):
             self._advance_scene(time)
         with self._stage("gbuffer"):
             self._gbuffer(camera, self._ref_prev_camera or camera)
@@ -287,12 +290,12 @@ class FrameLoop:
         with self._stage("shade"):
             self.upload_shade_params(camera)
             self.shade.full(self.gbuffer, self.radiance, self.radiance_stoch, self.image if fused else None)
-        with self._stage("indirect"):
+        with self._stage("indirect", self.indirect is not None):
             if self.indirect is not None:
                 self.indirect.update()
                 self.indirect.run_full(self.gbuffer, self.radiance)
         hdr = self.radiance
-        with self._stage("dof"):
+        with self._stage("dof", self.config.dof.enabled and dof):
             if self.config.dof.enabled and dof:
                 cfgd = self.config.dof
                 focus = (cfgd.focus_depth_m if cfgd.focus_depth_m is not None else
@@ -302,7 +305,7 @@ class FrameLoop:
                 self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, focus, self.dof_out,
                              fov_y_deg=camera.fov_y_deg)
                 hdr = self.dof_out
-        with self._stage("tonemap"):
+        with self._stage("tonemap", not fused):
             if not fused:
                 self._tonemap(hdr, self.image)
         wp.synchronize_device(self.device)
@@ -335,7 +338,7 @@ class FrameLoop:
         skipped: dict = {}
         t0 = _now()
         # -- head: per-frame values ---------------------------------------------------------------------
-        with self._stage("scene"):
+        with self._stage("scene", self.scene.is_animated):
             geometry_moved = self._advance_scene(time)
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
@@ -385,7 +388,8 @@ class FrameLoop:
             skipped["foveation.min_probability"] = (f"raised to TemporalConfig.still_min_probability "
                                                     f"({tc.still_min_probability:g}): still view, stochastic "
                                                     f"shading still converging")
-        with self._stage("sampling"):
+        dof_focus = cfg.dof.enabled and cfg.dof.focus_depth_m is None
+        with self._stage("sampling", foveated or dof_focus):
             if foveated:
                 self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
                                         first_frame=not history, eye_prev=prev_cam.eye if history else None,
@@ -396,11 +400,11 @@ class FrameLoop:
                 skipped.update(self.sampling.skipped)
             else:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
-            if cfg.dof.enabled and cfg.dof.focus_depth_m is None:
+            if dof_focus:
                 self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
             self.upload_shade_params(camera)
         rebuilt = False
-        with self._stage("indirect_build"):
+        with self._stage("indirect_build", self.indirect is not None):
             if self.indirect is not None:
                 rebuilt = self.indirect.update()
                 skipped.update(self.indirect.skipped)
@@ -515,7 +519,7 @@ class FrameLoop:
         if sparse:
             self._sparse_body(smap, strategy)
             return
-        with self._stage("sampling"):
+        with self._stage("sampling", foveated):
             if foveated:
                 # the cache test's previous depth and valid mask: the temporal history's, as last resolved
                 self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
@@ -524,18 +528,19 @@ class FrameLoop:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
                                           cfg.temporal.refresh_fraction, stochastic=self._stochastic_shading())
-        with self._stage("reorder"):
-            if strategy in ("scan", "tile", "rows", "rows+balance"):
+        reorders = strategy in ("scan", "tile", "rows", "rows+balance")
+        with self._stage("reorder", reorders):
+            if reorders:
                 self.reorder.run(smap)
         fused = self._tonemap_fused(strategy)
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
-        with self._stage("shade"):
+        with self._stage("shade", not shade_in_resolve):
             if not shade_in_resolve:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
-        with self._stage("indirect"):
+        with self._stage("indirect", self.indirect is not None):
             self._indirect(smap, strategy)
-        with self._stage("temporal"):
+        with self._stage("temporal", foveated):
             if foveated:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
@@ -543,7 +548,7 @@ class FrameLoop:
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
                                   count=self.reorder.count if listed else None)
-        with self._stage("reconstruct"):
+        with self._stage("reconstruct", foveated):
             if foveated:
                 sc = cfg.shading
                 self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon,
@@ -552,12 +557,12 @@ class FrameLoop:
                 hdr = self.recon
             else:
                 hdr = self.radiance
-        with self._stage("dof"):
+        with self._stage("dof", cfg.dof.enabled):
             if cfg.dof.enabled:
                 self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, cfg.dof.focus_depth_m, self.dof_out,
                              fov_y_deg=camera.fov_y_deg)
                 hdr = self.dof_out
-        with self._stage("tonemap"):
+        with self._stage("tonemap", not fused):
             if not fused:
                 self._tonemap(hdr, self.image)
 
@@ -591,14 +596,14 @@ class FrameLoop:
         with self._stage("shade"):
             self.sparse.trace_shade(self.gbuffer, self.shade, self.reorder.work, self.reorder.count, self.radiance,
                                     self.radiance_stoch)
-        with self._stage("indirect"):
+        with self._stage("indirect", self.indirect is not None):
             self._indirect(smap, list_strategy)
         fused = self._tonemap_fused(strategy)
         with self._stage("reconstruct"):
             sc = self.config.shading
             self.reconstruct.run(self.radiance, smap, self.recon, display=self.image if fused else None,
                                  exposure=float(sc.exposure), white_point=float(sc.white_point))
-        with self._stage("tonemap"):
+        with self._stage("tonemap", not fused):
             if not fused:
                 self._tonemap(self.recon, self.image)
 

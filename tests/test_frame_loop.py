@@ -294,6 +294,39 @@ def test_policy_full_equals_reference_and_validation():
     assert fw.FrameLoop(scene, 8, 8, device="cpu", timing=False, policy="foveated").policy == "foveated"
 
 
+def test_timing_reports_only_stages_that_ran(device):
+    """timing=True synchronizes and reports ``ms_<stage>`` only for the stages a frame runs: a full-resolution
+    frame through ``render`` times the same stages as ``render_reference`` (so the policy's full path pays no
+    more synchronizations than the reference), a foveated frame its own, and a skipped stage has no time."""
+    scene = fw.load_scene("cornell")
+    keys = lambda st: sorted(k for k in st if k.startswith("ms_") and k != "ms_frame")  # noqa: E731
+    full = fw.FrameLoop(scene, W, H, device=device, policy="full")
+    ref = fw.FrameLoop(scene, W, H, device=device)
+    fov = fw.FrameLoop(scene, W, H, device=device, policy="foveated")
+    for i in range(2):
+        cam = scene.camera_at(i / 30.0)
+        f, r, v = full.render(cam), ref.render_reference(cam), fov.render(cam)
+    assert keys(r.stats) == ["ms_gbuffer", "ms_shade"]
+    assert keys(f.stats) == keys(r.stats)
+    shade_in_resolve = fov._shade_in_resolve(v.stats["strategy"])
+    want = {"ms_gbuffer", "ms_sampling", "ms_temporal", "ms_reconstruct"}
+    want |= set() if shade_in_resolve else {"ms_shade"}
+    want |= {"ms_reorder"} if v.stats["strategy"] in ("scan", "tile", "rows", "rows+balance") else set()
+    assert set(keys(v.stats)) == want
+    assert all(v.stats[k] >= 0.0 for k in want) and v.stats["ms_frame"] >= max(v.stats[k] for k in want)
+    # an animated scene times its refit; a light-tree scene its indirect stages; depth of field its pass
+    moving = fw.FrameLoop(fw.load_scene("cornell", motion=True), W, H, device=device, policy="full")
+    assert "ms_scene" in moving.render(scene.camera, time=0.1).stats
+    lt = fw.FrameLoop(scene, W, H, device=device, config=fw.Config().with_(shading={"indirect": "lighttree"}),
+                      policy="foveated")
+    st = lt.render(scene.camera).stats
+    assert {"ms_indirect_build", "ms_indirect"} <= set(st)
+    assert ("ms_tonemap" in st) == (not lt._tonemap_fused(st["strategy"]))
+    dof = fw.FrameLoop(scene, W, H, device=device, config=fw.Config().with_(dof={"aperture_m": 0.05}))
+    st = dof.render_reference(scene.camera).stats
+    assert {"ms_dof", "ms_tonemap"} <= set(st) and "ms_indirect" not in st
+
+
 def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     scene = fw.load_scene("cornell")
     loop = fw.FrameLoop(scene, W, H, device="cpu", policy="auto")
