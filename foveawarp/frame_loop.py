@@ -30,6 +30,31 @@ __all__ = ["FrameLoop"]
 SPARSE_SIBSON_WINDOW = 2
 
 
+class _StageTimer:
+    """The synchronized timing of one stage into ``loop._stats['ms_<name>']`` (nothing recorded when the stage
+    raises)."""
+
+    __slots__ = ("loop", "name", "t0")
+
+    def __init__(self, loop, name: str):
+        self.loop, self.name = loop, name
+
+    def __enter__(self):
+        wp.synchronize_device(self.loop.device)
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            wp.synchronize_device(self.loop.device)
+            key = "ms_" + self.name
+            st = self.loop._stats
+            st[key] = st.get(key, 0.0) + (time.perf_counter() - self.t0) * 1e3
+        return False
+
+
+_NO_TIMING = contextlib.nullcontext()
+
+
 def _cpu_threads(fn):
     """Run a launching method with this loop's ``cpu_threads`` for the band-parallel CPU launches."""
 
@@ -163,20 +188,15 @@ class FrameLoop:
             self.sparse = SparseGBufferStage(self.dscene, w, h, cfg.foveation.coarse_cell, dev)
 
     # -- helpers ---------------------------------------------------------------------------------------
-    @contextlib.contextmanager
     def _stage(self, name: str, active: bool = True):
         """Time a stage into ``stats['ms_<name>']`` (synchronized) when timing is on and the stage has work this
         frame (``active``): a stage that launches nothing costs no synchronization and reports no time (the
         frame's ``skipped`` says why), so a full-resolution frame through ``render`` synchronizes as often as
-        ``render_reference``."""
+        ``render_reference``. Otherwise a shared do-nothing context (no per-stage Python object: a frame enters
+        up to 14 stages, and a generator context manager costs a few microseconds each)."""
         if not (self.timing and active):
-            yield
-            return
-        wp.synchronize_device(self.device)
-        t0 = time.perf_counter()
-        yield
-        wp.synchronize_device(self.device)
-        self._stats[f"ms_{name}"] = self._stats.get(f"ms_{name}", 0.0) + (time.perf_counter() - t0) * 1e3
+            return _NO_TIMING
+        return _StageTimer(self, name)
 
     def _max_t(self, camera: Camera) -> float:
         return self.gbuffer_stage.max_t(camera)
@@ -389,6 +409,10 @@ class FrameLoop:
                                                     f"({tc.still_min_probability:g}): still view, stochastic "
                                                     f"shading still converging")
         dof_focus = cfg.dof.enabled and cfg.dof.focus_depth_m is None
+        # with timing (eager launches, no CUDA graph) a full-resolution frame uploads its shading parameters in
+        # its shade stage, as render_reference does: uploaded here, the shade stage's first synchronization
+        # would wait on that one small launch (a round trip, ~20 us on the H100)
+        upload_in_body = self.timing and not foveated and not dof_focus
         with self._stage("sampling", foveated or dof_focus):
             if foveated:
                 self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
@@ -402,7 +426,8 @@ class FrameLoop:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
             if dof_focus:
                 self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
-            self.upload_shade_params(camera)
+            if not upload_in_body:
+                self.upload_shade_params(camera)
         rebuilt = False
         with self._stage("indirect_build", self.indirect is not None):
             if self.indirect is not None:
@@ -430,7 +455,7 @@ class FrameLoop:
             key = (strategy, "sparse", float(camera.fov_y_deg))
         else:
             key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
-        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
+        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh, upload_in_body))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong
         n = self.width * self.height
@@ -508,10 +533,12 @@ class FrameLoop:
         block = self.config.foveation.block
         return self._static_frames >= max(block * block, tc.max_history_frames)
 
-    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool) -> None:
+    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool, upload: bool = False) -> None:
         """The launches of one frame after the head: no host reads, no allocation, the same arguments for the
         same (strategy, history, refresh, temporal parity, field of view). Its one host-side effect, the
-        temporal ping-pong swap, is repeated by ``render`` after a graph replay."""
+        temporal ping-pong swap, is repeated by ``render`` after a graph replay. ``upload``: first upload this
+        frame's shading parameters in the shade stage (eager frames with timing only: a per-frame value is
+        never captured in the graph)."""
         cfg = self.config
         foveated = strategy != "full"
         sparse = foveated and self.sparse_gbuffer
@@ -536,6 +563,8 @@ class FrameLoop:
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade", not shade_in_resolve):
+            if upload:  # eager frames only (see render)
+                self.upload_shade_params(camera)
             if not shade_in_resolve:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect", self.indirect is not None):
