@@ -4,12 +4,13 @@ of a loop built the same way, and against the foveated frame forced on (``policy
 was with ``timing=True`` before session 14).
 
 Per scene x size x shading, the three loops take turns frame by frame along the scene's camera path (1/30 s a
-frame) with a moving gaze (``benchmarks/frame.py``'s Lissajous path), each frame synchronized. The default
+frame) with a moving gaze (``benchmarks/frame.py``'s Lissajous path), each frame synchronized, each loop with its
+own camera objects, the order of the three cycling through all six permutations. The default
 loop's first 24 frames are its policy's measurement (12 foveated, 12 full resolution); then ``--warmup`` frames,
-then ``--frames`` timed frames, whose medians are reported with the path the default loop took and the
-policy's estimates. Quality of the same timed frames against the reference frame of the same camera, time and
-gaze: PSNR, foveal PSNR (eccentricity <= 5 deg) and (on CUDA) SSIM, mean and min (identical frames count as 100 dB
-in the mean).
+then ``--frames`` timed frames, whose medians are reported with the path the default loop took, the policy's
+estimates and the median of the per-frame differences from the reference. Quality of the same timed frames
+against the reference frame of the same camera, time and gaze: PSNR, foveal PSNR (eccentricity <= 5 deg) and (on
+CUDA) SSIM, mean and min (identical frames count as 100 dB in the mean).
 
     python benchmarks/default_loop.py --device cuda:0 --sizes 1920x1080,3840x2160
     python benchmarks/default_loop.py --device cpu --sizes 640x360 --scenes cornell,bunny
@@ -17,6 +18,7 @@ in the mean).
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import sys
 import time
@@ -53,25 +55,27 @@ def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict
     t = {"reference": [], "default": [], "foveated": []}
     q = {"default": [], "foveated": []}
     paths = []
+    orders = list(itertools.permutations(("reference", "default", "foveated")))
     for i in range(total):
         ts = i / 30.0
-        cam = scene.camera_at(ts)
         g = gaze_path(i, total, w, h)
-        # the order of the three rotates, so that no loop always runs right after another's frame
-        order = [("reference", lambda: ref.render_reference(cam, time=ts, gaze_px=g)),
-                 ("default", lambda: dflt.render(cam, gaze_px=g, time=ts)),
-                 ("foveated", lambda: fov.render(cam, gaze_px=g, time=ts))]
-        order = order[i % 3:] + order[:i % 3]
+        # each loop its own camera object (a camera caches its kernel parameters: a shared one would charge
+        # whichever loop runs first), and the order of the three cycles through all six permutations, so that
+        # every loop follows every other equally often (a frame right after a heavier one meets other clocks)
+        cams = {name: scene.camera_at(ts) for name in orders[0]}
+        run = {"reference": lambda: ref.render_reference(cams["reference"], time=ts, gaze_px=g),
+               "default": lambda: dflt.render(cams["default"], gaze_px=g, time=ts),
+               "foveated": lambda: fov.render(cams["foveated"], gaze_px=g, time=ts)}
         got = {}
-        for name, fn in order:
-            ms, frame = _timed(fn, dev)
+        for name in orders[i % 6]:
+            ms, frame = _timed(run[name], dev)
             got[name] = frame
             if i >= n_pol + warmup:
                 t[name].append(ms)
         if i >= n_pol + warmup:
             paths.append(got["default"].stats["policy"]["path"])
             for name in q:
-                q[name].append(metric(got[name].image, got["reference"].image, g, cam.fov_y_deg))
+                q[name].append(metric(got[name].image, got["reference"].image, g, cams["reference"].fov_y_deg))
     pol = got["default"].stats["policy"]
     row = {"scene": scene.name, "width": w, "height": h, "shading": shading, "frames": frames,
            "threads": dflt.cpu_threads if dev.is_cpu else None, "timing": dflt.timing, "policy": dflt.policy,
@@ -81,6 +85,9 @@ def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict
            "foveated_ms": statistics.median(t["foveated"]), "frame_ms": t}
     row["default_over_reference"] = row["default_ms"] / row["reference_ms"]
     row["foveated_over_reference"] = row["foveated_ms"] / row["reference_ms"]
+    # the median of the per-frame differences (the frames of one step share camera, time and gaze)
+    for name in ("default", "foveated"):
+        row[f"{name}_minus_reference_ms"] = statistics.median(a - b for a, b in zip(t[name], t["reference"]))
     for name, ms in q.items():
         ps = [m["psnr"] for m in ms]
         fp = [_fovea_key(m) for m in ms]
@@ -130,8 +137,8 @@ def main(argv=None) -> None:
                 rows.append(row)
                 print({k: v for k, v in row.items() if not k.endswith("_series") and k != "frame_ms"}, flush=True)
     cols = ["scene", "width", "height", "shading", "reference_ms", "default_ms", "default_over_reference",
-            "default_paths", "foveated_ms", "foveated_over_reference", "default_psnr_mean", "default_psnr_min",
-            "foveated_psnr_mean", "foveated_psnr_min"]
+            "default_minus_reference_ms", "default_paths", "foveated_ms", "foveated_over_reference",
+            "default_psnr_mean", "default_psnr_min", "foveated_psnr_mean", "foveated_psnr_min"]
     flat = [{**r, "default_psnr_mean": r["default_psnr"]["mean"], "default_psnr_min": r["default_psnr"]["min"],
              "foveated_psnr_mean": r["foveated_psnr"]["mean"], "foveated_psnr_min": r["foveated_psnr"]["min"]}
             for r in rows]
