@@ -82,8 +82,10 @@ class FrameLoop:
             when ``timing`` is False. Ignored (eager launches) on the CPU and when ``timing`` is True.
         policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
-            every ``POLICY_PERIOD`` frames) and renders the cheaper one, reporting the choice, the reason and
-            both estimates in ``stats["skipped"]["foveation"]`` and ``stats["policy"]``. None (default): "auto",
+            every ``POLICY_PERIOD`` frames, and sooner when a check of the chosen path's frames says the choice
+            was wrong, where timing them is free: the CPU device, or ``timing=True``) and renders the cheaper
+            one, reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
+            ``stats["policy"]``. None (default): "auto",
             on every device and with or without ``timing``: where the foveated frame costs more than full
             resolution (cheap shading, small scenes, the CPU with default shading, docs/cpu.md), the user gets
             the exact full frame at the lower cost. With ``timing=True`` the policy compares the two paths as
@@ -99,6 +101,8 @@ class FrameLoop:
     POLICY_WARM = 4  # untimed frames before each timed run of a path (compile, graph capture)
     POLICY_TIMED = 8  # timed frames per path; the median counts
     POLICY_MARGIN = 0.05  # foveation is chosen only when at least this fraction cheaper than full resolution
+    POLICY_WATCH = 16  # steady-state frames of the chosen path per check, where timing them is free
+    POLICY_RECHECK_MIN = 120  # frames after a measurement began before a failed check starts the next one
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
                  timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None,
@@ -156,6 +160,10 @@ class FrameLoop:
         self._pol_ms = {"foveated": [], "full": []}
         self._pol_choice = "foveated"
         self._pol_est: dict = {}
+        self._pol_watch_ms: list = []  # steady-state frame times of the chosen path (see _policy_mode)
+        self._pol_rechecks = 0
+        self._pol_next_trigger: Optional[str] = None
+        self._pol_trigger = "first frames"
         self._last_full = False
 
     def _ensure_foveated_stages(self) -> None:
@@ -363,7 +371,7 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
-        mode, pol_timed = self._policy_mode()
+        mode, pol_timed, pol_watch = self._policy_mode()
         if mode == "full" and cfg.foveation.enabled:
             est = self._pol_est
             if self.policy == "full":
@@ -378,7 +386,7 @@ class FrameLoop:
             skipped["reprojection"] = "previous frame rendered at full resolution"
         if pol_timed:
             wp.synchronize_device(self.device)
-            t_pol = _now()
+        t_pol = _now()
         if first or cut:
             skipped.setdefault("reprojection", "first frame" if first else "camera cut")
             self.temporal.reset()
@@ -484,6 +492,8 @@ class FrameLoop:
         if pol_timed:
             wp.synchronize_device(self.device)
             self._pol_ms[mode].append((_now() - t_pol) * 1e3)
+        elif pol_watch:  # the frame's work is done: CPU launches are synchronous, and timing synchronized above
+            self._pol_watch_ms.append((_now() - t_pol) * 1e3)
         self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
@@ -499,29 +509,55 @@ class FrameLoop:
                      extras)
 
     def _policy_mode(self) -> tuple:
-        """(path of this frame, whether to time it) under ``self.policy``. "auto" runs a measurement every
-        ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of each path, the timed ones
-        synchronized; then renders the foveated frame only when its median is at least ``POLICY_MARGIN`` below
-        full resolution's, else full resolution (exact, for the same cost), until the next measurement."""
+        """(path of this frame, whether to time it synchronized, whether to watch it) under ``self.policy``.
+
+        "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of
+        each path, the timed ones synchronized; then renders the foveated frame only when its median is at least
+        ``POLICY_MARGIN`` below full resolution's, else full resolution (exact, for the same cost), until the
+        next measurement. Where timing a frame costs nothing (the CPU device, whose launches are synchronous, or
+        ``timing=True``, which synchronizes anyway) the chosen path's frames are watched: when the median of
+        ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
+        or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the next
+        measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
         if self.policy != "auto" or not self.config.foveation.enabled:
-            return ("full" if self.policy == "full" else "foveated"), False
+            return ("full" if self.policy == "full" else "foveated"), False, False
         n = self.POLICY_WARM + self.POLICY_TIMED
         f = self._pol_frame
         self._pol_frame = (f + 1) % self.POLICY_PERIOD
         if f == 0:
             self._pol_ms = {"foveated": [], "full": []}
+            self._pol_watch_ms = []
+            self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
+                                                           f"every {self.POLICY_PERIOD} frames")
+            self._pol_next_trigger = None
         if f < n:
-            return "foveated", f >= self.POLICY_WARM
+            return "foveated", f >= self.POLICY_WARM, False
         if f < 2 * n:
-            return "full", f - n >= self.POLICY_WARM
+            return "full", f - n >= self.POLICY_WARM, False
         if f == 2 * n:
             fov_ms = float(np.median(self._pol_ms["foveated"]))
             full_ms = float(np.median(self._pol_ms["full"]))
             # foveation must pay for its error: within the margin (or when timing noise hides the difference) the
             # exact full-resolution frame wins (H100, city 4K: 5.18 vs 4.96 ms estimated, 5.45 vs 5.08 measured)
             self._pol_choice = "foveated" if fov_ms < (1.0 - self.POLICY_MARGIN) * full_ms else "full"
-            self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index}
-        return self._pol_choice, False
+            self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index,
+                             "trigger": self._pol_trigger, "rechecks": self._pol_rechecks}
+        watch = bool(self.device.is_cpu or self.timing)
+        if watch and len(self._pol_watch_ms) >= self.POLICY_WATCH:
+            m = float(np.median(self._pol_watch_ms))
+            self._pol_watch_ms = []
+            est = self._pol_est
+            if self._pol_choice == "foveated":
+                wrong, other = m >= est["full_ms"], ("full", est["full_ms"])
+            else:
+                wrong, other = (1.0 - self.POLICY_MARGIN) * m > est["foveated_ms"], ("foveated", est["foveated_ms"])
+            if wrong and f >= self.POLICY_RECHECK_MIN:
+                self._pol_rechecks += 1
+                self._pol_next_trigger = (f"check: the {self._pol_choice} frames measured {m:.3f} ms (median of "
+                                          f"{self.POLICY_WATCH}) against {other[1]:.3f} ms estimated {other[0]}")
+                self._pol_frame = 0
+                return self._policy_mode()  # the measurement begins with this frame
+        return self._pol_choice, False, watch
 
     def _refresh_due(self, foveated: bool) -> bool:
         """Whether this frame traces only the refresh budget: foveation and history on, a refresh fraction

@@ -347,6 +347,36 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
         assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]
 
 
+@pytest.mark.parametrize("choice", ["foveated", "full"])
+def test_policy_check_remeasures_a_wrong_choice(choice):
+    """On the CPU device (timing a frame is free) the policy watches the chosen path's frames: when the median of
+    POLICY_WATCH of them contradicts the choice, the next measurement starts at once (not POLICY_PERIOD frames
+    later), no sooner than POLICY_RECHECK_MIN frames after the last one began; a choice the frames confirm is kept."""
+    scene = fw.load_scene("cornell")
+    loop = fw.FrameLoop(scene, 32, 24, device="cpu", policy="auto", timing=False, cpu_threads=1)
+    n = 2 * (loop.POLICY_WARM + loop.POLICY_TIMED)
+    for i in range(n + 1):
+        st = loop.render(scene.camera_at(i / 60.0)).stats
+    assert st["policy"]["trigger"] == "first frames" and st["policy"]["rechecks"] == 0
+    # a wrong choice: the other path's estimate far below anything a frame costs
+    other = "full_ms" if choice == "foveated" else "foveated_ms"
+    loop._pol_choice, loop._pol_est[other] = choice, 1e-6
+    paths = []
+    for i in range(n + 1, loop.POLICY_RECHECK_MIN + n):
+        paths.append(loop.render(scene.camera_at(i / 60.0)).stats["policy"]["path"])
+    first = loop.POLICY_RECHECK_MIN - (n + 1)  # the frame at which the measurement restarts
+    assert paths[:first] == [choice] * first
+    assert paths[first:first + n // 2] == ["foveated"] * (n // 2) and paths[first + n // 2:] == ["full"] * (n // 2)
+    st = loop.render(scene.camera_at(1.0)).stats["policy"]
+    assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
+    assert st["measured_at_frame"] == loop.POLICY_RECHECK_MIN + n and st[other] > 1e-6
+    # a choice its frames confirm stays until the period
+    loop._pol_choice, loop._pol_est[other] = choice, 1e9
+    for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH):
+        st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
+        assert st["path"] == choice and st["rechecks"] == 1
+
+
 def test_auto_reorder_strategy_resolves_per_device(device):
     """ReorderConfig.strategy "auto" (the default) runs "tile" on CUDA and "none" on the CPU; the image equals the
     explicit strategy's, and the resolved name is what stats report."""
