@@ -60,6 +60,8 @@ def _cpu_threads(fn):
 
     @functools.wraps(fn)
     def wrapper(self, *args, **kwargs):
+        if self._on_cuda:  # no CPU launches to split: skip the context (a few microseconds of every frame's head)
+            return fn(self, *args, **kwargs)
         with parallel.cpu_threads(self.cpu_threads):
             return fn(self, *args, **kwargs)
 
@@ -116,6 +118,8 @@ class FrameLoop:
         self.config = config
         self.device = get_device(device)
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        self._on_cuda = bool(self.device.is_cuda)
+        self._animated = bool(self.scene.is_animated)  # read every frame (a property over the scene's objects)
         self.timing = check_bool("timing", timing)
         self.dscene = DeviceScene(self.scene, self.device)
         w, h, dev = self.width, self.height, self.device
@@ -309,7 +313,7 @@ class FrameLoop:
         dof = check_bool("dof", dof)
         self._stats = {}
         t0 = _now()
-        with self._stage("scene", self.scene.is_animated):
+        with self._stage("scene", self._animated):
             self._advance_scene(time)
         with self._stage("gbuffer"):
             self._gbuffer(camera, self._ref_prev_camera or camera)
@@ -366,7 +370,7 @@ class FrameLoop:
         skipped: dict = {}
         t0 = _now()
         # -- head: per-frame values ---------------------------------------------------------------------
-        with self._stage("scene", self.scene.is_animated):
+        with self._stage("scene", self._animated):
             geometry_moved = self._advance_scene(time)
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
@@ -395,7 +399,7 @@ class FrameLoop:
         prev_cam = self.prev_camera if history else camera
         camera_moved = prev_cam != camera
         moving = bool(geometry_moved or camera_moved)
-        if not self.scene.is_animated:
+        if not self._animated:
             skipped["bvh_refit"] = "static scene"
         foveated = cfg.foveation.enabled and mode == "foveated"
         sparse = foveated and self.sparse_gbuffer

@@ -328,6 +328,7 @@ class DeviceScene:
             raise ValueError(f"scene must be a foveawarp.Scene, got {show(scene)} ({type(scene).__name__})")
         self.scene = scene
         self.device = get_device(device)
+        self.animated = bool(scene.is_animated)  # read every frame by set_time
         ctor = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
         check_choice("bvh_constructor", ctor, BVH_CONSTRUCTORS)
         dev = self.device
@@ -371,7 +372,7 @@ class DeviceScene:
         import warp as wp
 
         t = check_finite("time", t)
-        if not self.scene.is_animated:
+        if not self.animated:
             self.moved_last_update = False
             if self.time is None:
                 self.time = t
