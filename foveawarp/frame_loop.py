@@ -376,6 +376,7 @@ class FrameLoop:
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
         mode, pol_timed, pol_watch = self._policy_mode()
+        seeded = False
         if mode == "full" and cfg.foveation.enabled:
             est = self._pol_est
             if self.policy == "full":
@@ -386,8 +387,13 @@ class FrameLoop:
             else:
                 skipped["foveation"] = "policy 'auto': timing the full-resolution path"
         elif self._last_full and not (first or cut):
-            cut = True
-            skipped["reprojection"] = "previous frame rendered at full resolution"
+            if cfg.foveation.enabled:
+                # a foveated frame after one that traced every pixel: that frame becomes its history (no cut)
+                with self._stage("temporal"):
+                    seeded = self._seed_history()
+            if not seeded:
+                cut = True
+                skipped["reprojection"] = "previous frame rendered at full resolution"
         if pol_timed:
             wp.synchronize_device(self.device)
         t_pol = _now()
@@ -479,6 +485,7 @@ class FrameLoop:
         stats["graph"] = graph_state
         stats["static_frames"] = self._static_frames
         stats["policy"] = {"policy": self.policy, "path": mode, **self._pol_est}
+        stats["history_seeded"] = seeded
         if foveated:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
@@ -562,6 +569,18 @@ class FrameLoop:
                 self._pol_frame = 0
                 return self._policy_mode()  # the measurement begins with this frame
         return self._pol_choice, False, watch
+
+    def _seed_history(self) -> bool:
+        """After a full-resolution frame (the cost policy's), make that frame the history of the foveated frame
+        that follows, instead of a camera cut that would start it with no history at all: the temporal resolve
+        of the previous frame, still in the G-buffer and ``radiance``, with every pixel traced and no older
+        history (each pixel's history is then its exact full-resolution value, one frame old). Returns False
+        where the foveated frame keeps no per-pixel history (sparse G-buffer, TemporalConfig.enabled False)."""
+        if self.sparse_gbuffer or not self.config.temporal.enabled:
+            return False
+        self.temporal.run(self.full_map, self.gbuffer, self.radiance, self.radiance_stoch, use_history=False,
+                          stochastic=self._stochastic_shading(), background=self.config.shading.background)
+        return True
 
     def _refresh_due(self, foveated: bool) -> bool:
         """Whether this frame traces only the refresh budget: foveation and history on, a refresh fraction

@@ -336,8 +336,10 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
         f = loop.render(scene.camera_at(i / 60.0), gaze_px=(48.0, 32.0))
         paths.append(f.stats["policy"]["path"])
         if paths[-1] == "foveated" and i > 0 and paths[-2] == "full":
-            # history from before a full-resolution frame is not reused
-            assert f.stats["skipped"]["reprojection"] == "previous frame rendered at full resolution"
+            # the full-resolution frame before it is its history (no cut)
+            assert f.stats["history_seeded"] and "reprojection" not in f.stats["skipped"]
+        else:
+            assert not f.stats["history_seeded"]
     assert paths[:n] == ["foveated"] * n and paths[n:2 * n] == ["full"] * n
     est = f.stats["policy"]
     assert est["foveated_ms"] > 0 and est["full_ms"] > 0
@@ -345,6 +347,46 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     assert paths[2 * n:] == [cheaper] * 3
     if cheaper == "full":
         assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]
+
+
+@pytest.mark.parametrize("shading", [{}, {"ao_samples": 4}])
+def test_foveated_frame_after_full_frame_reprojects_it(device, shading):
+    """When the policy switches from full resolution back to foveation, the last full frame becomes the history
+    (its temporal resolve with every pixel traced: each pixel's exact value, one frame old) instead of a cut:
+    the first foveated frame reuses it (cache hits), is closer to the reference than the same frame after a cut,
+    and the seeded history is the full frame's radiance and depth."""
+    scene = fw.load_scene("cornell")
+    cfg = fw.Config().with_(shading=shading) if shading else fw.Config()
+    loops = {k: fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full", timing=False)
+             for k in ("seeded", "cut", "probe")}
+    ref = fw.FrameLoop(scene, W, H, config=cfg, device=device, timing=False)
+    for i in range(4):
+        for lp in loops.values():
+            f = lp.render(scene.camera_at(i / 30.0), gaze_px=(40.0, 30.0))
+            assert not f.stats["history_seeded"]
+    # the seed alone: the history equals the last full frame's (deterministic part, depth, every pixel filled)
+    probe = loops["probe"]
+    assert probe._seed_history()
+    hist = probe.temporal.history()
+    rad, depth = probe.radiance.numpy(), probe.gbuffer.depth.numpy()
+    np.testing.assert_array_equal(hist["depth"], depth)
+    assert hist["filled"].all()
+    hit = probe.gbuffer.hit.numpy() != 0
+    np.testing.assert_allclose(hist["color"][hit], rad[hit], rtol=0, atol=1e-6)
+    for lp in loops.values():
+        lp.policy = "foveated"
+    cam = scene.camera_at(4 / 30.0)
+    a = loops["seeded"].render(cam, gaze_px=(40.0, 30.0))
+    b = loops["cut"].render(cam, gaze_px=(40.0, 30.0), cut=True)
+    r = ref.render_reference(cam).numpy()
+    assert a.stats["history_seeded"] and "reprojection" not in a.stats["skipped"]
+    assert not b.stats["history_seeded"] and b.stats["skipped"]["reprojection"] == "camera cut"
+    assert a.stats["cache_hit_rate"] > 0.5 and b.stats["cache_hit_rate"] == 0.0
+    assert psnr(a.numpy(), r) > psnr(b.numpy(), r) + 1.0
+    # foveation disabled: full frames follow each other with no seeding (nothing reads the history)
+    off = fw.FrameLoop(scene, W, H, config=cfg.with_(foveation={"enabled": False}), device=device, timing=False)
+    for i in range(3):
+        assert not off.render(scene.camera_at(i / 30.0)).stats["history_seeded"]
 
 
 @pytest.mark.parametrize("choice", ["foveated", "full"])
