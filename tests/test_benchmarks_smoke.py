@@ -137,3 +137,18 @@ def test_default_loop_quick(tmp_path):
     assert len(paths) == len(ps) == len(row["foveated_psnr_series"]) == 3
     for path, db in zip(paths, ps):  # a full-resolution frame is the reference's image, exactly
         assert db == float("inf") if path == "full" else db > 20.0
+
+
+def test_switch_history_quick(tmp_path):
+    """benchmarks/switch_history.py: full frames, then foveated ones with the seeded history and after a cut; the
+    seeded loop takes its history from the full frame exactly once (at the switch)."""
+    _run([str(REPO / "benchmarks" / "switch_history.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
+          "--shadings", "default"], tmp_path)
+    res = json.loads((tmp_path / "switch-history-cpu.json").read_text())
+    assert res["benchmark"] == "switch-history" and res["commit"]
+    (row,) = res["rows"]
+    assert (row["scene"], row["width"], row["height"], row["before"], row["after"]) == ("cornell", 64, 36, 2, 3)
+    assert row["seeded_first_frame"] and not row["seeded_later_frames"]
+    for k in ("seeded", "cut"):
+        assert len(row[f"{k}_psnr_series"]) == 3 and row[f"{k}_first_psnr"] == row[f"{k}_psnr_series"][0]
+        assert row[f"{k}_psnr"]["min"] == min(row[f"{k}_psnr_series"])
