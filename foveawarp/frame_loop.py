@@ -87,10 +87,10 @@ class FrameLoop:
             every ``POLICY_PERIOD`` frames, and sooner when a check of the chosen path's frames says the choice
             was wrong, where timing them is free: the CPU device, or ``timing=True``) and renders the cheaper
             one, reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
-            ``stats["policy"]``. None (default): "auto",
-            on every device and with or without ``timing``: where the foveated frame costs more than full
-            resolution (cheap shading, small scenes, the CPU with default shading, docs/cpu.md), the user gets
-            the exact full frame at the lower cost. With ``timing=True`` the policy compares the two paths as
+            ``stats["policy"]``; the first foveated frame after a full one takes it as its history
+            (``stats["history_seeded"]``). None (default): "auto", on every device and with or without
+            ``timing``: where the foveated frame costs more than full resolution (cheap shading, small scenes,
+            the CPU with default shading, docs/cpu.md), the user gets the exact full frame at the lower cost. With ``timing=True`` the policy compares the two paths as
             this loop runs them (per-stage synchronization, no CUDA graphs), which costs the foveated path's
             many launches more than the full path's few, so it picks full resolution more often than a loop
             without timing would. Stage-by-stage study of the foveated frame passes ``policy="foveated"``.
