@@ -86,3 +86,37 @@ def md_table(rows: list, cols: list) -> str:
             cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
         body += "| " + " | ".join(cells) + " |\n"
     return head + body
+
+
+# the two shadings the frame benchmarks compare: Config.with_ overrides by name
+SHADINGS = {"default": {}, "ao8": {"shading": {"ao_samples": 8}}}
+
+
+def shading_config(fw, name: str):
+    """``fw.Config()`` with the overrides of ``SHADINGS[name]``."""
+    return fw.Config().with_(**SHADINGS[name]) if SHADINGS[name] else fw.Config()
+
+
+def checked_shadings_sizes(p: argparse.ArgumentParser, args) -> tuple:
+    """(shading names, [(width, height)]) from ``--shadings`` and ``--sizes``, or a parser error naming the
+    option, the value and what is allowed."""
+    shadings = [s for s in args.shadings.split(",") if s]
+    if not shadings or any(s not in SHADINGS for s in shadings):
+        p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
+    try:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
+        if not sizes or any(len(s) != 2 or min(s) < 1 for s in sizes):
+            raise ValueError
+    except ValueError:
+        p.error(f"--sizes must be a comma list of WxH with positive integers, got {args.sizes!r}")
+    return shadings, sizes
+
+
+def scenes_present(fw, names: str):
+    """The scenes of the comma list ``names`` that load here; a shared mesh missing on this machine is skipped
+    with a line saying so."""
+    for name in [s for s in names.split(",") if s]:
+        try:
+            yield fw.load_scene(name)
+        except (FileNotFoundError, ValueError) as e:
+            print(f"skip {name}: {e}", flush=True)

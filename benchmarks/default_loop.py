@@ -28,13 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import (base_parser, checked_shadings_sizes, md_table, scenes_present,  # noqa: E402
+                               shading_config, write_results)
 from benchmarks.frame import ALL_SCENES, _fovea_key, _metric_fn, _summ, gaze_path  # noqa: E402
 
 import foveawarp as fw  # noqa: E402
-
-SHADINGS = {"default": {}, "ao8": {"shading": {"ao_samples": 8}}}
-
 
 def _timed(fn, dev) -> tuple:
     wp.synchronize_device(dev)
@@ -45,7 +43,7 @@ def _timed(fn, dev) -> tuple:
 
 
 def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict:
-    cfg = fw.Config().with_(**SHADINGS[shading]) if SHADINGS[shading] else fw.Config()
+    cfg = shading_config(fw, shading)
     kw = {} if threads is None else {"cpu_threads": threads}
     dflt = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)  # the defaults under test
     fov = fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="foveated", **kw)
@@ -109,15 +107,7 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     if args.frames < 1:
         p.error(f"--frames must be an integer >= 1, got {args.frames}")
-    bad = [s for s in args.shadings.split(",") if s not in SHADINGS]
-    if bad:
-        p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
-    try:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
-        if any(len(s) != 2 for s in sizes):
-            raise ValueError
-    except ValueError:
-        p.error(f"--sizes must be a comma list of WxH, got {args.sizes!r}")
+    shadings, sizes = checked_shadings_sizes(p, args)
     dev = wp.get_device(args.device)
     if args.quick:
         sizes, frames, warmup = [(64, 36)], 3, 1
@@ -125,14 +115,9 @@ def main(argv=None) -> None:
         frames, warmup = args.frames, args.warmup
     metric, metric_kind = _metric_fn(fast=not dev.is_cuda)  # CUDA: PSNR and SSIM on the device
     rows = []
-    for name in [s for s in args.scenes.split(",") if s]:
-        try:
-            scene = fw.load_scene(name)
-        except (FileNotFoundError, ValueError) as e:  # a shared mesh that is not on this machine
-            print(f"skip {name}: {e}", flush=True)
-            continue
+    for scene in scenes_present(fw, args.scenes):
         for w, h in sizes:
-            for shading in args.shadings.split(","):
+            for shading in shadings:
                 row = run_case(scene, w, h, shading, dev, frames, warmup, args.threads, metric)
                 rows.append(row)
                 print({k: v for k, v in row.items() if not k.endswith("_series") and k != "frame_ms"}, flush=True)

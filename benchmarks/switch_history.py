@@ -20,16 +20,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import (base_parser, checked_shadings_sizes, md_table, scenes_present,  # noqa: E402
+                               shading_config, write_results)
 from benchmarks.frame import _fovea_key, _metric_fn, _summ, gaze_path  # noqa: E402
 
 import foveawarp as fw  # noqa: E402
 
-SHADINGS = {"default": {}, "ao8": {"shading": {"ao_samples": 8}}}
-
-
 def run_case(scene, w, h, shading, dev, before, after, metric) -> dict:
-    cfg = fw.Config().with_(**SHADINGS[shading]) if SHADINGS[shading] else fw.Config()
+    cfg = shading_config(fw, shading)
     loops = {k: fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="full", timing=False)
              for k in ("seeded", "cut")}
     ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)
@@ -73,29 +71,16 @@ def main(argv=None) -> None:
     for name in ("before", "after"):
         if getattr(args, name) < 1:
             p.error(f"--{name} must be an integer >= 1, got {getattr(args, name)}")
-    bad = [s for s in args.shadings.split(",") if s not in SHADINGS]
-    if bad:
-        p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
-    try:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
-        if any(len(s) != 2 for s in sizes):
-            raise ValueError
-    except ValueError:
-        p.error(f"--sizes must be a comma list of WxH, got {args.sizes!r}")
+    shadings, sizes = checked_shadings_sizes(p, args)
     dev = wp.get_device(args.device)
     before, after = (args.before, args.after) if not args.quick else (2, 3)
     if args.quick:
         sizes = [(64, 36)]
     metric, metric_kind = _metric_fn(fast=not dev.is_cuda)
     rows = []
-    for name in [s for s in args.scenes.split(",") if s]:
-        try:
-            scene = fw.load_scene(name)
-        except (FileNotFoundError, ValueError) as e:  # a shared mesh that is not on this machine
-            print(f"skip {name}: {e}", flush=True)
-            continue
+    for scene in scenes_present(fw, args.scenes):
         for w, h in sizes:
-            for shading in args.shadings.split(","):
+            for shading in shadings:
                 row = run_case(scene, w, h, shading, dev, before, after, metric)
                 rows.append(row)
                 print({k: v for k, v in row.items() if not k.endswith("_series")}, flush=True)
