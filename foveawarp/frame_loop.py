@@ -103,6 +103,12 @@ class FrameLoop:
     POLICY_WARM = 4  # untimed frames before each timed run of a path (compile, graph capture)
     POLICY_TIMED = 8  # timed frames per path; the median counts
     POLICY_MARGIN = 0.05  # foveation is chosen only when at least this fraction cheaper than full resolution
+    # later measurements (kernels compiled, graphs captured): 1 untimed frame per path, and only
+    # POLICY_TIMED_CLEAR timed ones when the last measurement was clear-cut (the cheaper path at least
+    # POLICY_CLEAR cheaper): fewer frames of the dearer path each period (a visible stutter at 3x a frame's cost)
+    POLICY_WARM_AGAIN = 1
+    POLICY_TIMED_CLEAR = 4
+    POLICY_CLEAR = 0.25
     POLICY_WATCH = 16  # steady-state frames of the chosen path per check, where timing them is free
     POLICY_RECHECK_MIN = 120  # frames after a measurement began before a failed check starts the next one
 
@@ -168,6 +174,7 @@ class FrameLoop:
         self._pol_rechecks = 0
         self._pol_next_trigger: Optional[str] = None
         self._pol_trigger = "first frames"
+        self._pol_len = (self.POLICY_WARM, self.POLICY_TIMED)  # (untimed, timed) frames per path, this measurement
         self._last_full = False
 
     def _ensure_foveated_stages(self) -> None:
@@ -523,7 +530,7 @@ class FrameLoop:
         """(path of this frame, whether to time it synchronized, whether to watch it) under ``self.policy``.
 
         "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of
-        each path, the timed ones synchronized; then renders the foveated frame only when its median is at least
+        each path the first time, fewer later (:meth:`_measurement_length`), the timed ones synchronized; then renders the foveated frame only when its median is at least
         ``POLICY_MARGIN`` below full resolution's, else full resolution (exact, for the same cost), until the
         next measurement. Where timing a frame costs nothing (the CPU device, whose launches are synchronous, or
         ``timing=True``, which synchronizes anyway) the chosen path's frames are watched: when the median of
@@ -532,19 +539,21 @@ class FrameLoop:
         measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
         if self.policy != "auto" or not self.config.foveation.enabled:
             return ("full" if self.policy == "full" else "foveated"), False, False
-        n = self.POLICY_WARM + self.POLICY_TIMED
         f = self._pol_frame
         self._pol_frame = (f + 1) % self.POLICY_PERIOD
         if f == 0:
             self._pol_ms = {"foveated": [], "full": []}
             self._pol_watch_ms = []
+            self._pol_len = self._measurement_length()
             self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
                                                            f"every {self.POLICY_PERIOD} frames")
             self._pol_next_trigger = None
+        warm, timed = self._pol_len
+        n = warm + timed
         if f < n:
-            return "foveated", f >= self.POLICY_WARM, False
+            return "foveated", f >= warm, False
         if f < 2 * n:
-            return "full", f - n >= self.POLICY_WARM, False
+            return "full", f - n >= warm, False
         if f == 2 * n:
             fov_ms = float(np.median(self._pol_ms["foveated"]))
             full_ms = float(np.median(self._pol_ms["full"]))
@@ -569,6 +578,17 @@ class FrameLoop:
                 self._pol_frame = 0
                 return self._policy_mode()  # the measurement begins with this frame
         return self._pol_choice, False, watch
+
+    def _measurement_length(self) -> tuple:
+        """(untimed, timed) frames per path of the measurement that begins: ``POLICY_WARM``, ``POLICY_TIMED`` the
+        first time; later ``POLICY_WARM_AGAIN`` and, when the last estimates were clear-cut (the cheaper path at
+        least ``POLICY_CLEAR`` cheaper), ``POLICY_TIMED_CLEAR`` timed frames, else ``POLICY_TIMED``."""
+        est = self._pol_est
+        if not est:
+            return self.POLICY_WARM, self.POLICY_TIMED
+        lo, hi = sorted((est["foveated_ms"], est["full_ms"]))
+        clear = lo < (1.0 - self.POLICY_CLEAR) * hi
+        return self.POLICY_WARM_AGAIN, (self.POLICY_TIMED_CLEAR if clear else self.POLICY_TIMED)
 
     def _seed_history(self) -> bool:
         """After a full-resolution frame (the cost policy's), make that frame the history of the foveated frame

@@ -403,20 +403,36 @@ def test_policy_check_remeasures_a_wrong_choice(choice):
     # a wrong choice: the other path's estimate far below anything a frame costs
     other = "full_ms" if choice == "foveated" else "foveated_ms"
     loop._pol_choice, loop._pol_est[other] = choice, 1e-6
-    paths = []
-    for i in range(n + 1, loop.POLICY_RECHECK_MIN + n):
-        paths.append(loop.render(scene.camera_at(i / 60.0)).stats["policy"]["path"])
-    first = loop.POLICY_RECHECK_MIN - (n + 1)  # the frame at which the measurement restarts
-    assert paths[:first] == [choice] * first
-    assert paths[first:first + n // 2] == ["foveated"] * (n // 2) and paths[first + n // 2:] == ["full"] * (n // 2)
+    first = loop.POLICY_RECHECK_MIN - (n + 1)  # frames until the measurement restarts
+    paths = [loop.render(scene.camera_at((n + 1 + i) / 60.0)).stats["policy"]["path"] for i in range(first)]
+    assert paths == [choice] * first
+    # the re-measurement: the estimates it starts from are clear-cut (1e-6 ms), so its short form
+    m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR
+    paths = [loop.render(scene.camera_at((n + 1 + first + i) / 60.0)).stats["policy"]["path"] for i in range(2 * m)]
+    assert loop._pol_len == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
+    assert paths == ["foveated"] * m + ["full"] * m
     st = loop.render(scene.camera_at(1.0)).stats["policy"]
     assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
-    assert st["measured_at_frame"] == loop.POLICY_RECHECK_MIN + n and st[other] > 1e-6
+    assert st["measured_at_frame"] == loop.POLICY_RECHECK_MIN + 2 * m and st[other] > 1e-6
     # a choice its frames confirm stays until the period
     loop._pol_choice, loop._pol_est[other] = choice, 1e9
     for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
         assert st["path"] == choice and st["rechecks"] == 1
+
+
+def test_policy_measurement_length():
+    """The first measurement renders POLICY_WARM + POLICY_TIMED frames of each path; a later one 1 untimed frame
+    per path and, after clear-cut estimates (the cheaper path >= POLICY_CLEAR cheaper), POLICY_TIMED_CLEAR timed
+    ones, else POLICY_TIMED."""
+    loop = fw.FrameLoop(fw.load_scene("cornell"), 16, 16, device="cpu", policy="auto")
+    assert loop._measurement_length() == (loop.POLICY_WARM, loop.POLICY_TIMED)
+    for fov, full, timed in ((1.0, 2.0, loop.POLICY_TIMED_CLEAR), (2.0, 1.0, loop.POLICY_TIMED_CLEAR),
+                             (1.0, 1.2, loop.POLICY_TIMED), (1.2, 1.0, loop.POLICY_TIMED),
+                             (0.75, 1.0, loop.POLICY_TIMED), (0.7499, 1.0, loop.POLICY_TIMED_CLEAR)):
+        loop._pol_est = {"foveated_ms": fov, "full_ms": full}
+        assert loop._measurement_length() == (loop.POLICY_WARM_AGAIN, timed), (fov, full)
+    assert loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR < loop.POLICY_WARM + loop.POLICY_TIMED
 
 
 def test_auto_reorder_strategy_resolves_per_device(device):
