@@ -42,9 +42,11 @@ def _timed(fn, dev) -> tuple:
     return (time.perf_counter() - t0) * 1e3, out
 
 
-def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict:
+def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric, timing=None) -> dict:
     cfg = shading_config(fw, shading)
     kw = {} if threads is None else {"cpu_threads": threads}
+    if timing is not None:
+        kw["timing"] = timing
     dflt = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)  # the defaults under test
     fov = fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="foveated", **kw)
     ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)
@@ -79,6 +81,7 @@ def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric) -> dict
            "threads": dflt.cpu_threads if dev.is_cpu else None, "timing": dflt.timing, "policy": dflt.policy,
            "default_paths": {p: paths.count(p) for p in sorted(set(paths))}, "default_path_series": paths,
            "policy_foveated_ms": pol.get("foveated_ms"), "policy_full_ms": pol.get("full_ms"),
+           "policy_stats": {k: v for k, v in pol.items() if k != "path"},
            "reference_ms": statistics.median(t["reference"]), "default_ms": statistics.median(t["default"]),
            "foveated_ms": statistics.median(t["foveated"]), "frame_ms": t}
     row["default_over_reference"] = row["default_ms"] / row["reference_ms"]
@@ -104,6 +107,8 @@ def main(argv=None) -> None:
     p.add_argument("--frames", type=int, default=30, help="timed frames per loop (after the policy's 24)")
     p.add_argument("--threads", type=int, default=None, help="CPU threads (default: the usable cores)")
     p.add_argument("--name", default="default-loop")
+    p.add_argument("--timing", choices=("default", "on", "off"), default="default",
+                   help="FrameLoop(timing=...) of all three loops (default: the constructor's, on)")
     args = p.parse_args(argv)
     if args.frames < 1:
         p.error(f"--frames must be an integer >= 1, got {args.frames}")
@@ -118,7 +123,8 @@ def main(argv=None) -> None:
     for scene in scenes_present(fw, args.scenes):
         for w, h in sizes:
             for shading in shadings:
-                row = run_case(scene, w, h, shading, dev, frames, warmup, args.threads, metric)
+                row = run_case(scene, w, h, shading, dev, frames, warmup, args.threads, metric,
+                               timing=None if args.timing == "default" else args.timing == "on")
                 rows.append(row)
                 print({k: v for k, v in row.items() if not k.endswith("_series") and k != "frame_ms"}, flush=True)
     cols = ["scene", "width", "height", "shading", "reference_ms", "default_ms", "default_over_reference",
@@ -127,7 +133,9 @@ def main(argv=None) -> None:
     flat = [{**r, "default_psnr_mean": r["default_psnr"]["mean"], "default_psnr_min": r["default_psnr"]["min"],
              "foveated_psnr_mean": r["foveated_psnr"]["mean"], "foveated_psnr_min": r["foveated_psnr"]["min"]}
             for r in rows]
-    md = (f"## The API example's loop (every FrameLoop default: timing=True, policy 'auto'), {dev.alias}\n\n"
+    what = ("every FrameLoop default: timing=True, policy 'auto'" if args.timing == "default" else
+            f"FrameLoop defaults but timing={args.timing == 'on'}: policy 'auto'")
+    md = (f"## The API example's loop ({what}), {dev.alias}\n\n"
           f"Medians of {frames} synchronized frames after the policy's 24, the three loops taking turns; PSNR in "
           f"dB against the reference frame of the same camera, time and gaze ({metric_kind}).\n\n"
           + md_table(flat, cols))

@@ -85,8 +85,8 @@ class FrameLoop:
         policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames, and sooner when a check of the chosen path's frames says the choice
-            was wrong, where timing them is free: the CPU device, or ``timing=True``) and renders the cheaper
-            one, reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
+            was wrong: wall times on the CPU device or with ``timing=True``, CUDA event spans otherwise) and
+            renders the cheaper one, reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
             ``stats["policy"]``; the first foveated frame after a full one takes it as its history
             (``stats["history_seeded"]``). None (default): "auto", on every device and with or without
             ``timing``: where the foveated frame costs more than full resolution (cheap shading, small scenes,
@@ -175,6 +175,13 @@ class FrameLoop:
         self._pol_next_trigger: Optional[str] = None
         self._pol_trigger = "first frames"
         self._pol_len = (self.POLICY_WARM, self.POLICY_TIMED)  # (untimed, timed) frames per path, this measurement
+        # CUDA without timing: the watch reads the GPU span of a frame from two timing events (recorded around its
+        # launches, read at the next frame when done: no synchronization), and the measurement records the
+        # timed frames' spans too, so that the watch compares spans with spans
+        self._pol_events: Optional[list] = None
+        self._pol_ev_i = 0
+        self._pol_ev_pending = None
+        self._pol_span = {"foveated": [], "full": []}
         self._last_full = False
 
     def _ensure_foveated_stages(self) -> None:
@@ -382,6 +389,7 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
+        self._harvest_watch()
         mode, pol_timed, pol_watch = self._policy_mode()
         seeded = False
         if mode == "full" and cfg.foveation.enabled:
@@ -404,6 +412,9 @@ class FrameLoop:
         if pol_timed:
             wp.synchronize_device(self.device)
         t_pol = _now()
+        ev = self._frame_events() if (pol_timed or pol_watch) and self._watch_by_events() else None
+        if ev is not None:
+            self.device.stream.record_event(ev[0])
         if first or cut:
             skipped.setdefault("reprojection", "first frame" if first else "camera cut")
             self.temporal.reset()
@@ -483,6 +494,8 @@ class FrameLoop:
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh, upload_in_body))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong
+        if ev is not None:
+            self.device.stream.record_event(ev[1])
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
         stats["skipped"] = skipped
@@ -510,8 +523,13 @@ class FrameLoop:
         if pol_timed:
             wp.synchronize_device(self.device)
             self._pol_ms[mode].append((_now() - t_pol) * 1e3)
-        elif pol_watch:  # the frame's work is done: CPU launches are synchronous, and timing synchronized above
-            self._pol_watch_ms.append((_now() - t_pol) * 1e3)
+            if ev is not None:
+                self._pol_span[mode].append(float(wp.get_event_elapsed_time(ev[0], ev[1], synchronize=False)))
+        elif pol_watch:
+            if ev is not None:  # read at the next frame, if the GPU is done with this one by then
+                self._pol_ev_pending = ev
+            else:  # the frame's work is done: CPU launches are synchronous, and timing synchronized above
+                self._pol_watch_ms.append((_now() - t_pol) * 1e3)
         self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
@@ -532,9 +550,11 @@ class FrameLoop:
         "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of
         each path the first time, fewer later (:meth:`_measurement_length`), the timed ones synchronized; then renders the foveated frame only when its median is at least
         ``POLICY_MARGIN`` below full resolution's, else full resolution (exact, for the same cost), until the
-        next measurement. Where timing a frame costs nothing (the CPU device, whose launches are synchronous, or
-        ``timing=True``, which synchronizes anyway) the chosen path's frames are watched: when the median of
-        ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
+        next measurement. The chosen path's frames are then watched: by wall time where that costs nothing (the
+        CPU device, whose launches are synchronous, or ``timing=True``, which synchronizes anyway), else (CUDA
+        without timing) by each frame's GPU span between two CUDA timing events, read at the next frame when the
+        GPU is done with it (never waiting) and compared with the spans of the measurement's timed frames. When
+        the median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
         or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the next
         measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
         if self.policy != "auto" or not self.config.foveation.enabled:
@@ -543,6 +563,7 @@ class FrameLoop:
         self._pol_frame = (f + 1) % self.POLICY_PERIOD
         if f == 0:
             self._pol_ms = {"foveated": [], "full": []}
+            self._pol_span = {"foveated": [], "full": []}
             self._pol_watch_ms = []
             self._pol_len = self._measurement_length()
             self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
@@ -562,22 +583,47 @@ class FrameLoop:
             self._pol_choice = "foveated" if fov_ms < (1.0 - self.POLICY_MARGIN) * full_ms else "full"
             self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index,
                              "trigger": self._pol_trigger, "rechecks": self._pol_rechecks}
-        watch = bool(self.device.is_cpu or self.timing)
-        if watch and len(self._pol_watch_ms) >= self.POLICY_WATCH:
+            if self._pol_span["foveated"] and self._pol_span["full"]:
+                self._pol_est["foveated_gpu_ms"] = float(np.median(self._pol_span["foveated"]))
+                self._pol_est["full_gpu_ms"] = float(np.median(self._pol_span["full"]))
+        # the watch's samples and the estimates it compares them with: GPU spans on CUDA without timing, else
+        # synchronized wall times
+        sfx = "_gpu_ms" if self._watch_by_events() else "_ms"
+        est = self._pol_est
+        if len(self._pol_watch_ms) >= self.POLICY_WATCH and "full" + sfx in est:
             m = float(np.median(self._pol_watch_ms))
             self._pol_watch_ms = []
-            est = self._pol_est
             if self._pol_choice == "foveated":
-                wrong, other = m >= est["full_ms"], ("full", est["full_ms"])
+                wrong, other = m >= est["full" + sfx], ("full", est["full" + sfx])
             else:
-                wrong, other = (1.0 - self.POLICY_MARGIN) * m > est["foveated_ms"], ("foveated", est["foveated_ms"])
+                wrong, other = ((1.0 - self.POLICY_MARGIN) * m > est["foveated" + sfx],
+                                ("foveated", est["foveated" + sfx]))
             if wrong and f >= self.POLICY_RECHECK_MIN:
                 self._pol_rechecks += 1
                 self._pol_next_trigger = (f"check: the {self._pol_choice} frames measured {m:.3f} ms (median of "
                                           f"{self.POLICY_WATCH}) against {other[1]:.3f} ms estimated {other[0]}")
                 self._pol_frame = 0
                 return self._policy_mode()  # the measurement begins with this frame
-        return self._pol_choice, False, watch
+        return self._pol_choice, False, True
+
+    def _watch_by_events(self) -> bool:
+        """Whether the policy times frames by CUDA events (CUDA without timing: no synchronization to spare)."""
+        return self._on_cuda and not self.timing
+
+    def _frame_events(self) -> tuple:
+        """The next of two (start, end) pairs of CUDA timing events (made on first use)."""
+        if self._pol_events is None:
+            self._pol_events = [(wp.Event(self.device, enable_timing=True), wp.Event(self.device, enable_timing=True))
+                                for _ in range(2)]
+        self._pol_ev_i ^= 1
+        return self._pol_events[self._pol_ev_i]
+
+    def _harvest_watch(self) -> None:
+        """Add the GPU span of the last watched frame to the watch when the GPU is done with it (never waits: a
+        frame still running is left out)."""
+        p, self._pol_ev_pending = self._pol_ev_pending, None
+        if p is not None and p[1].is_complete:
+            self._pol_watch_ms.append(float(wp.get_event_elapsed_time(p[0], p[1], synchronize=False)))
 
     def _measurement_length(self) -> tuple:
         """(untimed, timed) frames per path of the measurement that begins: ``POLICY_WARM``, ``POLICY_TIMED`` the

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import warp as wp
 
 import foveawarp as fw
 from foveawarp.metrics import psnr
@@ -390,34 +391,46 @@ def test_foveated_frame_after_full_frame_reprojects_it(device, shading):
 
 
 @pytest.mark.parametrize("choice", ["foveated", "full"])
-def test_policy_check_remeasures_a_wrong_choice(choice):
-    """On the CPU device (timing a frame is free) the policy watches the chosen path's frames: when the median of
-    POLICY_WATCH of them contradicts the choice, the next measurement starts at once (not POLICY_PERIOD frames
-    later), no sooner than POLICY_RECHECK_MIN frames after the last one began; a choice the frames confirm is kept."""
+def test_policy_check_remeasures_a_wrong_choice(device, choice):
+    """The policy watches the chosen path's frames (wall times on the CPU device, CUDA event spans on CUDA without
+    timing): when the median of POLICY_WATCH of them contradicts the choice, the next measurement starts at once
+    (not POLICY_PERIOD frames later), no sooner than POLICY_RECHECK_MIN frames after the last one began; a choice
+    the frames confirm is kept."""
     scene = fw.load_scene("cornell")
-    loop = fw.FrameLoop(scene, 32, 24, device="cpu", policy="auto", timing=False, cpu_threads=1)
+    loop = fw.FrameLoop(scene, 32, 24, device=device, policy="auto", timing=False, cpu_threads=1)
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731 (a frame done before the next: its span is read)
     n = 2 * (loop.POLICY_WARM + loop.POLICY_TIMED)
     for i in range(n + 1):
         st = loop.render(scene.camera_at(i / 60.0)).stats
     assert st["policy"]["trigger"] == "first frames" and st["policy"]["rechecks"] == 0
-    # a wrong choice: the other path's estimate far below anything a frame costs
+    if device.startswith("cuda"):  # the measurement's timed frames left their GPU spans
+        assert 0 < st["policy"]["foveated_gpu_ms"] <= st["policy"]["foveated_ms"]
+    # a wrong choice: the other path's estimates far below anything a frame costs
     other = "full_ms" if choice == "foveated" else "foveated_ms"
-    loop._pol_choice, loop._pol_est[other] = choice, 1e-6
+    gpu = other.replace("_ms", "_gpu_ms")
+    loop._pol_choice, loop._pol_est[other], loop._pol_est[gpu] = choice, 1e-6, 1e-6
+
+    def path(i):
+        p = loop.render(scene.camera_at(i / 60.0)).stats["policy"]["path"]
+        sync()
+        return p
+
     first = loop.POLICY_RECHECK_MIN - (n + 1)  # frames until the measurement restarts
-    paths = [loop.render(scene.camera_at((n + 1 + i) / 60.0)).stats["policy"]["path"] for i in range(first)]
+    paths = [path(n + 1 + i) for i in range(first)]
     assert paths == [choice] * first
     # the re-measurement: the estimates it starts from are clear-cut (1e-6 ms), so its short form
     m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR
-    paths = [loop.render(scene.camera_at((n + 1 + first + i) / 60.0)).stats["policy"]["path"] for i in range(2 * m)]
+    paths = [path(n + 1 + first + i) for i in range(2 * m)]
     assert loop._pol_len == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
     assert paths == ["foveated"] * m + ["full"] * m
     st = loop.render(scene.camera_at(1.0)).stats["policy"]
     assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
     assert st["measured_at_frame"] == loop.POLICY_RECHECK_MIN + 2 * m and st[other] > 1e-6
     # a choice its frames confirm stays until the period
-    loop._pol_choice, loop._pol_est[other] = choice, 1e9
+    loop._pol_choice, loop._pol_est[other], loop._pol_est[gpu] = choice, 1e9, 1e9
     for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
+        sync()
         assert st["path"] == choice and st["rechecks"] == 1
 
 
