@@ -109,7 +109,10 @@ class FrameLoop:
     POLICY_WARM_AGAIN = 1
     POLICY_TIMED_CLEAR = 4
     POLICY_CLEAR = 0.25
-    POLICY_WATCH = 16  # steady-state frames of the chosen path per check, where timing them is free
+    POLICY_WATCH = 16  # watched frames of the chosen path per check
+    # CUDA without timing: one frame in this many is watched (its two events and their reading cost ~10-20 us of
+    # Python; at 1080p on the H100 watching every frame made the policy's full frames 1.03-1.07x the reference's)
+    POLICY_WATCH_EVERY = 8
     POLICY_RECHECK_MIN = 120  # frames after a measurement began before a failed check starts the next one
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
@@ -552,8 +555,9 @@ class FrameLoop:
         ``POLICY_MARGIN`` below full resolution's, else full resolution (exact, for the same cost), until the
         next measurement. The chosen path's frames are then watched: by wall time where that costs nothing (the
         CPU device, whose launches are synchronous, or ``timing=True``, which synchronizes anyway), else (CUDA
-        without timing) by each frame's GPU span between two CUDA timing events, read at the next frame when the
-        GPU is done with it (never waiting) and compared with the spans of the measurement's timed frames. When
+        without timing) by the GPU span between two CUDA timing events of one frame in ``POLICY_WATCH_EVERY``,
+        read at the next frame when the GPU is done with it (never waiting) and compared with the spans of the
+        measurement's timed frames. When
         the median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
         or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the next
         measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
@@ -604,7 +608,7 @@ class FrameLoop:
                                           f"{self.POLICY_WATCH}) against {other[1]:.3f} ms estimated {other[0]}")
                 self._pol_frame = 0
                 return self._policy_mode()  # the measurement begins with this frame
-        return self._pol_choice, False, True
+        return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
 
     def _watch_by_events(self) -> bool:
         """Whether the policy times frames by CUDA events (CUDA without timing: no synchronization to spare)."""

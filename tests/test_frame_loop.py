@@ -415,20 +415,28 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
         sync()
         return p
 
-    first = loop.POLICY_RECHECK_MIN - (n + 1)  # frames until the measurement restarts
-    paths = [path(n + 1 + i) for i in range(first)]
-    assert paths == [choice] * first
+    # the first check that may act: at POLICY_RECHECK_MIN frames after the last measurement began; on CUDA the
+    # watch samples one frame in POLICY_WATCH_EVERY, so its POLICY_WATCH samples take longer to gather
+    every = loop.POLICY_WATCH_EVERY if loop._watch_by_events() else 1
+    latest = max(loop.POLICY_RECHECK_MIN, n + loop.POLICY_WATCH * every + every)
+    paths, i = [], n + 1
+    while loop._pol_rechecks == 0:
+        paths.append(path(i))
+        i += 1
+        assert i <= latest + 1, "no re-measurement"
+    start = i - 1  # the frame at which the measurement restarted (its first frame is rendered)
+    assert loop.POLICY_RECHECK_MIN <= start <= latest
     # the re-measurement: the estimates it starts from are clear-cut (1e-6 ms), so its short form
     m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR
-    paths = [path(n + 1 + first + i) for i in range(2 * m)]
+    paths += [path(i + k) for k in range(2 * m - 1)]
     assert loop._pol_len == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
-    assert paths == ["foveated"] * m + ["full"] * m
+    assert paths == [choice] * (start - n - 1) + ["foveated"] * m + ["full"] * m
     st = loop.render(scene.camera_at(1.0)).stats["policy"]
     assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
-    assert st["measured_at_frame"] == loop.POLICY_RECHECK_MIN + 2 * m and st[other] > 1e-6
+    assert st["measured_at_frame"] == start + 2 * m and st[other] > 1e-6
     # a choice its frames confirm stays until the period
     loop._pol_choice, loop._pol_est[other], loop._pol_est[gpu] = choice, 1e9, 1e9
-    for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH):
+    for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH * every):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
         sync()
         assert st["path"] == choice and st["rechecks"] == 1
