@@ -34,6 +34,7 @@ from benchmarks.frame import ALL_SCENES, _fovea_key, _metric_fn, _summ, gaze_pat
 
 import foveawarp as fw  # noqa: E402
 
+
 def _timed(fn, dev) -> tuple:
     wp.synchronize_device(dev)
     t0 = time.perf_counter()

@@ -26,6 +26,7 @@ from benchmarks.frame import _fovea_key, _metric_fn, _summ, gaze_path  # noqa: E
 
 import foveawarp as fw  # noqa: E402
 
+
 def run_case(scene, w, h, shading, dev, before, after, metric) -> dict:
     cfg = shading_config(fw, shading)
     loops = {k: fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="full", timing=False)

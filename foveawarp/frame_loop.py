@@ -448,10 +448,6 @@ class FrameLoop:
                                                     f"({tc.still_min_probability:g}): still view, stochastic "
                                                     f"shading still converging")
         dof_focus = cfg.dof.enabled and cfg.dof.focus_depth_m is None
-        # with timing (eager launches, no CUDA graph) a full-resolution frame uploads its shading parameters in
-        # its shade stage, as render_reference does: uploaded here, the shade stage's first synchronization
-        # would wait on that one small launch (a round trip, ~20 us on the H100)
-        upload_in_body = self.timing and not foveated and not dof_focus
         with self._stage("sampling", foveated or dof_focus):
             if foveated:
                 self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
@@ -465,8 +461,7 @@ class FrameLoop:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
             if dof_focus:
                 self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
-            if not upload_in_body:
-                self.upload_shade_params(camera)
+            self.upload_shade_params(camera)
         rebuilt = False
         with self._stage("indirect_build", self.indirect is not None):
             if self.indirect is not None:
@@ -494,7 +489,7 @@ class FrameLoop:
             key = (strategy, "sparse", float(camera.fov_y_deg))
         else:
             key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
-        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh, upload_in_body))
+        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong
         if ev is not None:
@@ -662,12 +657,10 @@ class FrameLoop:
         block = self.config.foveation.block
         return self._static_frames >= max(block * block, tc.max_history_frames)
 
-    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool, upload: bool = False) -> None:
+    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool) -> None:
         """The launches of one frame after the head: no host reads, no allocation, the same arguments for the
         same (strategy, history, refresh, temporal parity, field of view). Its one host-side effect, the
-        temporal ping-pong swap, is repeated by ``render`` after a graph replay. ``upload``: first upload this
-        frame's shading parameters in the shade stage (eager frames with timing only: a per-frame value is
-        never captured in the graph)."""
+        temporal ping-pong swap, is repeated by ``render`` after a graph replay."""
         cfg = self.config
         foveated = strategy != "full"
         sparse = foveated and self.sparse_gbuffer
@@ -692,8 +685,6 @@ class FrameLoop:
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
         with self._stage("shade", not shade_in_resolve):
-            if upload:  # eager frames only (see render)
-                self.upload_shade_params(camera)
             if not shade_in_resolve:
                 self._trace(smap, strategy, display=self.image if fused and not foveated else None)
         with self._stage("indirect", self.indirect is not None):
