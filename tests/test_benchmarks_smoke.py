@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import warp as wp
 
 REPO = Path(__file__).resolve().parent.parent
@@ -152,3 +153,34 @@ def test_switch_history_quick(tmp_path):
     for k in ("seeded", "cut"):
         assert len(row[f"{k}_psnr_series"]) == 3 and row[f"{k}_first_psnr"] == row[f"{k}_psnr_series"][0]
         assert row[f"{k}_psnr"]["min"] == min(row[f"{k}_psnr_series"])
+
+
+def test_ncu_frame_parts(tmp_path):
+    """benchmarks/ncu_frame.py: its driver renders the bracketed frames (the CPU runs it without the profiler),
+    the report's kernels are cut into frames at the markers, Warp's entry names are shortened, and the floor is
+    the DRAM bytes over the copy bandwidth. Without a CUDA device the benchmark refuses to start."""
+    sys.path.insert(0, str(REPO))
+    from benchmarks import ncu_frame
+
+    out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "ncu_frame.py"), "--drive", "--device", "cpu",
+                          "--scenes", "cornell", "--sizes", "40x24", "--shadings", "default", "--warmup-frames", "2"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "CONFIG cornell 40 24 default" in out
+    rate = float(out.split("RATE ")[1].split()[0])
+    assert 0.0 < rate <= 1.0
+    bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "ncu_frame.py"), "--device", "cpu"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "--device must be a CUDA device" in bad.stderr
+    assert ncu_frame.kernel_name("sibson_gather_kernel_ce134398_cuda_kernel_forward") == "sibson_gather_kernel"
+    assert ncu_frame.kernel_name("void foo(int)") == "void foo"
+    metrics = {m: 0.0 for m in ncu_frame.METRICS}
+    ks = [{"kernel": n, **metrics} for n in ("ncu_foveated_marker_kernel", "a", "b", "ncu_reference_marker_kernel",
+                                              "c", "ncu_foveated_marker_kernel", "d", "ncu_reference_marker_kernel")]
+    frames = ncu_frame._split(ks)
+    assert [([k["kernel"] for k in f], [k["kernel"] for k in r]) for f, r in frames] == [(["a", "b"], ["c"]),
+                                                                                        (["d"], [])]
+    k = {"kernel": "x", **metrics, "gpu__time_duration.sum": 2.0e5, "dram__bytes_read.sum": 3.0e8,
+         "dram__bytes_write.sum": 1.0e8}
+    row = ncu_frame.kernel_row(k, 2.0e12, 1000)
+    assert row["ms"] == pytest.approx(0.2, rel=1e-12) and row["floor_ms"] == pytest.approx(0.2, rel=1e-12)
+    assert row["x_floor"] == pytest.approx(1.0, rel=1e-12) and row["bytes_per_pixel"] == 4.0e5

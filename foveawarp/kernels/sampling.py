@@ -193,16 +193,18 @@ def pixel_probability(x: int, y: int, w: int, h: int, sp: SamplingParams, fp: Fr
 
 
 @wp.func
-def saliency_velocity(fp: FrameParams, velocity: wp.vec2, position: wp.vec3, uv: wp.vec2) -> wp.vec2:
-    """The screen velocity of the V term: the G-buffer's, or with ``fp.object_velocity`` the object's own
-    motion (where the point would be in the previous frame had it not moved, minus where it was; camera
-    motion removed)."""
-    v = velocity
-    if fp.object_velocity != 0:
-        v = wp.vec2(0.0, 0.0)
-        pr = camera_project(fp.cam_prev, position)
-        if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
-            v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
+def saliency_velocity(fp: FrameParams, velocity: wp.array2d(dtype=wp.vec2), position: wp.array2d(dtype=wp.vec3),
+                      y: int, x: int, uv: wp.vec2) -> wp.vec2:
+    """The screen velocity of the V term at G-buffer entry [y, x]: the G-buffer's, or with
+    ``fp.object_velocity`` the object's own motion (where the point would be in the previous frame had it not
+    moved, minus where it was; camera motion removed). Each array is read only on the branch that uses it
+    (the position, 12 bytes a pixel, only with object motion)."""
+    if fp.object_velocity == 0:
+        return velocity[y, x]
+    v = wp.vec2(0.0, 0.0)
+    pr = camera_project(fp.cam_prev, position[y, x])
+    if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
+        v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
     return v
 
 
@@ -536,7 +538,7 @@ def sampling_map_pixel(
             if sp.use_normal != 0:
                 gn = sobel_vec3(normal, x, y)
             if hit_px != wp.uint8(0) and fp.use_velocity != 0:
-                v = saliency_velocity(fp, velocity[y, x], position[y, x], uv)
+                v = saliency_velocity(fp, velocity, position, y, x, uv)
         if sp.use_albedo != 0 and s < 1.0:
             s = wp.max(s, wp.min(sp.albedo_gain * ga, 1.0))
         if sp.use_normal != 0 and s < 1.0:

@@ -101,7 +101,7 @@ def coarse_saliency_kernel(
     if sp.use_normal != 0 and s < 1.0:
         s = wp.max(s, wp.min(sp.normal_gain * sobel_vec3(normal, x, y), 1.0))
     if hit[y, x] != wp.uint8(0) and fp.use_velocity != 0 and s < 1.0:
-        v = saliency_velocity(fp, velocity[y, x], position[y, x], reproj_uv[y, x])
+        v = saliency_velocity(fp, velocity, position, y, x, reproj_uv[y, x])
         s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
     out[y, x] = s
 
