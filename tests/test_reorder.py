@@ -188,3 +188,63 @@ def test_compaction_exact_order_properties(mask, tile, kind):
     for y in range(h):
         np.testing.assert_array_equal(coords[y, :counts[y], 0], np.flatnonzero(mask[y]))
         assert np.all(coords[y, :counts[y], 1] == y)
+
+
+def _words_run(stage, m, strategy, packed):
+    """The stage's list and count for uint8 mask ``m`` with the word kernels on (``packed``) or off."""
+    stage.packed = packed
+    mk = wp.array(np.ascontiguousarray(m, dtype=np.uint8), dtype=wp.uint8, device=stage.device)
+    stage.run(mk, strategy=strategy)
+    n = int(stage.count.numpy()[0])
+    return stage.work.numpy()[:n]
+
+
+@pytest.mark.parametrize("shape", [(45, 64), (130, 72), (1, 8), (300, 8), (64, 64), (17, 264)])
+def test_compaction_by_words_equals_reference(shape, device, rng):
+    """The 8-pixel-word kernels (CUDA's default where the width is a multiple of 8): the reference order for
+    "tile" (8 x 8 tiles, partial bottom tiles included) and "scan", for sparse, filled, full and empty masks and
+    for mask bytes other than 0 / 1 (any nonzero byte is a sample), on every device."""
+    h, w = shape
+    stage = ReorderStage(w, h, fw.ReorderConfig(strategy="tile", tile=8), device)
+    assert stage._word_blocks, "the word kernels apply at this width"
+    values = rng.integers(1, 256, (h, w)).astype(np.uint8)  # nonzero bytes of every value
+    for m in (filled_mask(h, w, rng), rng.random((h, w)) < 0.3, rng.random((h, w)) < 0.02, np.ones((h, w), bool),
+              np.zeros((h, w), bool)):
+        mb = np.where(m, values, 0).astype(np.uint8)
+        for s, ref in (("tile", tile_order_ref(m, 8)), ("scan", np.flatnonzero(m))):
+            np.testing.assert_array_equal(_words_run(stage, mb, s, True), ref)
+            np.testing.assert_array_equal(_words_run(stage, mb, s, False), ref)
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.uint8, st.tuples(st.integers(1, 30), st.integers(1, 6).map(lambda k: 8 * k))),
+       st.sampled_from(["tile", "scan"]))
+def test_compaction_by_words_properties(mask, strategy):
+    """Any bytes, any height, widths that are multiples of 8: the word kernels give the byte kernels' list."""
+    h, w = mask.shape
+    stage = ReorderStage(w, h, fw.ReorderConfig(strategy=strategy, tile=8), "cpu")
+    ref = tile_order_ref(mask != 0, 8) if strategy == "tile" else np.flatnonzero(mask)
+    np.testing.assert_array_equal(_words_run(stage, mask, strategy, True), ref)
+
+
+def test_compaction_by_words_only_where_it_applies(rng):
+    """Widths that are not a multiple of 8, other tile sizes and non-contiguous masks take the byte kernels
+    (same list); a new mask array gets its own word view."""
+    st_ = ReorderStage(70, 20, fw.ReorderConfig(strategy="tile", tile=8), "cpu")
+    assert not st_._word_blocks
+    m = rng.random((20, 70)) < 0.3
+    np.testing.assert_array_equal(_words_run(st_, m, "tile", True), tile_order_ref(m, 8))
+    st4 = ReorderStage(64, 20, fw.ReorderConfig(strategy="tile", tile=4), "cpu")
+    m = rng.random((20, 64)) < 0.3
+    np.testing.assert_array_equal(_words_run(st4, m, "tile", True), tile_order_ref(m, 4))
+    st8 = ReorderStage(64, 20, fw.ReorderConfig(strategy="tile", tile=8), "cpu")
+    st8.packed = True
+    big = wp.array(np.zeros((20, 128), np.uint8), dtype=wp.uint8, device="cpu")
+    strided = big[:, ::2]
+    assert not strided.is_contiguous
+    st8.run(strided)
+    assert int(st8.count.numpy()[0]) == 0
+    for _ in range(2):  # two masks in turn: each compacted from its own bytes
+        m1, m2 = rng.random((20, 64)) < 0.2, rng.random((20, 64)) < 0.6
+        np.testing.assert_array_equal(_words_run(st8, m1, "tile", True), tile_order_ref(m1, 8))
+        np.testing.assert_array_equal(_words_run(st8, m2, "tile", True), tile_order_ref(m2, 8))

@@ -10,7 +10,9 @@ from ..config import REORDER_STRATEGIES, ReorderConfig, check_choice, resolve_re
 from ..kernels.reorder import (
     block_scan_kernel,
     compact_count_kernel,
+    compact_count_words_kernel,
     compact_scatter_kernel,
+    compact_scatter_words_kernel,
     rows_balance_kernel,
     rows_compact_kernel,
 )
@@ -21,6 +23,7 @@ _CUDA_BLOCK = 256  # threads per block of the compaction / row kernels on CUDA (
 _CUDA_SCAN_BLOCK = 1024  # threads of the one-block offset scan on CUDA
 _CUDA_PER_THREAD = 4  # consecutive output positions per compaction thread on CUDA
 _CPU_PER_THREAD = 256  # on the CPU (blocks of one thread: longer runs, fewer blocks)
+_CUDA_WORDS = 1  # 8-pixel words per compaction thread on CUDA (the word kernels)
 
 
 def _part1by1(v: np.ndarray) -> np.ndarray:
@@ -51,6 +54,9 @@ class ReorderStage:
     Launches per ``run``: "scan" / "tile": 3 (count, one-block scan of the per-block counts, scatter; the
     mask is read twice, the list written once); "rows": 1; "rows+balance": 2. No memset, no temporary
     allocation, no host read (CUDA-graph capturable).
+
+    With ``packed`` (default: on CUDA) and an image width that is a multiple of 8, "scan" and "tile" with 8 x 8
+    tiles read the mask as 8-pixel words (``compact_*_words_kernel``): the same list.
     """
 
     def __init__(self, width: int, height: int, config: ReorderConfig, device):
@@ -82,6 +88,17 @@ class ReorderStage:
         for s, no in self._n_order.items():
             b = (no + per_block - 1) // per_block
             self._blocks[s] = (b, self.block_counts[:b], self.block_offsets[:b])
+        # the word kernels: runs of 8 positions (fewer blocks than the byte kernels' at these block sizes)
+        self.packed = device.is_cuda
+        self._words = _CUDA_WORDS if device.is_cuda else _CPU_PER_THREAD // 8
+        self._word_blocks = {}
+        if width % 8 == 0:
+            for s, no in self._n_order.items():
+                nw = no // 8
+                b = (nw + self._block_dim * self._words - 1) // (self._block_dim * self._words)
+                if b <= nb:  # fits the block buffers (always, at these block sizes)
+                    self._word_blocks[s] = (nw, b, self.block_counts[:b], self.block_offsets[:b])
+        self._view = (None, None)  # (mask, its uint64 view): the last mask compacted by words
 
     @property
     def strategy(self) -> str:
@@ -109,12 +126,30 @@ class ReorderStage:
                 nb = (self.height + k - 1) // k
                 wp.launch(rows_balance_kernel, dim=nb, inputs=[self.coords, self.counts, k], device=dev)
             return
-        nb, counts, offsets = self._blocks[s]
         tile = 0 if s == "scan" else self.config.tile
+        if self.packed and s in self._word_blocks and tile in (0, 8) and mask.is_contiguous:
+            self._run_words(mask, s, tile)
+            return
+        nb, counts, offsets = self._blocks[s]
         common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
         wp.launch_tiled(compact_count_kernel, dim=[nb], inputs=common, outputs=[counts],
                         block_dim=self._block_dim, device=dev)
         wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
                         block_dim=self._scan_block_dim, device=dev)
         wp.launch_tiled(compact_scatter_kernel, dim=[nb], inputs=[*common, offsets], outputs=[self.work],
+                        block_dim=self._block_dim, device=dev)
+
+    def _run_words(self, mask, s: str, tile: int) -> None:
+        """The compaction of ``run`` by 8-pixel words (``packed``; width a multiple of 8; "scan" or 8 x 8 tiles)."""
+        if self._view[0] is not mask:  # a non-owning uint64 view of the mask's bytes, kept with the mask
+            self._view = (mask, wp.array(ptr=mask.ptr, dtype=wp.uint64, shape=(self.width * self.height // 8,),
+                                         device=mask.device))
+        nw, nb, counts, offsets = self._word_blocks[s]
+        common = [self._view[1], self.tile_order, tile, self.tiles_x, self.width // 8, self.height, nw, self._words]
+        dev = self.device
+        wp.launch_tiled(compact_count_words_kernel, dim=[nb], inputs=common, outputs=[counts],
+                        block_dim=self._block_dim, device=dev)
+        wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
+                        block_dim=self._scan_block_dim, device=dev)
+        wp.launch_tiled(compact_scatter_words_kernel, dim=[nb], inputs=[*common, offsets], outputs=[self.work],
                         block_dim=self._block_dim, device=dev)
