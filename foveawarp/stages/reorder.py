@@ -128,28 +128,20 @@ class ReorderStage:
             return
         tile = 0 if s == "scan" else self.config.tile
         if self.packed and s in self._word_blocks and tile in (0, 8) and mask.is_contiguous:
-            self._run_words(mask, s, tile)
-            return
-        nb, counts, offsets = self._blocks[s]
-        common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
-        wp.launch_tiled(compact_count_kernel, dim=[nb], inputs=common, outputs=[counts],
-                        block_dim=self._block_dim, device=dev)
+            # by 8-pixel words: a non-owning uint64 view of the mask's bytes, made once per mask array
+            if self._view[0] is not mask:
+                self._view = (mask, wp.array(ptr=mask.ptr, dtype=wp.uint64, shape=(self.width * self.height // 8,),
+                                             device=mask.device))
+            nw, nb, counts, offsets = self._word_blocks[s]
+            kernels = (compact_count_words_kernel, compact_scatter_words_kernel)
+            common = [self._view[1], self.tile_order, tile, self.tiles_x, self.width // 8, self.height, nw,
+                      self._words]
+        else:
+            nb, counts, offsets = self._blocks[s]
+            kernels = (compact_count_kernel, compact_scatter_kernel)
+            common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
+        wp.launch_tiled(kernels[0], dim=[nb], inputs=common, outputs=[counts], block_dim=self._block_dim, device=dev)
         wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
                         block_dim=self._scan_block_dim, device=dev)
-        wp.launch_tiled(compact_scatter_kernel, dim=[nb], inputs=[*common, offsets], outputs=[self.work],
-                        block_dim=self._block_dim, device=dev)
-
-    def _run_words(self, mask, s: str, tile: int) -> None:
-        """The compaction of ``run`` by 8-pixel words (``packed``; width a multiple of 8; "scan" or 8 x 8 tiles)."""
-        if self._view[0] is not mask:  # a non-owning uint64 view of the mask's bytes, kept with the mask
-            self._view = (mask, wp.array(ptr=mask.ptr, dtype=wp.uint64, shape=(self.width * self.height // 8,),
-                                         device=mask.device))
-        nw, nb, counts, offsets = self._word_blocks[s]
-        common = [self._view[1], self.tile_order, tile, self.tiles_x, self.width // 8, self.height, nw, self._words]
-        dev = self.device
-        wp.launch_tiled(compact_count_words_kernel, dim=[nb], inputs=common, outputs=[counts],
-                        block_dim=self._block_dim, device=dev)
-        wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
-                        block_dim=self._scan_block_dim, device=dev)
-        wp.launch_tiled(compact_scatter_words_kernel, dim=[nb], inputs=[*common, offsets], outputs=[self.work],
+        wp.launch_tiled(kernels[1], dim=[nb], inputs=[*common, offsets], outputs=[self.work],
                         block_dim=self._block_dim, device=dev)
