@@ -24,7 +24,6 @@ import argparse
 import csv
 import ctypes
 import io
-import os
 import re
 import shutil
 import subprocess
@@ -147,10 +146,11 @@ def read_report(rep: Path, ncu: str) -> list:
     return rows
 
 
-def summarize(kernels: list, bw: float, pixels: int) -> dict:
-    tot_ms = sum(k["gpu__time_duration.sum"] for k in kernels) * 1e-6
-    by = sum(k["dram__bytes_read.sum"] + k["dram__bytes_write.sum"] for k in kernels)
-    return {"gpu_ms": tot_ms, "dram_bytes": by, "bytes_per_pixel": by / pixels, "floor_ms": by / bw * 1e3}
+def summarize(rows: list) -> dict:
+    """The frame's totals from its :func:`kernel_row` rows."""
+    by = sum(r["dram_read_B"] + r["dram_write_B"] for r in rows)
+    return {"gpu_ms": sum(r["ms"] for r in rows), "dram_bytes": by,
+            "bytes_per_pixel": sum(r["bytes_per_pixel"] for r in rows), "floor_ms": sum(r["floor_ms"] for r in rows)}
 
 
 def kernel_row(k: dict, bw: float, pixels: int) -> dict:
@@ -194,7 +194,7 @@ def main(argv=None) -> None:
                "--device", dev.alias, "--scenes", args.scenes, "--sizes", args.sizes, "--shadings", args.shadings,
                "--warmup-frames", str(args.warmup_frames)]
         t0 = time.perf_counter()
-        run = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ))
+        run = subprocess.run(cmd, capture_output=True, text=True)
         print(run.stdout[-4000:], run.stderr[-4000:], sep="\n", flush=True)
         run.check_returncode()
         kernels = read_report(rep.with_suffix(".ncu-rep"), args.ncu)
@@ -208,11 +208,10 @@ def main(argv=None) -> None:
     for (scene, w, h, shading), rate, (fov, ref) in zip(configs, rates, frames):
         w, h = int(w), int(h)
         n = w * h
+        fk, rk = [kernel_row(k, bw, n) for k in fov], [kernel_row(k, bw, n) for k in ref]
         rec = {"scene": scene, "width": w, "height": h, "shading": shading, "sampling_rate": rate,
-               "copy_bandwidth_GBps": bw / 1e9,
-               "foveated": summarize(fov, bw, n), "reference": summarize(ref, bw, n),
-               "foveated_kernels": [kernel_row(k, bw, n) for k in fov],
-               "reference_kernels": [kernel_row(k, bw, n) for k in ref]}
+               "copy_bandwidth_GBps": bw / 1e9, "foveated": summarize(fk), "reference": summarize(rk),
+               "foveated_kernels": fk, "reference_kernels": rk}
         records.append(rec)
         for part in ("foveated", "reference"):
             for k in rec[part + "_kernels"]:

@@ -184,3 +184,6 @@ def test_ncu_frame_parts(tmp_path):
     row = ncu_frame.kernel_row(k, 2.0e12, 1000)
     assert row["ms"] == pytest.approx(0.2, rel=1e-12) and row["floor_ms"] == pytest.approx(0.2, rel=1e-12)
     assert row["x_floor"] == pytest.approx(1.0, rel=1e-12) and row["bytes_per_pixel"] == 4.0e5
+    tot = ncu_frame.summarize([row, row])
+    assert tot["gpu_ms"] == pytest.approx(0.4, rel=1e-12) and tot["dram_bytes"] == 8.0e8
+    assert tot["floor_ms"] == pytest.approx(0.4, rel=1e-12) and tot["bytes_per_pixel"] == 8.0e5
