@@ -81,6 +81,27 @@ def test_disc_matches_on_every_device(device):
     np.testing.assert_allclose(out.numpy(), ref_out.numpy(), rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("block", [2, 4, 7])
+def test_disc_scan_reads_a_strided_mask(device, block):
+    """The scan (native code: one address per pixel, offsets added to it) follows the mask's row and column
+    strides: a view taking every other column of a wider array, starting one row down, gives the brute-force
+    nearest seeds of the view, at the image border and inside it."""
+    rng = np.random.default_rng(11 + block)
+    h, w = 37, 45
+    mask = guaranteed_mask(rng, h, w, block, 0.05)
+    big = np.full((h + 1, 2 * w), 7, np.uint8)  # seeds everywhere outside the view: a wrong stride finds them
+    big[1:, ::2] = mask
+    view = wp.array(big, dtype=wp.uint8, device=device)[1:, ::2]
+    assert not view.is_contiguous and view.shape == (h, w)
+    stage = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant="disc"), block, device)
+    stage.run_jfa(view)
+    near = stage.nearest.numpy()
+    ys, xs = np.mgrid[0:h, 0:w]
+    got = np.sqrt((near[..., 0] - xs) ** 2 + (near[..., 1] - ys) ** 2)
+    assert np.array_equal(got, brute_nearest_dist(mask))
+    assert (mask[near[..., 1], near[..., 0]] == 1).all()
+
+
 def test_disc_sibson_equals_the_exact_scatter_on_its_nearest_map(device):
     rng = np.random.default_rng(5)
     h, w, block = 48, 64, 4

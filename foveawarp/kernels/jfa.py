@@ -94,21 +94,47 @@ def jfa_visit(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.vec2i),
     return best
 
 
-@wp.func
+# the disc scan in native code: the pixel's mask address is formed once and each offset adds to it, with no
+# bounds test where the whole disc lies inside the image (Warp's 2D indexing forms a 64-bit strided address with a
+# negative-index wrap per read: most of the scan's instructions on the H100). Any strides.
+_NEAREST_IN_DISC_SNIPPET = r"""
+    const int h = mask.shape[0];
+    const int w = mask.shape[1];
+    const int n = offsets.shape[0];
+    if (n > 0) {
+        const wp::vec2i* offs = (const wp::vec2i*)offsets.data;
+        const long long pitch = (long long)mask.strides[0];
+        const long long sx = (long long)mask.strides[1];
+        const unsigned char* p = (const unsigned char*)mask.data + (long long)y * pitch + (long long)x * sx;
+        const wp::vec2i last = offs[n - 1];  // the longest offset: no component exceeds its length
+        const int reach = (int)sqrtf((float)(last.c[0] * last.c[0] + last.c[1] * last.c[1])) + 1;
+        if (x >= reach && y >= reach && x < w - reach && y < h - reach) {
+            for (int k = 0; k < n; ++k) {
+                const wp::vec2i o = offs[k];
+                if (p[(long long)o.c[1] * pitch + (long long)o.c[0] * sx] != 0)
+                    return wp::vec2i(x + o.c[0], y + o.c[1]);
+            }
+        } else {
+            for (int k = 0; k < n; ++k) {
+                const wp::vec2i o = offs[k];
+                const int xx = x + o.c[0];
+                const int yy = y + o.c[1];
+                if (xx >= 0 && xx < w && yy >= 0 && yy < h && p[(long long)o.c[1] * pitch + (long long)o.c[0] * sx] != 0)
+                    return wp::vec2i(xx, yy);
+            }
+        }
+    }
+    return wp::vec2i(-1, -1);
+"""
+
+
+@wp.func_native(_NEAREST_IN_DISC_SNIPPET)
 def nearest_in_disc(mask: wp.array2d(dtype=wp.uint8), x: int, y: int, offsets: wp.array(dtype=wp.vec2i)) -> wp.vec2i:
     """Nearest seed of the NON-seed pixel (x, y) by a scan of ``offsets`` (every offset of the disc the block
     guarantee bounds, sorted by squared length, then dy, then dx): the first seed met is a nearest one, exact
-    (the "disc" variant). (-1, -1) when the disc holds no seed (the guarantee does not hold there)."""
-    h = mask.shape[0]
-    w = mask.shape[1]
-    for k in range(offsets.shape[0]):
-        o = offsets[k]
-        xx = x + o[0]
-        yy = y + o[1]
-        if xx >= 0 and xx < w and yy >= 0 and yy < h:
-            if mask[yy, xx] != wp.uint8(0):
-                return wp.vec2i(xx, yy)
-    return wp.vec2i(NO_SEED, NO_SEED)
+    (the "disc" variant). (-1, -1) when the disc holds no seed (the guarantee does not hold there). Native code
+    (see ``_NEAREST_IN_DISC_SNIPPET``); ``offsets`` must be contiguous (the stage's own array)."""
+    ...
 
 
 @wp.func

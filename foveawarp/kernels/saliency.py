@@ -13,6 +13,8 @@ Conventions:
 
 import warp as wp
 
+from .load import load1_vec3, load_i32, load_vec3
+
 # Sobel response to a unit step between neighbouring pixels (1 + 2 + 1).
 SOBEL_GAIN = 4.0
 # Lab step (Delta E*76 units) across one pixel that saturates dA = 1 at SaliencyConfig.albedo_scale = 1.
@@ -66,15 +68,15 @@ def sobel_vec3(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
     neighbourhood whose nine values are all equal (a flat face's normals) returns 0 without the arithmetic: the
     operator's two sums are then the same operations on the same values, so their difference is exactly 0."""
     xm, xp, ym, yp = clamped_neighbours(x, y, a.shape[1], a.shape[0])
-    c = a[y, x]
-    a00 = a[ym, xm]
-    a01 = a[ym, x]
-    a02 = a[ym, xp]
-    a10 = a[y, xm]
-    a12 = a[y, xp]
-    a20 = a[yp, xm]
-    a21 = a[yp, x]
-    a22 = a[yp, xp]
+    c = load_vec3(a, y, x)  # every tap is clamped into the image: the unchecked loads (kernels/load.py)
+    a00 = load_vec3(a, ym, xm)
+    a01 = load_vec3(a, ym, x)
+    a02 = load_vec3(a, ym, xp)
+    a10 = load_vec3(a, y, xm)
+    a12 = load_vec3(a, y, xp)
+    a20 = load_vec3(a, yp, xm)
+    a21 = load_vec3(a, yp, x)
+    a22 = load_vec3(a, yp, xp)
     if a00 == c and a01 == c and a02 == c and a10 == c and a12 == c and a20 == c and a21 == c and a22 == c:
         return 0.0
     return sobel_max_channel(a00, a01, a02, a10, a12, a20, a21, a22)
@@ -95,22 +97,26 @@ def sobel_lab_by_face(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype
     by its face in ``face_lab`` (``saliency.face_lab_kernel``: the same values as converting the albedo). Nine
     taps on one face (or all misses) read one table entry: the gradient is exactly 0 (see :func:`sobel_vec3`)."""
     xm, xp, ym, yp = clamped_neighbours(x, y, face.shape[1], face.shape[0])
-    f = face[y, x]
-    f00 = face[ym, xm]
-    f01 = face[ym, x]
-    f02 = face[ym, xp]
-    f10 = face[y, xm]
-    f12 = face[y, xp]
-    f20 = face[yp, xm]
-    f21 = face[yp, x]
-    f22 = face[yp, xp]
+    f = load_i32(face, y, x)  # clamped taps and table indices in [0, F]: the unchecked loads (kernels/load.py)
+    f00 = load_i32(face, ym, xm)
+    f01 = load_i32(face, ym, x)
+    f02 = load_i32(face, ym, xp)
+    f10 = load_i32(face, y, xm)
+    f12 = load_i32(face, y, xp)
+    f20 = load_i32(face, yp, xm)
+    f21 = load_i32(face, yp, x)
+    f22 = load_i32(face, yp, xp)
     if f00 == f and f01 == f and f02 == f and f10 == f and f12 == f and f20 == f and f21 == f and f22 == f:
         return 0.0
     n = face_lab.shape[0] - 1
-    return sobel_max_channel(face_lab[wp.where(f00 < 0, n, f00)], face_lab[wp.where(f01 < 0, n, f01)],
-                             face_lab[wp.where(f02 < 0, n, f02)], face_lab[wp.where(f10 < 0, n, f10)],
-                             face_lab[wp.where(f12 < 0, n, f12)], face_lab[wp.where(f20 < 0, n, f20)],
-                             face_lab[wp.where(f21 < 0, n, f21)], face_lab[wp.where(f22 < 0, n, f22)])
+    return sobel_max_channel(load1_vec3(face_lab, wp.where(f00 < 0, n, f00)),
+                             load1_vec3(face_lab, wp.where(f01 < 0, n, f01)),
+                             load1_vec3(face_lab, wp.where(f02 < 0, n, f02)),
+                             load1_vec3(face_lab, wp.where(f10 < 0, n, f10)),
+                             load1_vec3(face_lab, wp.where(f12 < 0, n, f12)),
+                             load1_vec3(face_lab, wp.where(f20 < 0, n, f20)),
+                             load1_vec3(face_lab, wp.where(f21 < 0, n, f21)),
+                             load1_vec3(face_lab, wp.where(f22 < 0, n, f22)))
 
 
 @wp.func

@@ -44,30 +44,59 @@ def isqrt(n: int) -> int:
 F32_MAX = wp.constant(3.4028234663852886e38)
 
 
-@wp.func
+# the tap loop of the gather: a tap is one int32 read, the row's address is formed once and each tap offsets it
+# (Warp's 2D indexing recomputes a 64-bit strided address with a negative-index wrap per tap: about half of the
+# gather's instructions on the H100). Rows must be contiguous (``strides[1]`` = element size), as the stage's own
+# ``radius_sq`` and ``voronoi_color`` are.
+_DISC_SUM_SNIPPET = r"""
+    const int h = r2.shape[0];
+    const int w = r2.shape[1];
+    const int y0 = -rw > -y ? -rw : -y;
+    const int y1 = rw < h - 1 - y ? rw : h - 1 - y;
+    const char* rbase = (const char*)r2.data;
+    const char* vbase = (const char*)vor.data;
+    const size_t rpitch = (size_t)r2.strides[0];
+    const size_t vpitch = (size_t)vor.strides[0];
+    float ax = 0.0f, ay = 0.0f, az = 0.0f;
+    int n = 0;
+    for (int dy = y0; dy <= y1; ++dy) {
+        const int dy2 = dy * dy;
+        const int m = rmax2 - dy2;
+        int s = 0;  // isqrt(m), 0 for m <= 0 (as isqrt below)
+        if (m > 0) {
+            s = (int)sqrtf((float)m);
+            while (s * s > m) --s;
+            while ((s + 1) * (s + 1) <= m) ++s;
+        }
+        const int dxm = rw < s ? rw : s;
+        const int x0 = -dxm > -x ? -dxm : -x;
+        const int x1 = dxm < w - 1 - x ? dxm : w - 1 - x;
+        const int qy = y + dy;
+        const int* rrow = (const int*)(rbase + (size_t)qy * rpitch) + x;
+        const wp::vec3* vrow = (const wp::vec3*)(vbase + (size_t)qy * vpitch) + x;
+        for (int dx = x0; dx <= x1; ++dx) {
+            if (dx * dx + dy2 <= rrow[dx]) {
+                const wp::vec3 c = vrow[dx];
+                ax = ax + c.c[0] * scale;
+                ay = ay + c.c[1] * scale;
+                az = az + c.c[2] * scale;
+                n = n + 1;
+            }
+        }
+    }
+    return wp::vec4(ax, ay, az, (float)n);
+"""
+
+
+@wp.func_native(_DISC_SUM_SNIPPET)
 def disc_sum(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, rmax2: int,
              scale: float) -> wp.vec4:
     """(sum of ``scale * vor[q]``, count) over the non-seed q within the half window ``rw`` whose disc
     covers the non-seed p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every such
     r_q^2). Raster order over (dy, dx). A tap reads only ``r2``: it is -1 at the seeds (the last JFA pass writes
-    it so), and no offset's squared length is below 0."""
-    h = r2.shape[0]
-    w = r2.shape[1]
-    y0 = wp.max(-rw, -y)
-    y1 = wp.min(rw, h - 1 - y)
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    n = int(0)
-    for dy in range(y0, y1 + 1):
-        dxm = wp.min(rw, isqrt(rmax2 - dy * dy))
-        x0 = wp.max(-dxm, -x)
-        x1 = wp.min(dxm, w - 1 - x)
-        qy = y + dy
-        for dx in range(x0, x1 + 1):
-            qx = x + dx
-            if dx * dx + dy * dy <= r2[qy, qx]:
-                acc = acc + vor[qy, qx] * scale
-                n = n + 1
-    return wp.vec4(acc[0], acc[1], acc[2], float(n))
+    it so), and no offset's squared length is below 0. Native code (see ``_DISC_SUM_SNIPPET``); both arrays'
+    rows must be contiguous."""
+    ...
 
 
 @wp.func

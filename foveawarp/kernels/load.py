@@ -1,0 +1,32 @@
+"""Element loads for the hot tap loops, in native code.
+
+Warp's ``a[y, x]`` forms the address with a negative-index wrap and a 64-bit signed multiply per index (about a
+dozen instructions on the H100; Nsight Compute's instruction counts put most of the Sobel, disc-scan and gather
+loops there). These take indices the caller has already bounded to ``0 <= y < shape[0]``, ``0 <= x < shape[1]``
+and form ``data + y * strides[0] + x * strides[1]`` with unsigned 32 x 32 -> 64-bit multiplies: any strides, no
+wrap. The value loaded is the same element, so results do not change. Not for indices that may be negative or
+out of range (no check is made).
+"""
+
+import warp as wp
+
+_ADDR = "(const char*)a.data + (size_t)(unsigned)y * (size_t)(unsigned)a.strides[0] " \
+        "+ (size_t)(unsigned)x * (size_t)(unsigned)a.strides[1]"
+
+
+@wp.func_native(f"return *(const wp::vec3*)({_ADDR});")
+def load_vec3(a: wp.array2d(dtype=wp.vec3), y: int, x: int) -> wp.vec3:
+    """``a[y, x]`` for 0 <= y < H, 0 <= x < W (unchecked)."""
+    ...
+
+
+@wp.func_native(f"return *(const int*)({_ADDR});")
+def load_i32(a: wp.array2d(dtype=wp.int32), y: int, x: int) -> int:
+    """``a[y, x]`` for 0 <= y < H, 0 <= x < W (unchecked)."""
+    ...
+
+
+@wp.func_native("return *(const wp::vec3*)((const char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]);")
+def load1_vec3(a: wp.array(dtype=wp.vec3), i: int) -> wp.vec3:
+    """``a[i]`` for 0 <= i < N (unchecked)."""
+    ...
