@@ -26,6 +26,8 @@ one pass per step), so the results are identical to it.
 
 import warp as wp
 
+from .load import load_u8, load_vec3, store_i32, store_vec2i, store_vec3
+
 NO_SEED = wp.constant(-1)
 INT_MAX = wp.constant(2147483647)
 RTILE = wp.constant(16)  # edge of the screen tiles of the radius reduction (RTILE^2 = 256 = the CUDA block)
@@ -153,21 +155,25 @@ def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.v
                     r2_out: wp.array2d(dtype=wp.int32), color_out: wp.array2d(dtype=wp.vec3)) -> int:
     """The last pass at pixel (x, y), shared by the tiled and the band kernels: writes its outputs there and
     returns its r_q^2 (>= 0), -1 for a non-seed pixel without a seed, -2 for a seed."""
-    if mask[y, x] != wp.uint8(0):
+    # (y, x) is a pixel and a found seed lies in the image: the unchecked loads and stores (kernels/load.py)
+    if load_u8(mask, y, x) != wp.uint8(0):
         if from_mask != 0:
-            nearest[y, x] = wp.vec2i(x, y)
-        r2_out[y, x] = -1  # a seed reaches no other pixel: the gather's taps need not read the mask
+            store_vec2i(nearest, y, x, wp.vec2i(x, y))
+        store_i32(r2_out, y, x, -1)  # a seed reaches no other pixel: the gather's taps need not read the mask
         if color_mode == 2:
-            color_out[y, x] = finite_or_zero(color_in[y, x])
+            store_vec3(color_out, y, x, finite_or_zero(load_vec3(color_in, y, x)))
         return -2
     s = last_pass_seed(mask, src, x, y, step, from_mask, settled, offsets)
-    nearest[y, x] = s
+    store_vec2i(nearest, y, x, s)
     r2 = int(-1)
+    c = wp.vec3(0.0, 0.0, 0.0)
     if s[0] >= 0:
         r2 = seed_dist2(x, y, s)
-    r2_out[y, x] = r2
+        if color_mode != 0:
+            c = finite_or_zero(load_vec3(color_in, s[1], s[0]))
+    store_i32(r2_out, y, x, r2)
     if color_mode != 0:
-        color_out[y, x] = voronoi_color(color_in, s)
+        store_vec3(color_out, y, x, c)  # voronoi_color: the finite color of the seed, 0 without one
     return r2
 
 

@@ -15,6 +15,8 @@ A pixel's history is reusable (a cache hit) when all of these hold:
 
 import warp as wp
 
+from .load import load_f32, load_u8
+
 
 @wp.func
 def cache_lookup(
@@ -39,8 +41,8 @@ def cache_lookup(
         v = 0.0
     ix = int(wp.floor(u))
     iy = int(wp.floor(v))
-    valid = valid_prev[iy, ix]
-    dprev = depth_prev[iy, ix]
+    valid = load_u8(valid_prev, iy, ix)  # clamped on screen: the unchecked loads (kernels/load.py)
+    dprev = load_f32(depth_prev, iy, ix)
     if hit == wp.uint8(0):
         return -1
     # written so that NaN coordinates fail too

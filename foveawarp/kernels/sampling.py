@@ -19,6 +19,7 @@ import warp as wp
 
 from .camera import CameraParams, camera_project
 from .gbuffer import NO_REPROJ
+from .load import load_f32, load_i32, load_u8, load_vec2, load_vec3, store_i32, store_u8
 from .reproject import cache_lookup
 from .saliency import dof_factor, sobel_lab_by_face, sobel_vec3
 
@@ -200,9 +201,9 @@ def saliency_velocity(fp: FrameParams, velocity: wp.array2d(dtype=wp.vec2), posi
     moved, minus where it was; camera motion removed). Each array is read only on the branch that uses it
     (the position, 12 bytes a pixel, only with object motion)."""
     if fp.object_velocity == 0:
-        return velocity[y, x]
+        return load_vec2(velocity, y, x)  # a pixel: the unchecked loads (kernels/load.py)
     v = wp.vec2(0.0, 0.0)
-    pr = camera_project(fp.cam_prev, position[y, x])
+    pr = camera_project(fp.cam_prev, load_vec3(position, y, x))
     if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
         v = wp.vec2(pr[0] - uv[0], pr[1] - uv[1])
     return v
@@ -235,7 +236,7 @@ def rank_in_tile(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.in
     """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K,
     each term in [0, K), so the remainder is at most two subtractions."""
     k = sp.block
-    r = ranks[y - ty * k, x - tx * k] + tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
+    r = load_i32(ranks, y - ty * k, x - tx * k) + tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
     if r >= sp.num_ranks:
         r -= sp.num_ranks
     if r >= sp.num_ranks:
@@ -515,8 +516,9 @@ def sampling_map_pixel(
     """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it)."""
     w = depth.shape[1]
     h = depth.shape[0]
-    hit_px = hit[y, x]
-    uv = reproj_uv[y, x]
+    # (y, x) is a pixel: the unchecked loads and stores of kernels/load.py for the per-pixel values
+    hit_px = load_u8(hit, y, x)
+    uv = load_vec2(reproj_uv, y, x)
     p = float(1.0)
     s = float(1.0)
     if sp.foveation != 0:
@@ -547,7 +549,7 @@ def sampling_map_pixel(
             if fp.use_velocity != 0 and s < 1.0:
                 s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
             if fp.dof_on != 0:
-                s = s * dof_factor(depth[y, x], fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
+                s = s * dof_factor(load_f32(depth, y, x), fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
         s = wp.clamp(s, fp.xi, 1.0)
         if wp.isnan(s):
             s = 1.0
@@ -555,15 +557,13 @@ def sampling_map_pixel(
         out_probability[y, x] = p
         out_saliency[y, x] = s
         return
-    out_sample[y, x] = dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase)
+    store_u8(out_sample, y, x, dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase))
     idx = int(-1)
     if fp.do_cache != 0:
-        idx = cache_lookup(uv, prev_dist[y, x], hit_px, depth[y, x], depth_prev, valid_prev, sp.depth_eps_rel)
-    out_prev_index[y, x] = wp.int32(idx)
-    if idx >= 0:
-        out_cache_hit[y, x] = wp.uint8(1)
-    else:
-        out_cache_hit[y, x] = wp.uint8(0)
+        idx = cache_lookup(uv, load_f32(prev_dist, y, x), hit_px, load_f32(depth, y, x), depth_prev, valid_prev,
+                           sp.depth_eps_rel)
+    store_i32(out_prev_index, y, x, idx)
+    store_u8(out_cache_hit, y, x, wp.where(idx >= 0, wp.uint8(1), wp.uint8(0)))
 
 
 def _make_sampling_map(rows: bool):

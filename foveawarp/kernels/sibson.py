@@ -23,6 +23,7 @@ sum that overflows float32 (colors near float max) is redone with scaled terms, 
 import warp as wp
 
 from .jfa import RTILE, finite_or_zero
+from .load import load_i32, load_u8, load_vec3, store_vec3
 from .tonemap import tonemap_rgb
 
 
@@ -62,13 +63,18 @@ _DISC_SUM_SNIPPET = r"""
     for (int dy = y0; dy <= y1; ++dy) {
         const int dy2 = dy * dy;
         const int m = rmax2 - dy2;
-        int s = 0;  // isqrt(m), 0 for m <= 0 (as isqrt below)
+        int dxm = 0;  // min(rw, isqrt(m)), 0 for m <= 0 (isqrt below)
         if (m > 0) {
-            s = (int)sqrtf((float)m);
-            while (s * s > m) --s;
-            while ((s + 1) * (s + 1) <= m) ++s;
+            if (rw <= 16) {  // the small windows of the block guarantee: count down from rw, no square root
+                dxm = rw;
+                while (dxm * dxm > m) --dxm;
+            } else {
+                int s = (int)sqrtf((float)m);
+                while (s * s > m) --s;
+                while ((s + 1) * (s + 1) <= m) ++s;
+                dxm = rw < s ? rw : s;
+            }
         }
-        const int dxm = rw < s ? rw : s;
         const int x0 = -dxm > -x ? -dxm : -x;
         const int x1 = dxm < w - 1 - x ? dxm : w - 1 - x;
         const int qy = y + dy;
@@ -137,11 +143,12 @@ def sibson_gather_pixel(
     display: wp.array2d(dtype=wp.vec3),
 ):
     """Bounded Sibson gather at pixel (x, y) (``sibson_gather_kernel`` documents it)."""
-    if mask[y, x] != wp.uint8(0):  # a seed keeps its color
-        c = finite_or_zero(color_in[y, x])
-        color_out[y, x] = c
+    # (y, x) is a pixel and every tile index below lies in the tile grid: the unchecked loads (kernels/load.py)
+    if load_u8(mask, y, x) != wp.uint8(0):  # a seed keeps its color
+        c = finite_or_zero(load_vec3(color_in, y, x))
+        store_vec3(color_out, y, x, c)
         if to_display != 0:
-            display[y, x] = tonemap_rgb(c, exposure, white)
+            store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
         return
     # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc ...
     rw = wp.min(window, isqrt(max_r2[0]))
@@ -151,12 +158,12 @@ def sibson_gather_pixel(
     loc = int(0)
     for ty in range(wp.max(y - rw, 0) // RTILE, wp.min(y + rw, h - 1) // RTILE + 1):
         for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + rw, w - 1) // RTILE + 1):
-            loc = wp.max(loc, tile_r2[ty, tx])
+            loc = wp.max(loc, load_i32(tile_r2, ty, tx))
     rw = wp.min(rw, isqrt(loc))
     c = disc_mean(vor, r2, x, y, rw, loc)
-    color_out[y, x] = c
+    store_vec3(color_out, y, x, c)
     if to_display != 0:
-        display[y, x] = tonemap_rgb(c, exposure, white)
+        store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
 
 
 
