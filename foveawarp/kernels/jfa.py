@@ -111,7 +111,21 @@ _NEAREST_IN_DISC_SNIPPET = r"""
         const wp::vec2i last = offs[n - 1];  // the longest offset: no component exceeds its length
         const int reach = (int)sqrtf((float)(last.c[0] * last.c[0] + last.c[1] * last.c[1])) + 1;
         if (x >= reach && y >= reach && x < w - reach && y < h - reach) {
-            for (int k = 0; k < n; ++k) {
+            // four mask reads in flight per step (the scan is a chain of dependent short loops otherwise); the
+            // first nonzero one in offset order is taken, as in the one-at-a-time loop
+            int k = 0;
+            for (; k + 3 < n; k += 4) {
+                const wp::vec2i o0 = offs[k], o1 = offs[k + 1], o2 = offs[k + 2], o3 = offs[k + 3];
+                const unsigned char m0 = p[(long long)o0.c[1] * pitch + (long long)o0.c[0] * sx];
+                const unsigned char m1 = p[(long long)o1.c[1] * pitch + (long long)o1.c[0] * sx];
+                const unsigned char m2 = p[(long long)o2.c[1] * pitch + (long long)o2.c[0] * sx];
+                const unsigned char m3 = p[(long long)o3.c[1] * pitch + (long long)o3.c[0] * sx];
+                if (m0 != 0) return wp::vec2i(x + o0.c[0], y + o0.c[1]);
+                if (m1 != 0) return wp::vec2i(x + o1.c[0], y + o1.c[1]);
+                if (m2 != 0) return wp::vec2i(x + o2.c[0], y + o2.c[1]);
+                if (m3 != 0) return wp::vec2i(x + o3.c[0], y + o3.c[1]);
+            }
+            for (; k < n; ++k) {
                 const wp::vec2i o = offs[k];
                 if (p[(long long)o.c[1] * pitch + (long long)o.c[0] * sx] != 0)
                     return wp::vec2i(x + o.c[0], y + o.c[1]);
