@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from foveawarp import ReconstructionConfig, ops
-from foveawarp.kernels.sibson import disc_sum, isqrt
+from foveawarp.kernels.sibson import isqrt
 from foveawarp.stages.reconstruct import ReconstructStage, sibson_window_for_block
 
 TOL = 1e-5
@@ -282,62 +282,6 @@ def ops_exact_max_d2(mask):
 def _isqrt_test_kernel(n: wp.array(dtype=wp.int32), r: wp.array(dtype=wp.int32)):
     i = wp.tid()
     r[i] = isqrt(n[i])
-
-
-@wp.kernel(enable_backward=False)
-def _disc_sum_kernel(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), rw: int, rmax2: int,
-                     scale: float, out: wp.array2d(dtype=wp.vec4)):
-    y, x = wp.tid()
-    out[y, x] = disc_sum(vor, r2, x, y, rw, rmax2, scale)
-
-
-def _disc_sums(vor, r2, rw, rmax2, scale, device):
-    h, w = r2.shape
-    out = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    wp.launch(_disc_sum_kernel, dim=(h, w), inputs=[wp.array(vor, dtype=wp.vec3, device=device),
-              wp.array(r2, dtype=wp.int32, device=device), rw, rmax2, scale], outputs=[out], device=device)
-    return out.numpy()
-
-
-def _disc_sum_numpy(vor, r2, rw, rmax2):
-    """float64 (sum, count) of the taps the gather visits: |dy| <= rw and (dx == 0, or |dx| <= rw and
-    dx^2 + dy^2 <= rmax2), inside the image, that reach p (dx^2 + dy^2 <= r2[q])."""
-    h, w = r2.shape
-    out = np.zeros((h, w, 4))
-    for y in range(h):
-        for x in range(w):
-            for dy in range(-rw, rw + 1):
-                for dx in range(-rw, rw + 1):
-                    d2 = dx * dx + dy * dy
-                    qy, qx = y + dy, x + dx
-                    if (dx != 0 and d2 > rmax2) or not (0 <= qy < h and 0 <= qx < w) or d2 > r2[qy, qx]:
-                        continue
-                    out[y, x, :3] += vor[qy, qx]
-                    out[y, x, 3] += 1
-    return out
-
-
-@pytest.mark.parametrize("rmax2", [0, 2, 5, 9, 13, 16])
-def test_disc_sum_unrolled_window_equals_the_row_loop(rmax2, device, rng):
-    """Away from the border a window of at most 4 takes the unrolled 9 x 9 taps, elsewhere the row loop. With
-    every r_q^2 <= rmax2 <= 16, window 5 (the row loop everywhere) visits no more reaching taps than window 4, so
-    the two sums are the same bits; and a 4-pixel border of non-reaching pixels (r^2 = -1) around the image moves
-    every pixel to the unrolled path without changing its sum. Both against a float64 NumPy sum."""
-    h, w = 21, 26
-    r2 = rng.integers(-1, rmax2 + 1, size=(h, w)).astype(np.int32)
-    vor = (rng.normal(size=(h, w, 3)) * 5).astype(np.float32)
-    four = _disc_sums(vor, r2, 4, rmax2, 1.0, device)
-    five = _disc_sums(vor, r2, 5, rmax2, 1.0, device)
-    np.testing.assert_array_equal(four.view(np.uint32), five.view(np.uint32))
-    pr2 = np.pad(r2, 4, constant_values=-1)
-    pvor = np.pad(vor, ((4, 4), (4, 4), (0, 0)), constant_values=1e30)  # never read: r^2 = -1 reaches nothing
-    padded = _disc_sums(pvor, pr2, 4, rmax2, 1.0, device)[4:-4, 4:-4]
-    np.testing.assert_array_equal(padded.view(np.uint32), four.view(np.uint32))
-    for rw in (0, 1, 3, 4):
-        ref = _disc_sum_numpy(vor, r2, rw, rmax2)
-        got = _disc_sums(vor, r2, rw, rmax2, 1.0, device)
-        np.testing.assert_array_equal(got[..., 3], ref[..., 3])
-        np.testing.assert_allclose(got[..., :3], ref[..., :3], rtol=1e-5, atol=1e-4)
 
 
 def test_isqrt_exact(device):

@@ -60,41 +60,6 @@ _DISC_SUM_SNIPPET = r"""
     const size_t vpitch = (size_t)vor.strides[0];
     float ax = 0.0f, ay = 0.0f, az = 0.0f;
     int n = 0;
-    if (rw <= 4 && x >= 4 && y >= 4 && x + 4 < w && y + 4 < h) {
-        // the window of the default block (J <= 4) away from the border: the 9 x 9 taps unrolled with constant
-        // offsets and squared lengths, no per-row bounds. The loop below visits (dx, dy) when |dy| <= rw and
-        // (dx == 0, or |dx| <= rw and dx^2 + dy^2 <= rmax2); the same taps here, in the same raster order.
-        const int NONE = -1, ALL = 2147483647;
-        const int lim0 = ALL;  // dx == 0 and |dy| <= rw: visited whatever rmax2
-        const int lim1 = 1 <= rw ? rmax2 : NONE;
-        const int lim2 = 2 <= rw ? rmax2 : NONE;
-        const int lim3 = 3 <= rw ? rmax2 : NONE;
-        const int lim4 = 4 <= rw ? rmax2 : NONE;
-        #pragma unroll
-        for (int dy = -4; dy <= 4; ++dy) {
-            const int ady = dy < 0 ? -dy : dy;
-            if (ady > rw) continue;
-            const int* rrow = (const int*)(rbase + (size_t)(y + dy) * rpitch) + x;
-            const wp::vec3* vrow = (const wp::vec3*)(vbase + (size_t)(y + dy) * vpitch) + x;
-            #pragma unroll
-            for (int dx = -4; dx <= 4; ++dx) {
-                const int adx = dx < 0 ? -dx : dx;
-                const int k = adx > ady ? adx : ady;
-                const int lim = dx == 0 ? lim0 : (k == 1 ? lim1 : (k == 2 ? lim2 : (k == 3 ? lim3 : lim4)));
-                const int d2 = dx * dx + dy * dy;
-                if (d2 <= lim) {
-                    if (d2 <= rrow[dx]) {
-                        const wp::vec3 c = vrow[dx];
-                        ax = ax + c.c[0] * scale;
-                        ay = ay + c.c[1] * scale;
-                        az = az + c.c[2] * scale;
-                        n = n + 1;
-                    }
-                }
-            }
-        }
-        return wp::vec4(ax, ay, az, (float)n);
-    }
     for (int dy = y0; dy <= y1; ++dy) {
         const int dy2 = dy * dy;
         const int m = rmax2 - dy2;
@@ -136,8 +101,7 @@ def disc_sum(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: 
     covers the non-seed p = (x, y) (``|p - q|^2 <= r_q^2``; offsets also clipped to ``rmax2`` >= every such
     r_q^2). Raster order over (dy, dx). A tap reads only ``r2``: it is -1 at the seeds (the last JFA pass writes
     it so), and no offset's squared length is below 0. Native code (see ``_DISC_SUM_SNIPPET``); both arrays'
-    rows must be contiguous. Windows of at most 4 pixels (the default block's) away from the border take a fully
-    unrolled 9 x 9 form that visits the same taps in the same order."""
+    rows must be contiguous."""
     ...
 
 
