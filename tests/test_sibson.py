@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from foveawarp import ReconstructionConfig, ops
-from foveawarp.kernels.sibson import isqrt
+from foveawarp.kernels.sibson import disc_sum, isqrt
 from foveawarp.stages.reconstruct import ReconstructStage, sibson_window_for_block
 
 TOL = 1e-5
@@ -282,6 +282,60 @@ def ops_exact_max_d2(mask):
 def _isqrt_test_kernel(n: wp.array(dtype=wp.int32), r: wp.array(dtype=wp.int32)):
     i = wp.tid()
     r[i] = isqrt(n[i])
+
+
+@wp.kernel(enable_backward=False)
+def _disc_sum_kernel(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), rw: int, rmax2: int,
+                     scale: float, out: wp.array2d(dtype=wp.vec4)):
+    y, x = wp.tid()
+    out[y, x] = disc_sum(vor, r2, x, y, rw, rmax2, scale)
+
+
+def _disc_sums(vor, r2, rw, rmax2, scale, device):
+    h, w = r2.shape
+    out = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    wp.launch(_disc_sum_kernel, dim=(h, w), inputs=[wp.array(vor, dtype=wp.vec3, device=device),
+              wp.array(r2, dtype=wp.int32, device=device), rw, rmax2, scale], outputs=[out], device=device)
+    return out.numpy()
+
+
+def _disc_sum_numpy(vor, r2, rw, rmax2):
+    """float64 (sum, count) of the taps the gather visits: |dy| <= rw and (dx == 0, or |dx| <= rw and
+    dx^2 + dy^2 <= rmax2), inside the image, that reach p (dx^2 + dy^2 <= r2[q])."""
+    h, w = r2.shape
+    out = np.zeros((h, w, 4))
+    for y in range(h):
+        for x in range(w):
+            for dy in range(-rw, rw + 1):
+                for dx in range(-rw, rw + 1):
+                    d2 = dx * dx + dy * dy
+                    qy, qx = y + dy, x + dx
+                    if (dx != 0 and d2 > rmax2) or not (0 <= qy < h and 0 <= qx < w) or d2 > r2[qy, qx]:
+                        continue
+                    out[y, x, :3] += vor[qy, qx]
+                    out[y, x, 3] += 1
+    return out
+
+
+@pytest.mark.parametrize("rmax2", [0, 2, 5, 9, 13, 18])
+def test_disc_sum_row_loop(rmax2, device, rng):
+    """The gather's tap loop (native code: row addresses formed once, taps by offsets, the row half-width counted
+    down from the window) against a float64 NumPy sum of the same taps, at windows 0..5; a border of
+    non-reaching pixels (r^2 = -1) around the image leaves every sum the same bits (the border clipping skips
+    only taps that cannot reach)."""
+    h, w = 21, 26
+    r2 = rng.integers(-1, rmax2 + 1, size=(h, w)).astype(np.int32)
+    vor = (rng.normal(size=(h, w, 3)) * 5).astype(np.float32)
+    for rw in (0, 1, 3, 4, 5):
+        ref = _disc_sum_numpy(vor, r2, rw, rmax2)
+        got = _disc_sums(vor, r2, rw, rmax2, 1.0, device)
+        np.testing.assert_array_equal(got[..., 3], ref[..., 3])
+        np.testing.assert_allclose(got[..., :3], ref[..., :3], rtol=1e-5, atol=1e-4)
+    pr2 = np.pad(r2, 5, constant_values=-1)
+    pvor = np.pad(vor, ((5, 5), (5, 5), (0, 0)), constant_values=1e30)  # never read: r^2 = -1 reaches nothing
+    four = _disc_sums(vor, r2, 4, rmax2, 1.0, device)
+    padded = _disc_sums(pvor, pr2, 4, rmax2, 1.0, device)[5:-5, 5:-5]
+    np.testing.assert_array_equal(padded.view(np.uint32), four.view(np.uint32))
 
 
 def test_isqrt_exact(device):
