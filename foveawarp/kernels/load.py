@@ -72,3 +72,27 @@ def store_i32(a: wp.array2d(dtype=wp.int32), y: int, x: int, v: int):
 def store_u8(a: wp.array2d(dtype=wp.uint8), y: int, x: int, v: wp.uint8):
     """``a[y, x] = v`` for 0 <= y < H, 0 <= x < W (unchecked)."""
     ...
+
+
+@wp.func_native("return *(const int*)((const char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]);")
+def load1_i32(a: wp.array(dtype=wp.int32), i: int) -> int:
+    """``a[i]`` for 0 <= i < N (unchecked)."""
+    ...
+
+
+@wp.func_native("*(wp::vec3*)((char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]) = v;")
+def store1_vec3(a: wp.array(dtype=wp.vec3), i: int, v: wp.vec3):
+    """``a[i] = v`` for 0 <= i < N (unchecked)."""
+    ...
+
+
+@wp.func_native("*(int*)((char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]) = v;")
+def store1_i32(a: wp.array(dtype=wp.int32), i: int, v: int):
+    """``a[i] = v`` for 0 <= i < N (unchecked)."""
+    ...
+
+
+@wp.func_native(f"*(float*){_ADDR} = v;")
+def store_f32(a: wp.array2d(dtype=float), y: int, x: int, v: float):
+    """``a[y, x] = v`` for 0 <= y < H, 0 <= x < W (unchecked)."""
+    ...

@@ -396,10 +396,10 @@ def tile_guarantee(ty: int, tx: int, ranks: wp.array2d(dtype=wp.int32), sp: Samp
     x1 = wp.min(x0 + k, sample.shape[1])
     y1 = wp.min(y0 + k, sample.shape[0])
     for yy in range(y0, y1):
-        for xx in range(x0, x1):
-            if sample[yy, xx] != wp.uint8(0):
+        for xx in range(x0, x1):  # inside the image: the unchecked loads (kernels/load.py)
+            if load_u8(sample, yy, xx) != wp.uint8(0):
                 n = n + 1
-            if cache_hit[yy, xx] != wp.uint8(0):
+            if load_u8(cache_hit, yy, xx) != wp.uint8(0):
                 nc = nc + 1
     if n == 0:
         rot = frame[0].rot

@@ -9,6 +9,8 @@ the G-buffer depth (also the next frame's cache test inputs)."""
 import warp as wp
 
 from .gbuffer import NO_REPROJ
+from .load import (load1_i32, load1_vec3, load_f32, load_u8, load_vec2, load_vec3, store1_i32, store1_vec3,
+                   store_f32, store_u8)
 from .sampling import FrameParams
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
@@ -86,12 +88,12 @@ def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth
     ``normal_cos_min``."""
     if tx < 0 or ty < 0 or tx >= w or ty >= h:
         return 0
-    i = ty * w + tx
-    if meta_age(meta_prev[i]) <= 0:
+    i = ty * w + tx  # on screen: the unchecked loads (kernels/load.py)
+    if meta_age(load1_i32(meta_prev, i)) <= 0:
         return 0
-    if not (wp.abs(depth_prev[ty, tx] - dist_prev) < tp.depth_eps_rel * depth):
+    if not (wp.abs(load_f32(depth_prev, ty, tx) - dist_prev) < tp.depth_eps_rel * depth):
         return 0
-    if wp.dot(normal_prev[i], n) < tp.normal_cos_min:
+    if wp.dot(load1_vec3(normal_prev, i), n) < tp.normal_cos_min:
         return 0
     return 1
 
@@ -127,8 +129,9 @@ def neighbourhood_box(x: int, y: int, radius: int, sample_map: wp.array2d(dtype=
             for dx in range(-radius, radius + 1):
                 xx = x + dx
                 if xx >= 0 and xx < w:
-                    if sample_map[yy, xx] != wp.uint8(0) and hit[yy, xx] != wp.uint8(0):
-                        c = fresh_stoch[yy, xx]
+                    # inside the image: the unchecked loads (kernels/load.py)
+                    if load_u8(sample_map, yy, xx) != wp.uint8(0) and load_u8(hit, yy, xx) != wp.uint8(0):
+                        c = load_vec3(fresh_stoch, yy, xx)
                         m1 += c
                         m2 += wp.cw_mul(c, c)
                         cnt += 1
@@ -190,8 +193,9 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         h = out_filled.shape[0]
         i = y * w + x
         zero = wp.vec3(0.0, 0.0, 0.0)
-        d = depth[y, x]
-        out_depth[y, x] = d
+        # (y, x) is a pixel and i its flat index: the unchecked loads and stores of kernels/load.py
+        d = load_f32(depth, y, x)
+        store_f32(out_depth, y, x, d)
         # what this pixel shows and keeps: colour, stochastic part, age, staleness, filled (written once, below)
         n = zero
         col = zero
@@ -199,29 +203,29 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         age = int(0)
         stale = int(0)
         filled = wp.uint8(0)
-        sampled = sample_map[y, x] != wp.uint8(0)
-        if hit[y, x] == wp.uint8(0):
+        sampled = load_u8(sample_map, y, x) != wp.uint8(0)
+        if load_u8(hit, y, x) == wp.uint8(0):
             # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
             col = tp.background
             filled = wp.uint8(1)
         elif wp.static(not stochastic) and sampled:
             # deterministic shading: the fresh value is the answer; history would only add error
-            n = normal[y, x]
-            col = fresh[y, x]
+            n = load_vec3(normal, y, x)
+            col = load_vec3(fresh, y, x)
             age = 1
             filled = wp.uint8(1)
         else:
-            n = normal[y, x]
+            n = load_vec3(normal, y, x)
             # bilinear history at the reprojected position, each tap validated by depth and normal
             wsum = float(0.0)
             hc = zero
             hs = zero
             age_h = int(1 << 30)
             stale_h = int(0)
-            uv = reproj_uv[y, x]
+            uv = load_vec2(reproj_uv, y, x)
             if tp.use_history != 0 and uv[0] > 0.5 * NO_REPROJ and uv[1] > 0.5 * NO_REPROJ:
                 x0, y0, fx, fy = bilinear_taps(uv, w, h)
-                dp = prev_dist[y, x]
+                dp = load_f32(prev_dist, y, x)
                 for k in range(4):
                     tx = x0 + (k & 1)
                     ty = y0 + (k >> 1)
@@ -235,11 +239,11 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                     if wt > 0.0:
                         if tap_ok(tx, ty, w, h, dp, n, d, tp, depth_prev, normal_prev, meta_prev) != 0:
                             j = ty * w + tx
-                            mj = meta_prev[j]
+                            mj = load1_i32(meta_prev, j)
                             wsum += wt
-                            hc += color_prev[j] * wt
+                            hc += load1_vec3(color_prev, j) * wt
                             if wp.static(stochastic):
-                                hs += stoch_prev[j] * wt
+                                hs += load1_vec3(stoch_prev, j) * wt
                             age_h = wp.min(age_h, meta_age(mj))
                             stale_h = wp.max(stale_h, meta_stale(mj))
             have = wsum > 1.0e-3
@@ -250,14 +254,14 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
             if sampled:
                 # stochastic shading (the deterministic kernel took the branch above): fresh deterministic
                 # part + accumulated, neighbourhood-clipped stochastic part
-                col = fresh[y, x]
+                col = load_vec3(fresh, y, x)
                 age = 1
                 if wp.static(stochastic):
-                    st = fresh_stoch[y, x]
+                    st = load_vec3(fresh_stoch, y, x)
                     if have:
                         if wp.static(boxed):
-                            lo = box_lo[y, x]
-                            hi = box_hi[y, x]
+                            lo = load_vec3(box_lo, y, x)
+                            hi = load_vec3(box_hi, y, x)
                             if lo[0] <= hi[0]:  # an empty box: fewer than 3 traced neighbours, no clipping
                                 hs = clip_to_box(hs, lo, hi)
                         else:
@@ -267,7 +271,7 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                                 hs = clip_to_box(hs, lo, hi)
                         m = wp.min(age_h, tp.max_frames - 1)
                         alpha = 1.0 / float(m + 1)
-                        alpha = wp.max(alpha, wp.min(wp.length(velocity[y, x]) * tp.motion_alpha_per_px, 1.0))
+                        alpha = wp.max(alpha, wp.min(wp.length(load_vec2(velocity, y, x)) * tp.motion_alpha_per_px, 1.0))
                         alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
                         s_acc = hs + (st - hs) * alpha
                         col = col - st + s_acc
@@ -275,12 +279,12 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                         age = m + 1
                 filled = wp.uint8(1)
             elif have:
-                if moved[y, x] == wp.uint8(0):
+                if load_u8(moved, y, x) == wp.uint8(0):
                     # still (screen motion <= half a pixel): read only where the rule depends on it
                     still = True
                     young_ok = age_h >= tp.min_age_reuse
                     if wp.static(stochastic) or not young_ok:
-                        still = wp.length(velocity[y, x]) <= 0.5
+                        still = wp.length(load_vec2(velocity, y, x)) <= 0.5
                     young_ok = young_ok or still
                     stale_max = tp.max_frames
                     if wp.static(stochastic) and not still:
@@ -291,13 +295,13 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                         age = age_h
                         stale = stale_h + 1
                         filled = wp.uint8(1)
-        out_color[i] = col
-        out_filled[y, x] = filled
-        out_meta[i] = pack_meta(age, stale)
+        store1_vec3(out_color, i, col)
+        store_u8(out_filled, y, x, filled)
+        store1_i32(out_meta, i, pack_meta(age, stale))
         if age > 0:
-            out_normal[i] = n
+            store1_vec3(out_normal, i, n)
             if wp.static(stochastic):
-                out_stoch[i] = st
+                store1_vec3(out_stoch, i, st)
 
 
     # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72
