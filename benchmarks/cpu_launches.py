@@ -5,7 +5,7 @@ launch's wall time is its cost: the kernel, its band split and the thread pool),
 timed frames; the frame's time outside launches (Python of the head and the stages) is the rest. A kernel that
 takes the same time at 16 threads as at 1 is serial; the ratio of the two is its scaling.
 
-    python benchmarks/cpu_launches.py --device cpu [--threads 1,16] [--scenes cornell] [--frames 6]
+    python benchmarks/cpu_launches.py --device cpu [--threads 1,16] [--scenes cornell] [--frames 6] [--shading ao8]
 
 Writes benchmarks/results/cpu-launches-cpu.{json,md}.
 """
@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import SHADINGS, base_parser, md_table, shading_config, write_results  # noqa: E402
 
 
 class LaunchTimer:
@@ -60,8 +60,8 @@ class LaunchTimer:
             setattr(m, n, f)
 
 
-def profile(fw, scene, w, h, threads: int, policy: str, frames: int, warm: int = 3) -> dict:
-    loop = fw.FrameLoop(scene, w, h, device="cpu", policy=policy, cpu_threads=threads, timing=False)
+def profile(fw, scene, w, h, threads: int, policy: str, frames: int, warm: int = 3, config=None) -> dict:
+    loop = fw.FrameLoop(scene, w, h, config=config, device="cpu", policy=policy, cpu_threads=threads, timing=False)
     for i in range(warm):
         loop.render(scene.camera_at(i / 30), gaze_px=(w * 0.45, h * 0.5), time=i / 30)
     with LaunchTimer() as lt:
@@ -81,16 +81,22 @@ def main(argv=None):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=360)
     p.add_argument("--frames", type=int, default=6)
+    p.add_argument("--shading", default="default", help=f"one of {', '.join(SHADINGS)}")
     args = p.parse_args(argv)
+    if args.shading not in SHADINGS:
+        p.error(f"--shading must be one of {', '.join(SHADINGS)}, got {args.shading!r}")
     import foveawarp as fw
 
+    config = shading_config(fw, args.shading)
     threads = [int(t) for t in args.threads.split(",")]
     records, rows = [], []
     for name in args.scenes.split(","):
         scene = fw.load_scene(name)
         for policy in ("foveated", "full"):
-            per = {n: profile(fw, scene, args.width, args.height, n, policy, args.frames) for n in threads}
-            rec = {"scene": name, "width": args.width, "height": args.height, "path": policy,
+            per = {n: profile(fw, scene, args.width, args.height, n, policy, args.frames, config=config)
+                   for n in threads}
+            rec = {"scene": name, "width": args.width, "height": args.height, "shading": args.shading,
+                   "path": policy,
                    "by_threads": {str(n): v for n, v in per.items()}}
             records.append(rec)
             lo, hi = threads[0], threads[-1]

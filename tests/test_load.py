@@ -77,7 +77,9 @@ def test_stores_write_only_their_element(device, view):
     a8 = wp.array(big8, dtype=wp.uint8, device=device)[sl]
     a3 = wp.array(big3, dtype=wp.vec3, device=device)[sl]
     ai = wp.array(bigi, dtype=wp.int32, device=device)[sl]
-    fill3, filli, fill2 = np.full((H, W, 3), -7.0, np.float32), np.full((H, W), -7, np.int32), np.full((H, W, 2), -7, np.int32)
+    fill3 = np.full((H, W, 3), -7.0, np.float32)
+    filli = np.full((H, W), -7, np.int32)
+    fill2 = np.full((H, W, 2), -7, np.int32)
     o3b = wp.array(fill3, dtype=wp.vec3, device=device)
     oib = wp.array(filli, dtype=wp.int32, device=device)
     o2b = wp.array(fill2, dtype=wp.vec2i, device=device)

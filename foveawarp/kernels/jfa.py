@@ -135,7 +135,8 @@ _NEAREST_IN_DISC_SNIPPET = r"""
                 const wp::vec2i o = offs[k];
                 const int xx = x + o.c[0];
                 const int yy = y + o.c[1];
-                if (xx >= 0 && xx < w && yy >= 0 && yy < h && p[(long long)o.c[1] * pitch + (long long)o.c[0] * sx] != 0)
+                if (xx >= 0 && xx < w && yy >= 0 && yy < h
+                    && p[(long long)o.c[1] * pitch + (long long)o.c[0] * sx] != 0)
                     return wp::vec2i(xx, yy);
             }
         }

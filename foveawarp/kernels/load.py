@@ -10,6 +10,7 @@ range (no check is made).
 
 import warp as wp
 
+_ADDR1 = "((char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0])"
 _ADDR = "((char*)a.data + (size_t)(unsigned)y * (size_t)(unsigned)a.strides[0] " \
         "+ (size_t)(unsigned)x * (size_t)(unsigned)a.strides[1])"
 
@@ -44,7 +45,7 @@ def load_u8(a: wp.array2d(dtype=wp.uint8), y: int, x: int) -> wp.uint8:
     ...
 
 
-@wp.func_native("return *(const wp::vec3*)((const char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]);")
+@wp.func_native(f"return *(const wp::vec3*){_ADDR1};")
 def load1_vec3(a: wp.array(dtype=wp.vec3), i: int) -> wp.vec3:
     """``a[i]`` for 0 <= i < N (unchecked)."""
     ...
@@ -74,19 +75,19 @@ def store_u8(a: wp.array2d(dtype=wp.uint8), y: int, x: int, v: wp.uint8):
     ...
 
 
-@wp.func_native("return *(const int*)((const char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]);")
+@wp.func_native(f"return *(const int*){_ADDR1};")
 def load1_i32(a: wp.array(dtype=wp.int32), i: int) -> int:
     """``a[i]`` for 0 <= i < N (unchecked)."""
     ...
 
 
-@wp.func_native("*(wp::vec3*)((char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]) = v;")
+@wp.func_native(f"*(wp::vec3*){_ADDR1} = v;")
 def store1_vec3(a: wp.array(dtype=wp.vec3), i: int, v: wp.vec3):
     """``a[i] = v`` for 0 <= i < N (unchecked)."""
     ...
 
 
-@wp.func_native("*(int*)((char*)a.data + (size_t)(unsigned)i * (size_t)(unsigned)a.strides[0]) = v;")
+@wp.func_native(f"*(int*){_ADDR1} = v;")
 def store1_i32(a: wp.array(dtype=wp.int32), i: int, v: int):
     """``a[i] = v`` for 0 <= i < N (unchecked)."""
     ...
