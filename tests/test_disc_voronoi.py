@@ -102,6 +102,33 @@ def test_disc_scan_reads_a_strided_mask(device, block):
     assert (mask[near[..., 1], near[..., 0]] == 1).all()
 
 
+@pytest.mark.parametrize("block", [2, 4, 6])
+def test_disc_scan_takes_the_first_seed_in_offset_order(device, block):
+    """Among equally near seeds the scan returns the first in ``disc_offsets_for_block`` order (squared length,
+    then dy, then dx), inside the image (four reads in flight) and at its border alike: a NumPy scan of the same
+    offsets picks the same seed for every pixel. Dense masks make ties common."""
+    rng = np.random.default_rng(21 + block)
+    h, w = 33, 41
+    offs = disc_offsets_for_block(block)
+    for density in (0.05, 0.3, 0.6):
+        mask = guaranteed_mask(rng, h, w, block, density)
+        stage = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant="disc"), block, device)
+        stage.run_jfa(wp.array(mask, dtype=wp.uint8, device=device))
+        near = stage.nearest.numpy()
+        exp = np.full((h, w, 2), -1, np.int32)
+        for y in range(h):
+            for x in range(w):
+                if mask[y, x]:
+                    exp[y, x] = (x, y)
+                    continue
+                for dx, dy in offs:
+                    xx, yy = x + dx, y + dy
+                    if 0 <= xx < w and 0 <= yy < h and mask[yy, xx]:
+                        exp[y, x] = (xx, yy)
+                        break
+        np.testing.assert_array_equal(near, exp)
+
+
 def test_disc_sibson_equals_the_exact_scatter_on_its_nearest_map(device):
     rng = np.random.default_rng(5)
     h, w, block = 48, 64, 4

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from foveawarp.kernels.load import (load1_vec3, load_i32, load_u8, load_vec3, store_i32, store_vec2i,
-                                   store_vec3)
+from foveawarp.kernels.load import (load1_i32, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
+                                   store1_i32, store1_vec3, store_f32, store_i32, store_u8, store_vec2i, store_vec3)
 
 
 @wp.kernel(enable_backward=False)
@@ -94,3 +94,67 @@ def test_stores_write_only_their_element(device, view):
     np.testing.assert_array_equal(o3b.numpy(), exp3)
     np.testing.assert_array_equal(oib.numpy(), expi)
     np.testing.assert_array_equal(o2b.numpy(), exp2)
+
+
+@wp.kernel(enable_backward=False)
+def _copy_more(af: wp.array2d(dtype=float), a2: wp.array2d(dtype=wp.vec2), a8: wp.array2d(dtype=wp.uint8),
+               of: wp.array2d(dtype=float), o2: wp.array2d(dtype=wp.vec3), o8: wp.array2d(dtype=wp.uint8)):
+    y, x = wp.tid()
+    store_f32(of, y, x, load_f32(af, y, x))
+    v = load_vec2(a2, y, x)
+    store_vec3(o2, y, x, wp.vec3(v[0], v[1], 0.0))
+    store_u8(o8, y, x, load_u8(a8, y, x))
+
+
+@wp.kernel(enable_backward=False)
+def _copy_flat(ai: wp.array(dtype=wp.int32), a3: wp.array(dtype=wp.vec3), idx: wp.array(dtype=wp.int32),
+               oi: wp.array(dtype=wp.int32), o3: wp.array(dtype=wp.vec3)):
+    k = wp.tid()
+    i = idx[k]
+    store1_i32(oi, i, load1_i32(ai, i))
+    store1_vec3(o3, i, load1_vec3(a3, i))
+
+
+@pytest.mark.parametrize("view", ["contiguous", "strided"])
+def test_float_vec2_u8_and_flat_loads_and_stores(device, view):
+    """The float, vec2 and uint8 loads and stores (2D) and the flat int32 / vec3 ones, element for element and
+    nothing else written, on contiguous and strided views."""
+    rng = np.random.default_rng(13)
+    H, W = 17, 29
+    sl = (slice(2, None, 2), slice(1, None, 3)) if view == "strided" else (slice(None), slice(None))
+    bf = rng.normal(size=(H, W)).astype(np.float32)
+    b2 = rng.normal(size=(H, W, 2)).astype(np.float32)
+    b8 = rng.integers(0, 256, size=(H, W), dtype=np.int64).astype(np.uint8)
+    af = wp.array(bf, dtype=float, device=device)[sl]
+    a2 = wp.array(b2, dtype=wp.vec2, device=device)[sl]
+    a8 = wp.array(b8, dtype=wp.uint8, device=device)[sl]
+    ofb = wp.array(np.full((H, W), -3.0, np.float32), dtype=float, device=device)
+    o2b = wp.array(np.full((H, W, 3), -3.0, np.float32), dtype=wp.vec3, device=device)
+    o8b = wp.array(np.full((H, W), 7, np.uint8), dtype=wp.uint8, device=device)
+    h, w = af.shape
+    wp.launch(_copy_more, dim=(h, w), inputs=[af, a2, a8], outputs=[ofb[sl], o2b[sl], o8b[sl]], device=device)
+    ef, e2, e8 = np.full((H, W), -3.0, np.float32), np.full((H, W, 3), -3.0, np.float32), np.full((H, W), 7, np.uint8)
+    ef[sl] = bf[sl]
+    e2[sl] = np.concatenate([b2[sl], np.zeros(b2[sl].shape[:2] + (1,), np.float32)], -1)
+    e8[sl] = b8[sl]
+    np.testing.assert_array_equal(ofb.numpy(), ef)
+    np.testing.assert_array_equal(o2b.numpy(), e2)
+    np.testing.assert_array_equal(o8b.numpy(), e8)
+
+    n = 60
+    bi = rng.integers(-10**6, 10**6, size=3 * n).astype(np.int32)
+    b3 = rng.normal(size=(3 * n, 3)).astype(np.float32)
+    fl = slice(1, None, 3) if view == "strided" else slice(0, n)
+    ai = wp.array(bi, dtype=wp.int32, device=device)[fl]
+    a3 = wp.array(b3, dtype=wp.vec3, device=device)[fl]
+    oib = wp.array(np.full(3 * n, -5, np.int32), dtype=wp.int32, device=device)
+    o3b = wp.array(np.full((3 * n, 3), -5.0, np.float32), dtype=wp.vec3, device=device)
+    idx = rng.permutation(ai.shape[0])[: ai.shape[0] // 2].astype(np.int32)  # half of the elements
+    wp.launch(_copy_flat, dim=idx.size, inputs=[ai, a3, wp.array(idx, device=device)], outputs=[oib[fl], o3b[fl]],
+              device=device)
+    ei, e3 = np.full(3 * n, -5, np.int32), np.full((3 * n, 3), -5.0, np.float32)
+    pos = np.arange(3 * n)[fl][idx]
+    ei[pos] = bi[pos]
+    e3[pos] = b3[pos]
+    np.testing.assert_array_equal(oib.numpy(), ei)
+    np.testing.assert_array_equal(o3b.numpy(), e3)

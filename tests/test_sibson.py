@@ -300,42 +300,57 @@ def _disc_sums(vor, r2, rw, rmax2, scale, device):
 
 
 def _disc_sum_numpy(vor, r2, rw, rmax2):
-    """float64 (sum, count) of the taps the gather visits: |dy| <= rw and (dx == 0, or |dx| <= rw and
-    dx^2 + dy^2 <= rmax2), inside the image, that reach p (dx^2 + dy^2 <= r2[q])."""
+    """(sum, count) of the taps the gather visits, |dy| <= rw and (dx == 0, or |dx| <= rw and dx^2 + dy^2 <=
+    rmax2), inside the image, that reach p (dx^2 + dy^2 <= r2[q]): summed in float32 one tap at a time in raster
+    order (dy, then dx), the order the gather adds them in, so the sums must match bit for bit."""
     h, w = r2.shape
-    out = np.zeros((h, w, 4))
+    out = np.zeros((h, w, 4), np.float32)
     for y in range(h):
         for x in range(w):
+            acc = np.zeros(3, np.float32)
+            n = 0
             for dy in range(-rw, rw + 1):
                 for dx in range(-rw, rw + 1):
                     d2 = dx * dx + dy * dy
                     qy, qx = y + dy, x + dx
                     if (dx != 0 and d2 > rmax2) or not (0 <= qy < h and 0 <= qx < w) or d2 > r2[qy, qx]:
                         continue
-                    out[y, x, :3] += vor[qy, qx]
-                    out[y, x, 3] += 1
+                    acc = (acc + vor[qy, qx]).astype(np.float32)
+                    n += 1
+            out[y, x, :3] = acc
+            out[y, x, 3] = n
     return out
 
 
 @pytest.mark.parametrize("rmax2", [0, 2, 5, 9, 13, 18])
 def test_disc_sum_row_loop(rmax2, device, rng):
     """The gather's tap loop (native code: row addresses formed once, taps by offsets, the row half-width counted
-    down from the window) against a float64 NumPy sum of the same taps, at windows 0..5; a border of
-    non-reaching pixels (r^2 = -1) around the image leaves every sum the same bits (the border clipping skips
-    only taps that cannot reach)."""
+    down from the window) against a float32 NumPy sum of the same taps in the same order, bit for bit, at windows
+    0..5; a border of non-reaching pixels (r^2 = -1) around the image leaves every sum the same bits (the border
+    clipping skips only taps that cannot reach)."""
     h, w = 21, 26
     r2 = rng.integers(-1, rmax2 + 1, size=(h, w)).astype(np.int32)
     vor = (rng.normal(size=(h, w, 3)) * 5).astype(np.float32)
-    for rw in (0, 1, 3, 4, 5):
+    for rw in range(6):
         ref = _disc_sum_numpy(vor, r2, rw, rmax2)
         got = _disc_sums(vor, r2, rw, rmax2, 1.0, device)
-        np.testing.assert_array_equal(got[..., 3], ref[..., 3])
-        np.testing.assert_allclose(got[..., :3], ref[..., :3], rtol=1e-5, atol=1e-4)
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
     pr2 = np.pad(r2, 5, constant_values=-1)
     pvor = np.pad(vor, ((5, 5), (5, 5), (0, 0)), constant_values=1e30)  # never read: r^2 = -1 reaches nothing
     four = _disc_sums(vor, r2, 4, rmax2, 1.0, device)
     padded = _disc_sums(pvor, pr2, 4, rmax2, 1.0, device)[5:-5, 5:-5]
     np.testing.assert_array_equal(padded.view(np.uint32), four.view(np.uint32))
+
+
+@pytest.mark.parametrize("rw, rmax2", [(16, 200), (17, 300), (20, 120)])
+def test_disc_sum_wide_windows(rw, rmax2, device, rng):
+    """Windows above 16 take the square-root form of the row half-width: the same taps and sums, bit for bit."""
+    h, w = 23, 45
+    r2 = rng.integers(-1, rmax2 + 1, size=(h, w)).astype(np.int32)
+    vor = (rng.normal(size=(h, w, 3)) * 5).astype(np.float32)
+    ref = _disc_sum_numpy(vor, r2, rw, rmax2)
+    got = _disc_sums(vor, r2, rw, rmax2, 1.0, device)
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
 
 
 def test_isqrt_exact(device):
