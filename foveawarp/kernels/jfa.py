@@ -26,6 +26,7 @@ one pass per step), so the results are identical to it.
 
 import warp as wp
 
+from .fpbits import finite_vec3
 from .load import load_u8, load_vec3, store_i32, store_vec2i, store_vec3
 
 NO_SEED = wp.constant(-1)
@@ -43,7 +44,7 @@ def seed_dist2(x: int, y: int, s: wp.vec2i) -> int:
 
 @wp.func
 def finite_or_zero(c: wp.vec3) -> wp.vec3:
-    if wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.isfinite(c[2]):
+    if finite_vec3(c):  # a bit test (kernels/fpbits.py): wp.isfinite is a library call per value on the CPU
         return c
     return wp.vec3(0.0, 0.0, 0.0)
 

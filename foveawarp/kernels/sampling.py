@@ -18,6 +18,7 @@ Over K consecutive frames each pixel takes every rank once: successive frames sa
 import warp as wp
 
 from .camera import CameraParams, camera_project
+from .fpbits import nan_f32
 from .gbuffer import NO_REPROJ
 from .load import load_f32, load_i32, load_u8, load_vec2, load_vec3, store_i32, store_u8
 from .reproject import cache_lookup
@@ -551,7 +552,7 @@ def sampling_map_pixel(
             if fp.dof_on != 0:
                 s = s * dof_factor(load_f32(depth, y, x), fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
         s = wp.clamp(s, fp.xi, 1.0)
-        if wp.isnan(s):
+        if nan_f32(s):  # a bit test (kernels/fpbits.py)
             s = 1.0
     if maps_only != 0:
         out_probability[y, x] = p

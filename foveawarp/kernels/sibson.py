@@ -22,6 +22,7 @@ sum that overflows float32 (colors near float max) is redone with scaled terms, 
 
 import warp as wp
 
+from .fpbits import finite_vec3
 from .jfa import RTILE, finite_or_zero
 from .load import load_i32, load_u8, load_vec3, store_vec3
 from .tonemap import tonemap_rgb
@@ -118,7 +119,7 @@ def disc_mean(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x:
     if n <= 0.0:
         return vor[y, x]
     out = wp.vec3(s[0], s[1], s[2]) / n
-    if wp.isfinite(out):
+    if finite_vec3(out):
         return out
     t = disc_sum(vor, r2, x, y, rw, rmax2, 0.5 / n)
     return wp.vec3(wp.clamp(2.0 * t[0], -F32_MAX, F32_MAX), wp.clamp(2.0 * t[1], -F32_MAX, F32_MAX),
@@ -265,7 +266,7 @@ def sibson_resolve_kernel(
         color_out[y, x] = vor[y, x]
     else:
         c = wp.vec3(a[0], a[1], a[2]) / a[3]
-        if not wp.isfinite(c):
+        if not finite_vec3(c):
             rmax2 = max_r2[0]
             c = disc_mean(vor, r2, x, y, isqrt(rmax2), rmax2)
         color_out[y, x] = c

@@ -15,6 +15,7 @@ cell's centre point.
 import warp as wp
 
 from .camera import CameraParams
+from .fpbits import nan_f32
 from .gbuffer import trace_primary
 from .saliency import sobel_lab_by_face, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
@@ -135,7 +136,7 @@ def sparse_sampling_kernel(
             cx = wp.min(x / cell, coarse_saliency.shape[1] - 1)
             s = wp.max(s, coarse_saliency[cy, cx])
         s = wp.clamp(s, fp.xi, 1.0)
-        if wp.isnan(s):
+        if nan_f32(s):  # a bit test (kernels/fpbits.py)
             s = 1.0
     out_probability[y, x] = p
     out_saliency[y, x] = s

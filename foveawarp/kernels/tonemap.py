@@ -2,6 +2,8 @@
 
 import warp as wp
 
+from .fpbits import finite_f32
+
 
 @wp.func
 def hable(x: float) -> float:
@@ -18,7 +20,7 @@ def hable(x: float) -> float:
 @wp.func
 def tonemap_value(x: float, exposure: float, white: float) -> float:
     v = wp.max(x, 0.0)
-    if not wp.isfinite(v):
+    if not finite_f32(v):  # a bit test (kernels/fpbits.py): wp.isfinite is a library call on the CPU
         v = 0.0
     t = hable(exposure * v) / hable(white)
     t = wp.clamp(t, 0.0, 1.0)
