@@ -189,7 +189,9 @@ def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.v
             c = finite_or_zero(load_vec3(color_in, s[1], s[0]))
     store_i32(r2_out, y, x, r2)
     if color_mode != 0:
-        store_vec3(color_out, y, x, c)  # voronoi_color: the finite color of the seed, 0 without one
+        # voronoi_color's value (the seed's finite color, 0 without one) by the unchecked load: the seed this pass
+        # found lies in the image; voronoi_color keeps the checked read for user-given nearest maps
+        store_vec3(color_out, y, x, c)
     return r2
 
 
