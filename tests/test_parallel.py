@@ -223,10 +223,12 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
     color = wp.array(rng.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=DEV)
     masks = [wp.array((rng.random((h, w)) < d).astype(np.uint8), dtype=wp.uint8, device=DEV) for d in (0.0, 0.02, 0.3)]
     got = {}
-    for form in ("tiled", "bands", "atomic"):
+    for form in ("tiled", "bands", "atomic", "lanes"):
         st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant=variant), device=DEV,
                               few_holes=form == "atomic")
         st.cpu_bands = form == "bands"
+        if form == "lanes":
+            st.last_pass = "lanes"
         got[form] = []
         for mask in masks[::-1] + masks:
             out = wp.zeros((h, w), dtype=wp.vec3, device=DEV)
@@ -236,7 +238,33 @@ def test_jfa_last_pass_bands_equals_tiled(every_band, rng, size, threads, varian
             got[form] += [a.numpy().tobytes() for a in (st.nearest, st.radius_sq, st.tile_radius_sq,
                                                          st.voronoi_color, st.max_radius, st.max_radius_sq,
                                                          st.unreached, out)]
-    assert got["bands"] == got["tiled"] == got["atomic"]
+    assert got["bands"] == got["tiled"] == got["atomic"] == got["lanes"]
+
+
+@pytest.mark.parametrize("size", [(100, 37), (64, 48), (1, 1), (257, 33)])
+def test_jfa_last_pass_forms_agree_on_every_device(device, rng, size):
+    """On each device (CUDA: warps fold their lanes before the atomics), the tiled last pass, the per-pixel one
+    with an atomic per pixel, and the per-pixel one with an atomic per warp and tile (``last_pass="lanes"``) write
+    the same nearest seeds, radii, tile radii, colours and statistics, for empty, sparse and dense masks, the
+    stage reused."""
+    from foveawarp.stages.reconstruct import ReconstructStage
+
+    w, h = size
+    color = wp.array(rng.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    masks = [wp.array((rng.random((h, w)) < d).astype(np.uint8), dtype=wp.uint8, device=device)
+             for d in (0.0, 0.01, 0.12, 0.6)]
+    got = {}
+    for form in ("tiled", "atomic", "lanes"):
+        st = ReconstructStage(w, h, fw.ReconstructionConfig(jfa_variant="disc"), device=device, guaranteed=True)
+        st.cpu_bands = False
+        st.last_pass = form
+        got[form] = []
+        for mask in masks[::-1] + masks:
+            st.run_jfa(mask, color_in=color)
+            got[form] += [a.numpy().tobytes() for a in (st.nearest, st.radius_sq, st.tile_radius_sq,
+                                                         st.voronoi_color, st.max_radius, st.max_radius_sq,
+                                                         st.unreached)]
+    assert got["tiled"] == got["atomic"] == got["lanes"]
 
 
 def test_few_holes_follows_the_shading_and_is_checked():

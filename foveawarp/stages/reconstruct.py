@@ -8,9 +8,10 @@ maxima and statistics; or the Voronoi fill of every pixel when Sibson is off), t
 one mask read, their color copied). n + 1 full-image launches in all (n with Sibson off) and no memset when
 n >= 2 (the plain form took n + 3 launches and 3 memsets); with n <= 1, three 1-element memsets zero the
 statistics. The work at a seed pixel is a 1-byte mask read per pass, one 8-byte write, and its color copy.
-With ``few_holes`` (a FrameLoop with deterministic shading) the last pass is instead a plain per-pixel launch that
-folds the radii into the tile maxima by atomic maxima (after a memset of the tile maxima); on the CPU the last pass
-runs in bands (``cpu_bands``).
+On CUDA the last pass is a per-pixel launch that folds the radii into the tile maxima (after a memset of them):
+with ``few_holes`` (a FrameLoop with deterministic shading) by an atomic maximum per pixel, else by one per warp
+and tile after a reduction across the warp's lanes (``kernels/lanes.py``); ``last_pass`` picks a form, the tiled
+kernel with per-block reductions included. On the CPU the last pass runs in bands (``cpu_bands``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from ..kernels.jfa import (
     RTILE,
     jfa_last_pass_bands_kernel,
     jfa_last_pass_atomic_kernel,
+    jfa_last_pass_lanes_kernel,
     jfa_last_pass_kernel,
     jfa_tile_stats_kernel,
     jfa_pass_kernel,
@@ -150,8 +152,8 @@ class ReconstructStage:
         start_step: overrides the first JFA step in pixels, in [1, 16384] (default: config / block).
         guaranteed: the masks hold the block guarantee (``"auto"`` may then pick the "disc" step).
         few_holes: the masks have few non-seed pixels (a FrameLoop with deterministic shading): off the CPU's
-            bands the last pass is then a per-pixel launch with atomic tile maxima (the same values, without the
-            tiled kernel's per-block reductions; H100, 4K: 0.078 against 0.171 ms).
+            bands the last pass then folds each pixel's radius by its own atomic (H100, 4K: 0.071 against 0.086 ms
+            for the warp-folded form and 0.157 for the tiled kernel); without it, one atomic per warp and tile.
 
     Buffers (all on ``device``, overwritten by each ``run``):
         nearest: (H, W) ``wp.vec2i``, (x, y) of the nearest seed found, (-1, -1) where none was found (a seed
@@ -172,6 +174,10 @@ class ReconstructStage:
     # on the CPU, the last JFA pass runs as band-parallel tiles without atomics (False: the tiled kernel, as on
     # CUDA; the tests compare the two)
     cpu_bands = True
+    # the last pass's form off the CPU's bands: None (by ``few_holes``: "atomic" when set, else "lanes"), or one
+    # of "tiled" (per-block reductions), "atomic" (an atomic per pixel), "lanes" (an atomic per warp and tile);
+    # all three write the same values (tests compare them), at different costs
+    last_pass = None
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -287,9 +293,11 @@ class ReconstructStage:
                             device=dev, min_band_items=8)
             self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
                                device=dev)
-        elif self.few_holes:
+        elif self.last_pass != "tiled":
             self.tile_radius_sq.zero_()
-            wp.launch(jfa_last_pass_atomic_kernel, dim=(self.height, self.width), inputs=last,
+            form = self.last_pass or ("atomic" if self.few_holes else "lanes")
+            kern = jfa_last_pass_atomic_kernel if form == "atomic" else jfa_last_pass_lanes_kernel
+            wp.launch(kern, dim=(self.height, self.width), inputs=last,
                       outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
                       device=dev)
         else:
