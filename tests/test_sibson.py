@@ -442,34 +442,3 @@ def test_sibson_properties(h, w, density, seed, window):
     else:
         assert np.all(out == 0.0)
     np.testing.assert_allclose(out, ref_sibson(colors, near, window), atol=1e-5, rtol=1e-6)
-
-
-@pytest.mark.parametrize("size", [(37, 23), (64, 40), (1, 9), (2, 5), (65, 17)])
-@pytest.mark.parametrize("window", [None, 1, 3, 20])
-def test_gather_pairs_equal_one_pixel_gather(size, window, device, rng):
-    """The gather two pixels per thread (the default) against one pixel per thread, bit for bit: colours and the
-    tone-mapped display, sparse to dense masks, odd widths (a last column alone), windows below and above the
-    largest radius, and colours near float max (the overflow-safe sum at some pixels)."""
-    w, h = size
-    cfg = ReconstructionConfig(sibson_window=window)
-    col = rng.uniform(-1.0, 4.0, (h, w, 3)).astype(np.float32)
-    big = col.copy()
-    big[rng.random((h, w)) < 0.5] = 3.0e38
-    cases = [((rng.random((h, w)) < density).astype(np.uint8), colors)
-             for density, colors in ((0.02, col), (0.15, col), (0.5, col), (0.08, big), (1.0, col))]
-    outs = {}
-    for pairs in (False, True):
-        st_ = ReconstructStage(w, h, cfg, block=4, device=device)
-        st_.gather_pairs = pairs
-        got = []
-        for mask_np, colors in cases:
-            mask = wp.array(mask_np, dtype=wp.uint8, device=device)
-            cin = wp.array(colors, dtype=wp.vec3, device=device)
-            out = wp.zeros((h, w), dtype=wp.vec3, device=device)
-            disp = wp.zeros((h, w), dtype=wp.vec3, device=device)
-            assert st_.run(cin, mask, out, display=disp, exposure=1.3, white_point=2.0)
-            got += [out.numpy(), disp.numpy()]
-        outs[pairs] = got
-    for a, b in zip(outs[False], outs[True]):
-        assert np.isfinite(b).all()
-        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))

@@ -106,81 +106,6 @@ def disc_sum(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: 
     ...
 
 
-# two horizontally adjacent non-seed pixels p0 = (x, y) and p1 = (x + 1, y) at once: a row of the window of the pair
-# covers p0's columns [x - dxm, x + dxm] and p1's [x + 1 - dxm, x + 1 + dxm]; each tap's r2 is read once and tested
-# for both pixels (and its color read once when it covers either). Each pixel sums its own taps in raster order, as
-# ``disc_sum`` does: the same sums, bit for bit, when both use the same clip ``rw`` / ``rmax2`` (the caller's,
-# which bounds the r_q^2 over the pair's window).
-_DISC_SUM_PAIR_SNIPPET = r"""
-    const int h = r2.shape[0];
-    const int w = r2.shape[1];
-    const int y0 = -rw > -y ? -rw : -y;
-    const int y1 = rw < h - 1 - y ? rw : h - 1 - y;
-    const char* rbase = (const char*)r2.data;
-    const char* vbase = (const char*)vor.data;
-    const size_t rpitch = (size_t)r2.strides[0];
-    const size_t vpitch = (size_t)vor.strides[0];
-    float ax = 0.0f, ay = 0.0f, az = 0.0f, bx = 0.0f, by = 0.0f, bz = 0.0f;
-    int na = 0, nb = 0;
-    for (int dy = y0; dy <= y1; ++dy) {
-        const int dy2 = dy * dy;
-        const int m = rmax2 - dy2;
-        int dxm = 0;
-        if (m > 0) {
-            if (rw <= 16) {
-                dxm = rw;
-                while (dxm * dxm > m) --dxm;
-            } else {
-                int s = (int)sqrtf((float)m);
-                while (s * s > m) --s;
-                while ((s + 1) * (s + 1) <= m) ++s;
-                dxm = rw < s ? rw : s;
-            }
-        }
-        // columns relative to p0: p0 takes [-dxm, dxm], p1 takes [1 - dxm, dxm + 1], both clipped to the image
-        const int x0 = -dxm > -x ? -dxm : -x;
-        const int x1 = dxm + 1 < w - 1 - x ? dxm + 1 : w - 1 - x;
-        const int qy = y + dy;
-        const int* rrow = (const int*)(rbase + (size_t)qy * rpitch) + x;
-        const wp::vec3* vrow = (const wp::vec3*)(vbase + (size_t)qy * vpitch) + x;
-        for (int dx = x0; dx <= x1; ++dx) {
-            const int r = rrow[dx];
-            const bool ta = dx <= dxm && dx * dx + dy2 <= r;
-            const bool tb = dx > -dxm && (dx - 1) * (dx - 1) + dy2 <= r;
-            if (ta || tb) {
-                const wp::vec3 c = vrow[dx];
-                if (ta) {
-                    ax = ax + c.c[0];
-                    ay = ay + c.c[1];
-                    az = az + c.c[2];
-                    na = na + 1;
-                }
-                if (tb) {
-                    bx = bx + c.c[0];
-                    by = by + c.c[1];
-                    bz = bz + c.c[2];
-                    nb = nb + 1;
-                }
-            }
-        }
-    }
-    mat24f out;
-    out.data[0][0] = ax; out.data[0][1] = ay; out.data[0][2] = az; out.data[0][3] = (float)na;
-    out.data[1][0] = bx; out.data[1][1] = by; out.data[1][2] = bz; out.data[1][3] = (float)nb;
-    return out;
-"""
-
-mat24f = wp.types.matrix(shape=(2, 4), dtype=wp.float32)
-
-
-@wp.func_native(_DISC_SUM_PAIR_SNIPPET.replace("mat24f", "wp::mat_t<2, 4, wp::float32>"))
-def disc_sum_pair(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
-                  rmax2: int) -> mat24f:
-    """``disc_sum`` (scale 1) of the non-seed pixels (x, y) and (x + 1, y) (x + 1 < W): row i of the result is
-    pixel i's (sum, count). Native code (see ``_DISC_SUM_PAIR_SNIPPET``); rows must be contiguous."""
-    ...
-
-
 @wp.func
 def disc_mean(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int,
               rmax2: int) -> wp.vec3:
@@ -244,102 +169,6 @@ def sibson_gather_pixel(
 
 
 
-@wp.func
-def pair_mean(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x: int, y: int, rw: int, loc: int,
-              s: wp.vec4) -> wp.vec3:
-    """``disc_mean`` of the non-seed (x, y) from its plain sum ``s`` (taken with the same ``rw`` / ``loc``)."""
-    n = s[3]
-    if n <= 0.0:
-        return vor[y, x]
-    out = wp.vec3(s[0], s[1], s[2]) / n
-    if finite_vec3(out):
-        return out
-    return disc_mean(vor, r2, x, y, rw, loc)  # the overflow-safe sum, taken again for this pixel
-
-
-@wp.func
-def sibson_gather_pair(
-    x: int,
-    y: int,
-    mask: wp.array2d(dtype=wp.uint8),
-    vor: wp.array2d(dtype=wp.vec3),
-    r2: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_in: wp.array2d(dtype=wp.vec3),
-    window: int,
-    max_r2: wp.array(dtype=wp.int32),
-    exposure: float,
-    white: float,
-    to_display: int,
-    color_out: wp.array2d(dtype=wp.vec3),
-    display: wp.array2d(dtype=wp.vec3),
-):
-    """The bounded Sibson gather at pixels (x, y) and (x + 1, y): the values of ``sibson_gather_pixel`` at each.
-    Two non-seed pixels share one pass over their windows (``disc_sum_pair``); a seed, or the image's last column
-    alone, takes the one-pixel path."""
-    w = mask.shape[1]
-    if x + 1 >= w or load_u8(mask, y, x) != wp.uint8(0) or load_u8(mask, y, x + 1) != wp.uint8(0):
-        sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
-                            color_out, display)
-        if x + 1 < w:
-            sibson_gather_pixel(x + 1, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
-                                to_display, color_out, display)
-        return
-    h = mask.shape[0]
-    rw = wp.min(window, isqrt(max_r2[0]))
-    # the largest r_q^2 of the screen tiles the pair's windows overlap: it bounds every r_q^2 either pixel reads,
-    # so clipping both windows to it drops no tap that covers either (the one-pixel path clips to its own tiles)
-    loc = int(0)
-    for ty in range(wp.max(y - rw, 0) // RTILE, wp.min(y + rw, h - 1) // RTILE + 1):
-        for tx in range(wp.max(x - rw, 0) // RTILE, wp.min(x + 1 + rw, w - 1) // RTILE + 1):
-            loc = wp.max(loc, load_i32(tile_r2, ty, tx))
-    rw = wp.min(rw, isqrt(loc))
-    s = disc_sum_pair(vor, r2, x, y, rw, loc)
-    c0 = pair_mean(vor, r2, x, y, rw, loc, wp.vec4(s[0, 0], s[0, 1], s[0, 2], s[0, 3]))
-    c1 = pair_mean(vor, r2, x + 1, y, rw, loc, wp.vec4(s[1, 0], s[1, 1], s[1, 2], s[1, 3]))
-    store_vec3(color_out, y, x, c0)
-    store_vec3(color_out, y, x + 1, c1)
-    if to_display != 0:
-        store_vec3(display, y, x, tonemap_rgb(c0, exposure, white))
-        store_vec3(display, y, x + 1, tonemap_rgb(c1, exposure, white))
-
-
-def _make_sibson_gather_pairs(rows: bool):
-    """``sibson_gather_pairs_kernel`` (a thread per pair of columns: dim (H, ceil(W / 2))) or
-    ``sibson_gather_pairs_rows_kernel`` (a thread per row, the CPU)."""
-
-    @wp.kernel(enable_backward=False,
-               name="sibson_gather_pairs_rows_kernel" if rows else "sibson_gather_pairs_kernel")
-    def sibson_gather_pairs(
-        mask: wp.array2d(dtype=wp.uint8),
-        vor: wp.array2d(dtype=wp.vec3),
-        r2: wp.array2d(dtype=wp.int32),
-        tile_r2: wp.array2d(dtype=wp.int32),
-        color_in: wp.array2d(dtype=wp.vec3),
-        window: int,
-        max_r2: wp.array(dtype=wp.int32),
-        exposure: float,
-        white: float,
-        to_display: int,
-        color_out: wp.array2d(dtype=wp.vec3),
-        display: wp.array2d(dtype=wp.vec3),
-        row0: int,
-    ):
-        """``sibson_gather_kernel``'s values, two adjacent pixels of a row per step (``sibson_gather_pair``)."""
-        if wp.static(rows):
-            y = wp.tid() + row0  # band offset (foveawarp.parallel)
-            for x in range(0, mask.shape[1], 2):
-                sibson_gather_pair(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
-                                   to_display, color_out, display)
-        else:
-            y, xp = wp.tid()
-            y += row0  # band offset (foveawarp.parallel)
-            sibson_gather_pair(2 * xp, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
-                               to_display, color_out, display)
-
-    return sibson_gather_pairs
-
-
 def _make_sibson_gather(rows: bool):
     """``sibson_gather_kernel`` (a thread per pixel) or ``sibson_gather_rows_kernel`` (a thread per row, the
     CPU: ``parallel.launch_rows``)."""
@@ -378,8 +207,6 @@ def _make_sibson_gather(rows: bool):
 
 sibson_gather_kernel = _make_sibson_gather(False)
 sibson_gather_rows_kernel = _make_sibson_gather(True)
-sibson_gather_pairs_kernel = _make_sibson_gather_pairs(False)
-sibson_gather_pairs_rows_kernel = _make_sibson_gather_pairs(True)
 
 
 @wp.kernel(enable_backward=False)

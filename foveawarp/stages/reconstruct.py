@@ -41,8 +41,6 @@ from ..kernels.jfa import (
 )
 from ..kernels.sibson import (
     sibson_gather_kernel,
-    sibson_gather_pairs_kernel,
-    sibson_gather_pairs_rows_kernel,
     sibson_gather_rows_kernel,
     sibson_resolve_kernel,
     sibson_scatter_kernel,
@@ -180,8 +178,6 @@ class ReconstructStage:
     # of "tiled" (per-block reductions), "atomic" (an atomic per pixel), "lanes" (an atomic per warp and tile);
     # all three write the same values (tests compare them), at different costs
     last_pass = None
-    # the Sibson gather takes two adjacent pixels of a row per thread (False: one, the same values)
-    gather_pairs = True
 
     def __init__(self, width: int, height: int, config: Optional[ReconstructionConfig] = None, block: int = 4,
                  device=None, *, exact_sibson: bool = False, window: Optional[int] = None,
@@ -358,15 +354,10 @@ class ReconstructStage:
             parallel.launch(sibson_resolve_kernel, dim=dim, inputs=[*near, color_in, self._accum, self.max_radius_sq],
                             outputs=[color_out], device=dev)
             return False
-        args = dict(inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
-                            float(tone[0]), float(tone[1]), 0 if display is None else 1],
-                    outputs=[color_out, self._dummy3 if display is None else display], device=dev)
-        if not self.gather_pairs:
-            parallel.launch_rows(sibson_gather_kernel, sibson_gather_rows_kernel, dim, **args)
-        elif parallel.use_row_kernels(wp.get_device(dev)):
-            parallel.launch_rows(None, sibson_gather_pairs_rows_kernel, dim, **args)
-        else:
-            parallel.launch(sibson_gather_pairs_kernel, (self.height, (self.width + 1) // 2), **args)
+        parallel.launch_rows(sibson_gather_kernel, sibson_gather_rows_kernel, dim,
+                             inputs=[*near, self.tile_radius_sq, color_in, int(self.window), self.max_radius_sq,
+                                     float(tone[0]), float(tone[1]), 0 if display is None else 1],
+                             outputs=[color_out, self._dummy3 if display is None else display], device=dev)
         return display is not None
 
     def run(self, color_in, seed_mask, color_out, *, display=None, exposure: float = 1.0,
