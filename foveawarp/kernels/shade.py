@@ -53,12 +53,13 @@ class ShadeParams:
 
 @wp.func
 def visible(mesh: wp.uint64, p: wp.vec3, n: wp.vec3, eps: float, to: wp.vec3, dist: float) -> float:
-    """1 when nothing blocks the segment from p (offset along n) to p + to * dist, else 0."""
+    """1 when nothing blocks the segment from p (offset along n) to p + to * dist, else 0. An any-hit query: the
+    traversal stops at the first triangle met within the segment (Warp's closest-hit query, with the same triangle
+    and box tests, answers the same yes or no after searching on for the nearest)."""
     o = p + n * eps
     if dist <= 2.0 * eps:
         return 1.0
-    q = wp.mesh_query_ray(mesh, o, to, dist - 2.0 * eps)
-    if q.result:
+    if wp.mesh_query_ray_anyhit(mesh, o, to, dist - 2.0 * eps):
         return 0.0
     return 1.0
 
