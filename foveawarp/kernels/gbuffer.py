@@ -3,6 +3,7 @@
 import warp as wp
 
 from .camera import CameraParams, camera_project, camera_ray_dir
+from .order import tile_order_pixel
 
 # reprojection UV of pixels with no previous position (miss, or behind the previous eye)
 NO_REPROJ = -1.0e4
@@ -102,11 +103,14 @@ def trace_primary(
         out_moved[y, x] = wp.uint8(0)
 
 
-def _make_gbuffer(rows: bool):
-    """``gbuffer_kernel`` (a thread per pixel) or ``gbuffer_rows_kernel`` (a thread per row, the CPU:
-    ``parallel.launch_rows``)."""
+def _make_gbuffer(mode: str):
+    """``gbuffer_kernel`` (mode "pixels": a thread per pixel), ``gbuffer_rows_kernel`` ("rows": a thread per row,
+    the CPU: ``parallel.launch_rows``) or ``gbuffer_tiles_kernel`` ("tiles": a thread per pixel, warps on 8 x 4
+    blocks, CUDA: ``kernels/order.py``)."""
+    rows = mode == "rows"
+    tiles = mode == "tiles"
 
-    @wp.kernel(enable_backward=False, name="gbuffer_rows_kernel" if rows else "gbuffer_kernel")
+    @wp.kernel(enable_backward=False, name=f"gbuffer_{mode}_kernel" if mode != "pixels" else "gbuffer_kernel")
     def gbuffer(
         mesh: wp.uint64,
         indices: wp.array(dtype=wp.int32),
@@ -135,6 +139,14 @@ def _make_gbuffer(rows: bool):
                 trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
                               float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
                               out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+        elif wp.static(tiles):
+            p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1])  # band offset: a range of threads
+            x = p[0]
+            y = p[1]
+            if x < out_depth.shape[1] and y < out_depth.shape[0]:
+                trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
+                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
+                              out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
@@ -145,5 +157,6 @@ def _make_gbuffer(rows: bool):
     return gbuffer
 
 
-gbuffer_kernel = _make_gbuffer(False)
-gbuffer_rows_kernel = _make_gbuffer(True)
+gbuffer_kernel = _make_gbuffer("pixels")
+gbuffer_rows_kernel = _make_gbuffer("rows")
+gbuffer_tiles_kernel = _make_gbuffer("tiles")

@@ -8,6 +8,7 @@ ambient, emission). The temporal resolve accumulates only the stochastic part ov
 
 import warp as wp
 
+from .order import tile_order_pixel
 from .rng import cosine_hemisphere, pixel_rng
 from .tonemap import tonemap_rgb
 
@@ -192,11 +193,14 @@ def shade_pixel(
             out_stoch[y, x] = st
 
 
-def _make_shade_full(rows: bool):
-    """``shade_full_kernel`` (a thread per pixel, CUDA) or ``shade_full_rows_kernel`` (a thread per image row
-    looping over its pixels, the CPU: ``parallel.launch_rows``): one signature, one body."""
+def _make_shade_full(mode: str):
+    """``shade_full_kernel`` (mode "pixels": a thread per pixel), ``shade_full_rows_kernel`` ("rows": a thread per
+    image row looping over its pixels, the CPU: ``parallel.launch_rows``) or ``shade_full_tiles_kernel`` ("tiles":
+    a thread per pixel, warps on 8 x 4 blocks, CUDA: ``kernels/order.py``): one signature, one body."""
+    rows = mode == "rows"
+    tiles = mode == "tiles"
 
-    @wp.kernel(enable_backward=False, name="shade_full_rows_kernel" if rows else "shade_full_kernel")
+    @wp.kernel(enable_backward=False, name=f"shade_full_{mode}_kernel" if mode != "pixels" else "shade_full_kernel")
     def shade_full(
         spa: wp.array(dtype=ShadeParams),
         pos: wp.array2d(dtype=wp.vec3),
@@ -225,6 +229,16 @@ def _make_shade_full(rows: bool):
                             out_stoch)
                 if to_display != 0:
                     display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+        elif wp.static(tiles):
+            p = tile_order_pixel(wp.tid() + row0, out.shape[1])  # band offset: a range of threads
+            x = p[0]
+            y = p[1]
+            if x < out.shape[1] and y < out.shape[0]:
+                sp = spa[0]
+                shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                            out_stoch)
+                if to_display != 0:
+                    display[y, x] = tonemap_rgb(out[y, x], exposure, white)
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
@@ -236,8 +250,9 @@ def _make_shade_full(rows: bool):
     return shade_full
 
 
-shade_full_kernel = _make_shade_full(False)
-shade_full_rows_kernel = _make_shade_full(True)
+shade_full_kernel = _make_shade_full("pixels")
+shade_full_rows_kernel = _make_shade_full("rows")
+shade_full_tiles_kernel = _make_shade_full("tiles")
 
 
 @wp.func

@@ -8,7 +8,8 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel
+from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
+from ..kernels.order import tile_order_threads
 
 __all__ = ["GBufferStage"]
 
@@ -17,9 +18,14 @@ class GBufferStage:
     """Traces the primary rays of ``width`` x ``height`` pixels of a :class:`DeviceScene` into a
     :class:`GBuffer` (owned by the caller). ``run`` only launches; nothing is allocated per frame."""
 
+    # CUDA: each warp traces an 8 x 4 block of pixels (kernels/order.py; False: 32 pixels of a row, the same values)
+    tile_order = True
+
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
-        self._launch = parallel.Relaunch(gbuffer_kernel, bands=True)  # recorded once on CUDA (per-frame head)
+        # recorded once on CUDA (per-frame head); warps on 8 x 4 pixel blocks unless tile_order is off
+        self._kernel = gbuffer_tiles_kernel if self.tile_order else gbuffer_kernel
+        self._launch = parallel.Relaunch(self._kernel, bands=True)
 
     def max_t(self, camera: Camera) -> float:
         """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
@@ -40,4 +46,5 @@ class GBufferStage:
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
-            self._launch(dim=(h, w), inputs=inputs, outputs=outputs, device=self.device)
+            dim = tile_order_threads(h, w) if self._kernel is gbuffer_tiles_kernel else (h, w)
+            self._launch(dim=dim, inputs=inputs, outputs=outputs, device=self.device)

@@ -9,11 +9,13 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
+from ..kernels.order import tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
+    shade_full_tiles_kernel,
     shade_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
@@ -31,6 +33,10 @@ class ShadeStage:
     graph of the launches picks up each frame's values. Every launch writes the radiance to ``out`` and, when
     the shading has Monte Carlo terms (``stochastic``), their part to ``out_stoch``.
     """
+
+    # CUDA: the full-frame shading runs warps on 8 x 4 pixel blocks (kernels/order.py; False: 32 pixels of a row,
+    # the same values)
+    tile_order = True
 
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
@@ -96,10 +102,14 @@ class ShadeStage:
         the tone-mapped values, with the config's exposure and white point, in the same pass."""
         sc = self.config
         disp = self._dummy_display if display is None else display
-        parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width),
-                             inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
-                                     0 if display is None else 1],
-                             outputs=[out, out_stoch, disp], device=self.device)
+        args = dict(inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
+                            0 if display is None else 1],
+                    outputs=[out, out_stoch, disp], device=self.device)
+        if self.tile_order and not parallel.use_row_kernels(self.device):
+            # CUDA: warps on 8 x 4 pixel blocks (kernels/order.py)
+            parallel.launch(shade_full_tiles_kernel, tile_order_threads(self.height, self.width), **args)
+        else:
+            parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width), **args)
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
