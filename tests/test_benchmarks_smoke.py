@@ -187,3 +187,17 @@ def test_ncu_frame_parts(tmp_path):
     tot = ncu_frame.summarize([row, row])
     assert tot["gpu_ms"] == pytest.approx(0.4, rel=1e-12) and tot["dram_bytes"] == 8.0e8
     assert tot["floor_ms"] == pytest.approx(0.4, rel=1e-12) and tot["bytes_per_pixel"] == 8.0e5
+
+
+def test_order_quick(tmp_path):
+    """benchmarks/order.py: the G-buffer and full shading launches timed per block width (no speed assertion);
+    a bad width is refused by name."""
+    _run([str(REPO / "benchmarks" / "order.py"), "--quick", "--device", "cpu", "--scenes", "cornell", "--widths",
+          "0,8", "--shadings", "default"], tmp_path)
+    res = json.loads((tmp_path / "order-cpu.json").read_text())
+    assert res["benchmark"] == "order" and res["commit"]
+    assert [r["block"] for r in res["records"]] == ["row (H, W launch)", "8x4"]
+    assert all(r["gbuffer_ms"] > 0 and r["shade_full_ms"] > 0 for r in res["records"])
+    bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "order.py"), "--widths", "3"],
+                         capture_output=True, text=True, cwd=REPO)
+    assert bad.returncode != 0 and "--widths" in bad.stderr

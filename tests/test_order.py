@@ -1,46 +1,55 @@
-"""Thread order of the "tiles" launches (kernels/order.py): every pixel once, warps on 8 x 4 blocks, and the
-G-buffer and the full-frame shading in that order equal to the row order, bit for bit, on every device."""
+"""Thread order of the "tiles" launches (kernels/order.py): every pixel once, each warp on one block, and the
+G-buffer and the full-frame shading in those orders equal to the row order, bit for bit, on every device."""
 
 import numpy as np
 import pytest
 import warp as wp
 
 import foveawarp as fw
-from foveawarp.kernels.order import tile_order_pixel, tile_order_threads
+from foveawarp.kernels.order import ORDER_WIDTHS, order_wlog2, tile_order_pixel, tile_order_threads
 
 
 @wp.kernel(enable_backward=False)
-def _order_kernel(width: int, xy: wp.array(dtype=wp.vec2i)):
+def _order_kernel(width: int, wlog2: int, xy: wp.array(dtype=wp.vec2i)):
     i = wp.tid()
-    xy[i] = tile_order_pixel(i, width)
+    xy[i] = tile_order_pixel(i, width, wlog2)
 
 
+@pytest.mark.parametrize("bw", [8, 16, 32, 1])
 @pytest.mark.parametrize("h, w", [(1, 1), (4, 8), (5, 9), (36, 64), (17, 3), (1080, 1920)])
-def test_tile_order_covers_every_pixel_once_in_warp_blocks(device, h, w):
-    n = tile_order_threads(h, w)
+def test_tile_order_covers_every_pixel_once_in_warp_blocks(device, h, w, bw):
+    n = tile_order_threads(h, w, bw)
     assert n % 32 == 0 and n >= h * w
     xy = wp.zeros(n, dtype=wp.vec2i, device=device)
-    wp.launch(_order_kernel, dim=n, inputs=[w], outputs=[xy], device=device)
+    wp.launch(_order_kernel, dim=n, inputs=[w, order_wlog2(bw)], outputs=[xy], device=device)
     xy = xy.numpy()
     inside = (xy[:, 0] < w) & (xy[:, 1] < h)
     assert (xy >= 0).all()
     # the inside threads hit every pixel exactly once
     flat = xy[inside, 1] * w + xy[inside, 0]
     np.testing.assert_array_equal(np.sort(flat), np.arange(h * w))
-    # NumPy's own layout: warp k covers block (k % bx, k // bx), lane l its pixel (l % 8, l // 8)
-    bx = -(-w // 8)
+    # NumPy's own layout: warp k covers block (k % bx, k // bx), lane l its pixel (l % bw, l // bw)
+    bh = 32 // bw
+    bx = -(-w // bw)
     k, lane = np.divmod(np.arange(n), 32)
-    want = np.stack([(k % bx) * 8 + lane % 8, (k // bx) * 4 + lane // 8], axis=1)
+    want = np.stack([(k % bx) * bw + lane % bw, (k // bx) * bh + lane // bw], axis=1)
     np.testing.assert_array_equal(xy, want)
     # the padding is only the last partial block row / column
-    assert n == -(-h // 4) * 4 * bx * 8
+    assert n == -(-h // bh) * bh * bx * bw
+
+
+def test_order_width_is_checked():
+    assert [order_wlog2(b) for b in ORDER_WIDTHS] == [0, 1, 2, 3, 4, 5]
+    for bad in (0, 3, 64, 8.0, "8"):
+        with pytest.raises(ValueError, match="block_width"):
+            order_wlog2(bad)
 
 
 @pytest.mark.parametrize("size", [(37, 23), (64, 36)])
 @pytest.mark.parametrize("shading", ["default", "ao2"])
 def test_tiles_order_renders_the_same_frames(device, size, shading, monkeypatch):
-    """G-buffer and reference shading launched as warps on 8 x 4 blocks (the CUDA default) against the row
-    order: every G-buffer field and the reference image equal bit for bit, odd sizes included; and the foveated
+    """G-buffer and reference shading launched with each warp on an 8 x 4 block (the CUDA default) or a 16 x 2
+    one against the row order: every G-buffer field and the reference image equal bit for bit, odd sizes included; and the foveated
     frame that reads that G-buffer. The CPU runs the per-pixel kernels here instead of its row kernels."""
     from foveawarp import parallel
     from foveawarp.stages.gbuffer import GBufferStage
@@ -51,18 +60,19 @@ def test_tiles_order_renders_the_same_frames(device, size, shading, monkeypatch)
     scene = fw.load_scene("cornell")
     monkeypatch.setattr(parallel, "ROW_KERNELS", False)
     got = {}
-    saved = GBufferStage.tile_order, ShadeStage.tile_order
+    saved = GBufferStage.order_width, ShadeStage.order_width
     try:
-        for order in (False, True):
-            GBufferStage.tile_order = ShadeStage.tile_order = order
+        for order in (0, 8, 16):
+            GBufferStage.order_width = ShadeStage.order_width = order
             loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, policy="foveated", cpu_threads=1,
                                 graph=False)
-            assert loop.gbuffer_stage._kernel.key.endswith("tiles_kernel") == order
+            assert loop.gbuffer_stage._kernel.key.endswith("tiles_kernel") == (order != 0)
             ref = loop.render_reference(scene.camera).numpy().copy()
             g = loop.gbuffer.numpy()
             frame = loop.render(scene.camera).numpy().copy()
             got[order] = [ref, frame] + [np.ascontiguousarray(g[k]) for k in sorted(g)]
     finally:
-        GBufferStage.tile_order, ShadeStage.tile_order = saved
-    for a, b in zip(got[False], got[True]):
-        assert a.tobytes() == b.tobytes()
+        GBufferStage.order_width, ShadeStage.order_width = saved
+    for order in (8, 16):
+        for a, b in zip(got[0], got[order]):
+            assert a.tobytes() == b.tobytes()

@@ -131,8 +131,10 @@ def _make_gbuffer(mode: str):
         out_reproj: wp.array2d(dtype=wp.vec2),
         out_prev_dist: wp.array2d(dtype=float),
         out_moved: wp.array2d(dtype=wp.uint8),
+        wlog2: int,
         row0: int,
     ):
+        """``wlog2``: the "tiles" launch's block width, log2 (``kernels/order.py``); the other modes ignore it."""
         if wp.static(rows):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(out_depth.shape[1]):
@@ -140,7 +142,7 @@ def _make_gbuffer(mode: str):
                               float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
                               out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
         elif wp.static(tiles):
-            p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1])  # band offset: a range of threads
+            p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
             x = p[0]
             y = p[1]
             if x < out_depth.shape[1] and y < out_depth.shape[0]:

@@ -196,7 +196,7 @@ def shade_pixel(
 def _make_shade_full(mode: str):
     """``shade_full_kernel`` (mode "pixels": a thread per pixel), ``shade_full_rows_kernel`` ("rows": a thread per
     image row looping over its pixels, the CPU: ``parallel.launch_rows``) or ``shade_full_tiles_kernel`` ("tiles":
-    a thread per pixel, warps on 8 x 4 blocks, CUDA: ``kernels/order.py``): one signature, one body."""
+    a thread per pixel, each warp on a block of pixels, CUDA: ``kernels/order.py``): one signature, one body."""
     rows = mode == "rows"
     tiles = mode == "tiles"
 
@@ -217,10 +217,12 @@ def _make_shade_full(mode: str):
         out: wp.array2d(dtype=wp.vec3),
         out_stoch: wp.array2d(dtype=wp.vec3),
         display: wp.array2d(dtype=wp.vec3),
+        wlog2: int,
         row0: int,
     ):
         """Shade every pixel; ``to_display`` != 0: also write its tone-mapped value to ``display`` (the frame's
-        last pass when no indirect light or depth of field follows: no separate tone-map pass)."""
+        last pass when no indirect light or depth of field follows: no separate tone-map pass). ``wlog2``: the
+        "tiles" launch's block width, log2 (``kernels/order.py``); the other modes ignore it."""
         if wp.static(rows):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             sp = spa[0]
@@ -230,7 +232,7 @@ def _make_shade_full(mode: str):
                 if to_display != 0:
                     display[y, x] = tonemap_rgb(out[y, x], exposure, white)
         elif wp.static(tiles):
-            p = tile_order_pixel(wp.tid() + row0, out.shape[1])  # band offset: a range of threads
+            p = tile_order_pixel(wp.tid() + row0, out.shape[1], wlog2)  # band offset: a range of threads
             x = p[0]
             y = p[1]
             if x < out.shape[1] and y < out.shape[0]:

@@ -9,7 +9,7 @@ import warp as wp
 from .. import parallel
 from ..camera import Camera
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
-from ..kernels.order import tile_order_threads
+from ..kernels.order import order_wlog2, tile_order_threads
 
 __all__ = ["GBufferStage"]
 
@@ -18,13 +18,15 @@ class GBufferStage:
     """Traces the primary rays of ``width`` x ``height`` pixels of a :class:`DeviceScene` into a
     :class:`GBuffer` (owned by the caller). ``run`` only launches; nothing is allocated per frame."""
 
-    # CUDA: each warp traces an 8 x 4 block of pixels (kernels/order.py; False: 32 pixels of a row, the same values)
-    tile_order = True
+    # CUDA: each warp traces a block of pixels this wide (kernels/order.py: 8 x 4, 16 x 2, ...); 0: the (H, W)
+    # launch, 32 pixels of a row. The same values in every order
+    order_width = 8
 
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
-        # recorded once on CUDA (per-frame head); warps on 8 x 4 pixel blocks unless tile_order is off
-        self._kernel = gbuffer_tiles_kernel if self.tile_order else gbuffer_kernel
+        # recorded once on CUDA (per-frame head)
+        self._wlog2 = order_wlog2(self.order_width) if self.order_width else 0
+        self._kernel = gbuffer_tiles_kernel if self.order_width else gbuffer_kernel
         self._launch = parallel.Relaunch(self._kernel, bands=True)
 
     def max_t(self, camera: Camera) -> float:
@@ -42,9 +44,9 @@ class GBufferStage:
         inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
                   camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
         outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                   g.moved]
+                   g.moved, self._wlog2]
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
-            dim = tile_order_threads(h, w) if self._kernel is gbuffer_tiles_kernel else (h, w)
+            dim = tile_order_threads(h, w, self.order_width) if self.order_width else (h, w)
             self._launch(dim=dim, inputs=inputs, outputs=outputs, device=self.device)

@@ -9,7 +9,7 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from ..kernels.order import tile_order_threads
+from ..kernels.order import order_wlog2, tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
@@ -34,9 +34,9 @@ class ShadeStage:
     the shading has Monte Carlo terms (``stochastic``), their part to ``out_stoch``.
     """
 
-    # CUDA: the full-frame shading runs warps on 8 x 4 pixel blocks (kernels/order.py; False: 32 pixels of a row,
-    # the same values)
-    tile_order = True
+    # CUDA: the full-frame shading runs each warp on a block of pixels this wide (kernels/order.py: 8 x 4, 16 x 2,
+    # ...); 0: the (H, W) launch, 32 pixels of a row. The same values in every order
+    order_width = 8
 
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
@@ -102,12 +102,14 @@ class ShadeStage:
         the tone-mapped values, with the config's exposure and white point, in the same pass."""
         sc = self.config
         disp = self._dummy_display if display is None else display
+        wlog2 = order_wlog2(self.order_width) if self.order_width else 0
         args = dict(inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
                             0 if display is None else 1],
-                    outputs=[out, out_stoch, disp], device=self.device)
-        if self.tile_order and not parallel.use_row_kernels(self.device):
-            # CUDA: warps on 8 x 4 pixel blocks (kernels/order.py)
-            parallel.launch(shade_full_tiles_kernel, tile_order_threads(self.height, self.width), **args)
+                    outputs=[out, out_stoch, disp, wlog2], device=self.device)
+        if self.order_width and not parallel.use_row_kernels(self.device):
+            # CUDA: each warp on a block of pixels (kernels/order.py)
+            parallel.launch(shade_full_tiles_kernel, tile_order_threads(self.height, self.width, self.order_width),
+                            **args)
         else:
             parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width), **args)
 
