@@ -36,7 +36,7 @@ class ShadeStage:
 
     # CUDA: the full-frame shading runs each warp on a block of pixels this wide (kernels/order.py: 8 x 4, 16 x 2,
     # ...); 0: the (H, W) launch, 32 pixels of a row. The same values in every order
-    order_width = 4
+    order_width = 8
 
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
