@@ -508,9 +508,17 @@ def test_foveawarp_view_command_serves_and_stops_on_ctrl_c():
     from pathlib import Path
 
     repo = Path(__file__).resolve().parent.parent
+
+    def default_sigint():
+        # a terminal's foreground process gets Ctrl-C; a test run started in the background by a shell without job
+        # control inherits SIGINT ignored, and so would the viewer (it then never sees the signal and the wait
+        # below times out): give the child the default disposition a terminal would
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
     proc = subprocess.Popen([sys.executable, "-m", "foveawarp.cli", "view", "--device", "cpu", "--width", "32",
                              "--height", "18", "--port", "0"], cwd=repo, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            preexec_fn=default_sigint if os.name == "posix" else None)
     lines, found = [], threading.Event()
 
     def read():
