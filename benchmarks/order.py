@@ -32,7 +32,7 @@ def main(argv=None) -> None:
     p.add_argument("--shadings", default="default,ao8")
     args = p.parse_args(argv)
     import foveawarp as fw
-    from foveawarp.kernels.order import ORDER_WIDTHS
+    from foveawarp._util import ORDER_WIDTHS
     from foveawarp.stages.gbuffer import GBufferStage
     from foveawarp.stages.shade import ShadeStage
 

@@ -1,4 +1,4 @@
-"""Small shared helpers: device resolution, array conversion, warp init."""
+"""Small shared helpers: device resolution, array conversion, warp init, launch shapes."""
 
 from __future__ import annotations
 
@@ -59,3 +59,21 @@ def check_image_size(width, height) -> tuple[int, int]:
     w = check_int_range("width", width, 1, 16384)
     h = check_int_range("height", height, 1, 16384)
     return w, h
+
+
+# -- the warp-block thread order of per-pixel CUDA launches (kernels/order.py) ----------------------------------
+ORDER_WIDTHS = (1, 2, 4, 8, 16, 32)
+
+
+def order_wlog2(block_width: int) -> int:
+    """log2 of a block width in ``ORDER_WIDTHS`` (pixels; the block is 32 / width high)."""
+    if not isinstance(block_width, int) or isinstance(block_width, bool) or block_width not in ORDER_WIDTHS:
+        raise ValueError(f"block_width must be one of {ORDER_WIDTHS}, got {block_width!r}")
+    return int(block_width).bit_length() - 1
+
+
+def tile_order_threads(height: int, width: int, block_width: int = 8) -> int:
+    """Threads of a "tiles" launch over an (height, width) image: whole blocks ``block_width`` x
+    ``32 / block_width`` covering it."""
+    bh = 32 // block_width
+    return -(-int(height) // bh) * -(-int(width) // block_width) * 32

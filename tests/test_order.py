@@ -6,7 +6,8 @@ import pytest
 import warp as wp
 
 import foveawarp as fw
-from foveawarp.kernels.order import ORDER_WIDTHS, order_wlog2, tile_order_pixel, tile_order_threads
+from foveawarp._util import ORDER_WIDTHS, order_wlog2, tile_order_threads
+from foveawarp.kernels.order import tile_order_pixel
 
 
 @wp.kernel(enable_backward=False)

@@ -9,7 +9,7 @@ import warp as wp
 from .. import parallel
 from ..camera import Camera
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
-from ..kernels.order import order_wlog2, tile_order_threads
+from .._util import order_wlog2, tile_order_threads
 
 __all__ = ["GBufferStage"]
 

@@ -9,7 +9,7 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from ..kernels.order import order_wlog2, tile_order_threads
+from .._util import order_wlog2, tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
