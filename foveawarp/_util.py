@@ -72,6 +72,14 @@ def order_wlog2(block_width: int) -> int:
     return int(block_width).bit_length() - 1
 
 
+def check_order_width(name: str, value) -> "int | None":
+    """A stage's ``order_width`` (0: the plain (H, W) launch; else a block width of ``ORDER_WIDTHS``): the log2 of
+    the width, None for 0; a ValueError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, int) or (value != 0 and value not in ORDER_WIDTHS):
+        raise ValueError(f"{name} must be 0 (the row launch) or one of {ORDER_WIDTHS}, got {value!r}")
+    return None if value == 0 else order_wlog2(value)
+
+
 def tile_order_threads(height: int, width: int, block_width: int = 8) -> int:
     """Threads of a "tiles" launch over an (height, width) image: whole blocks ``block_width`` x
     ``32 / block_width`` covering it."""

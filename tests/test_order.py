@@ -39,11 +39,28 @@ def test_tile_order_covers_every_pixel_once_in_warp_blocks(device, h, w, bw):
     assert n == -(-h // bh) * bh * bx * bw
 
 
-def test_order_width_is_checked():
+def test_order_width_is_checked(device):
+    """The block widths and the stages' ``order_width`` (0 or a block width), named in the error."""
+    from foveawarp.stages.gbuffer import GBufferStage
+    from foveawarp.stages.shade import ShadeStage
+
     assert [order_wlog2(b) for b in ORDER_WIDTHS] == [0, 1, 2, 3, 4, 5]
-    for bad in (0, 3, 64, 8.0, "8"):
+    for bad in (0, 3, 64, 8.0, "8", True):
         with pytest.raises(ValueError, match="block_width"):
             order_wlog2(bad)
+    loop = fw.FrameLoop("cornell", 16, 8, device=device)
+    for cls, name in ((GBufferStage, "GBufferStage.order_width"), (ShadeStage, "ShadeStage.order_width")):
+        saved = cls.order_width
+        try:
+            for bad in (3, 64, -8, 8.5, "8", None, True):
+                cls.order_width = bad
+                with pytest.raises(ValueError, match=name.replace(".", r"\.") + r".*0 \(the row launch\)"):
+                    if cls is GBufferStage:
+                        GBufferStage(loop.dscene, 16, 8, device)
+                    else:
+                        loop.shade.full(loop.gbuffer, loop.radiance, loop.radiance_stoch)
+        finally:
+            cls.order_width = saved
 
 
 @pytest.mark.parametrize("size", [(37, 23), (64, 36)])

@@ -278,6 +278,13 @@ def test_few_holes_follows_the_shading_and_is_checked():
         assert fl.reconstruct.few_holes is few
     with pytest.raises(ValueError, match="few_holes"):
         ReconstructStage(16, 8, device=DEV, few_holes="yes")
+    saved = ReconstructStage.last_pass
+    try:
+        ReconstructStage.last_pass = "warp"
+        with pytest.raises(ValueError, match=r"ReconstructStage\.last_pass.*'tiled'.*'warp'"):
+            ReconstructStage(16, 8, device=DEV)
+    finally:
+        ReconstructStage.last_pass = saved
 
 
 @pytest.mark.parametrize("size", [(33, 19), (64, 48), (5, 3), (1, 1)])

@@ -9,7 +9,7 @@ import warp as wp
 from .. import parallel
 from ..camera import Camera
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
-from .._util import order_wlog2, tile_order_threads
+from .._util import check_order_width, tile_order_threads
 
 __all__ = ["GBufferStage"]
 
@@ -25,8 +25,9 @@ class GBufferStage:
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
         # recorded once on CUDA (per-frame head)
-        self._wlog2 = order_wlog2(self.order_width) if self.order_width else 0
-        self._kernel = gbuffer_tiles_kernel if self.order_width else gbuffer_kernel
+        wlog2 = check_order_width("GBufferStage.order_width", self.order_width)
+        self._wlog2 = 0 if wlog2 is None else wlog2
+        self._kernel = gbuffer_kernel if wlog2 is None else gbuffer_tiles_kernel
         self._launch = parallel.Relaunch(self._kernel, bands=True)
 
     def max_t(self, camera: Camera) -> float:

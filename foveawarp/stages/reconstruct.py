@@ -55,6 +55,7 @@ __all__ = [
     "sibson_window_for_block",
 ]
 
+_LAST_PASS_FORMS = (None, "tiled", "atomic", "lanes")  # ReconstructStage.last_pass
 _RTILE = int(RTILE)  # screen tile edge of the radius reduction (kernels/jfa.py)
 _CUDA_BLOCK = _RTILE * _RTILE  # threads per block of the tiled last pass on CUDA (the CPU runs blocks of 1)
 
@@ -194,6 +195,8 @@ class ReconstructStage:
         # the caller expects few non-seed pixels: elsewhere than the CPU's bands the last pass is then a per-pixel
         # launch with atomic tile maxima instead of the tiled kernel's per-block reductions
         self.few_holes = check_bool("few_holes", few_holes)
+        if self.last_pass not in _LAST_PASS_FORMS:
+            raise ValueError(f"ReconstructStage.last_pass must be one of {_LAST_PASS_FORMS}, got {self.last_pass!r}")
         if window is not None:
             self.window = check_int_range("window", window, 1, 256)
         elif config.sibson_window is not None:

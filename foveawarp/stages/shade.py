@@ -9,7 +9,7 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from .._util import order_wlog2, tile_order_threads
+from .._util import check_order_width, tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
@@ -102,11 +102,11 @@ class ShadeStage:
         the tone-mapped values, with the config's exposure and white point, in the same pass."""
         sc = self.config
         disp = self._dummy_display if display is None else display
-        wlog2 = order_wlog2(self.order_width) if self.order_width else 0
+        wlog2 = check_order_width("ShadeStage.order_width", self.order_width)
         args = dict(inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
                             0 if display is None else 1],
-                    outputs=[out, out_stoch, disp, wlog2], device=self.device)
-        if self.order_width and not parallel.use_row_kernels(self.device):
+                    outputs=[out, out_stoch, disp, 0 if wlog2 is None else wlog2], device=self.device)
+        if wlog2 is not None and not parallel.use_row_kernels(self.device):
             # CUDA: each warp on a block of pixels (kernels/order.py)
             parallel.launch(shade_full_tiles_kernel, tile_order_threads(self.height, self.width, self.order_width),
                             **args)
