@@ -226,146 +226,115 @@ def jfa_pass_kernel(
     dst[y, x] = jfa_visit(mask, src, x, y, step, from_mask, settled)
 
 
-@wp.kernel(enable_backward=False)
-def jfa_last_pass_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    src: wp.array2d(dtype=wp.vec2i),
-    step: int,
-    from_mask: int,
-    settled: int,
-    color_in: wp.array2d(dtype=wp.vec3),
-    color_mode: int,
-    offsets: wp.array(dtype=wp.vec2i),
-    nearest: wp.array2d(dtype=wp.vec2i),
-    r2_out: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    max_r2: wp.array(dtype=wp.int32),
-    max_radius: wp.array(dtype=wp.float32),
-    unreached: wp.array(dtype=wp.int32),
-):
-    """The last pass (``step`` 0 when the schedule is empty; -1: the "disc" variant's scan of ``offsets``), tiled: block b covers the RTILE x RTILE screen
-    tile b (row-major over the tile grid); with fewer threads than RTILE^2 (the CPU runs 1) each thread takes
-    every block_dim-th pixel of the tile.
+def _make_last_pass(form: str):
+    """The last pass (``step`` 0 when the schedule is empty; -1: the "disc" variant's scan of ``offsets``) in
+    three launch forms that write the same values (tests compare them):
 
-    Writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels, -1 to ``r2_out`` at the
-    seeds (seed entries of ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass), ``tile_r2`` (the tile's
-    largest r2, 0 when none) and, by ``color_mode``: 1: the Voronoi color (finite color of the nearest seed,
-    0 without one) of the non-seed pixels to ``color_out`` (the gather's ``vor`` buffer); 2: the Voronoi
-    color of every pixel (seeds: their own) to ``color_out`` (the Voronoi fill); 0: no color.
-    ``max_r2`` / ``max_radius`` / ``unreached`` must be zero before the launch."""
-    blk, lane = wp.tid()
-    h = mask.shape[0]
-    w = mask.shape[1]
-    tiles_x = tile_r2.shape[1]
-    ty = blk // tiles_x
-    tx = blk - ty * tiles_x
-    bd = wp.block_dim()
-    r2max = int(0)
-    missing = int(0)
-    for k in range(lane, RTILE * RTILE, bd):
-        ly = k // RTILE
-        y = ty * RTILE + ly
-        x = tx * RTILE + (k - ly * RTILE)
-        if y < h and x < w:
+    * ``jfa_last_pass_kernel`` ("tiled", ``wp.launch_tiled``): block b covers the RTILE x RTILE screen tile b
+      (row-major over the tile grid); with fewer threads than RTILE^2 (the CPU runs 1) each thread takes every
+      block_dim-th pixel of the tile. Cooperative block reductions give the tile's largest r2 and count of pixels
+      without a seed; one atomic per tile folds them into the image statistics.
+    * ``jfa_last_pass_atomic_kernel`` ("atomic", a thread per pixel): each non-seed pixel with a seed makes its own
+      atomic maximum on its tile's entry of ``tile_r2`` (zeroed before the launch), and goes into the image
+      statistics only when it raised the tile's maximum; a pixel without a seed counts itself into ``unreached``.
+      No per-block reductions (they cost a whole-image pass of their own: 0.105 of the tiled kernel's 0.171 ms at
+      3840x2160, H100); for masks with few non-seed pixels (deterministic shading): with many, the atomics queue
+      on each tile's entry.
+    * ``jfa_last_pass_lanes_kernel`` ("lanes", a thread per pixel): the lanes of a warp in the same screen tile
+      first reduce their largest radius (``kernels/lanes.py``) and one of them makes the atomic, so a warp along a
+      row makes one per tile it spans. Only the lanes with something to fold take part (a warp of seeds skips
+      both). A raised tile maximum goes into the image maxima only when above the value last seen there (a stale
+      read costs an atomic, never a value: the maxima only grow). CUDA's form for many non-seed pixels (H100, 4K,
+      8 AO rays: 0.23-0.26 against 0.30-0.32 ms for the tiled kernel and 0.32-0.38 for the atomic one).
+
+    Each writes ``nearest`` and ``r2_out`` (r_q^2, -1 without a seed) at the non-seed pixels, -1 to ``r2_out`` at
+    the seeds (seed entries of ``nearest`` too when ``from_mask`` != 0, i.e. this is also the first pass),
+    ``tile_r2`` (the tile's largest r2, 0 when none) and, by ``color_mode``: 1: the Voronoi color (finite color of
+    the nearest seed, 0 without one) of the non-seed pixels to ``color_out`` (the gather's ``vor`` buffer); 2: the
+    Voronoi color of every pixel (seeds: their own) to ``color_out`` (the Voronoi fill); 0: no color.
+    ``max_r2`` / ``max_radius`` / ``unreached`` must be zero before the launch; the kernels have the same
+    arguments."""
+    tiled = form == "tiled"
+    lanes = form == "lanes"
+
+    @wp.kernel(enable_backward=False, name="jfa_last_pass_kernel" if tiled else f"jfa_last_pass_{form}_kernel")
+    def last_pass(
+        mask: wp.array2d(dtype=wp.uint8),
+        src: wp.array2d(dtype=wp.vec2i),
+        step: int,
+        from_mask: int,
+        settled: int,
+        color_in: wp.array2d(dtype=wp.vec3),
+        color_mode: int,
+        offsets: wp.array(dtype=wp.vec2i),
+        nearest: wp.array2d(dtype=wp.vec2i),
+        r2_out: wp.array2d(dtype=wp.int32),
+        tile_r2: wp.array2d(dtype=wp.int32),
+        color_out: wp.array2d(dtype=wp.vec3),
+        max_r2: wp.array(dtype=wp.int32),
+        max_radius: wp.array(dtype=wp.float32),
+        unreached: wp.array(dtype=wp.int32),
+    ):
+        if wp.static(tiled):
+            blk, lane = wp.tid()
+            h = mask.shape[0]
+            w = mask.shape[1]
+            tiles_x = tile_r2.shape[1]
+            ty = blk // tiles_x
+            tx = blk - ty * tiles_x
+            bd = wp.block_dim()
+            r2max = int(0)
+            missing = int(0)
+            for k in range(lane, RTILE * RTILE, bd):
+                ly = k // RTILE
+                y = ty * RTILE + ly
+                x = tx * RTILE + (k - ly * RTILE)
+                if y < h and x < w:
+                    r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
+                                         nearest, r2_out, color_out)
+                    r2max = wp.max(r2max, r2)
+                    if r2 == -1:
+                        missing += 1
+            # cooperative block reductions: every thread of the block reaches them
+            tmax = wp.tile_max(wp.tile(r2max))
+            tmiss = wp.tile_sum(wp.tile(missing))
+            if lane == 0:
+                m = tmax[0]
+                tile_r2[ty, tx] = m
+                if m > 0:
+                    wp.atomic_max(max_r2, 0, m)
+                    wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+                if tmiss[0] > 0:
+                    wp.atomic_add(unreached, 0, tmiss[0])
+        else:
+            y, x = wp.tid()
             r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest,
                                  r2_out, color_out)
-            r2max = wp.max(r2max, r2)
-            if r2 == -1:
-                missing += 1
-    # cooperative block reductions: every thread of the block reaches them
-    tmax = wp.tile_max(wp.tile(r2max))
-    tmiss = wp.tile_sum(wp.tile(missing))
-    if lane == 0:
-        m = tmax[0]
-        tile_r2[ty, tx] = m
-        if m > 0:
-            wp.atomic_max(max_r2, 0, m)
-            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
-        if tmiss[0] > 0:
-            wp.atomic_add(unreached, 0, tmiss[0])
+            if r2 > 0:
+                m = r2
+                if wp.static(lanes):
+                    m = lane_group_max((y // RTILE) * tile_r2.shape[1] + x // RTILE, r2)
+                if m != LANE_NONE:
+                    old = wp.atomic_max(tile_r2, y // RTILE, x // RTILE, m)
+                    raised = m > old
+                    if wp.static(lanes):
+                        raised = raised and m > max_r2[0]
+                    if raised:
+                        wp.atomic_max(max_r2, 0, m)
+                        wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+            elif r2 == -1:
+                miss = 1
+                if wp.static(lanes):
+                    miss = lane_count(1)
+                if miss > 0:
+                    wp.atomic_add(unreached, 0, miss)
+
+    return last_pass
 
 
-@wp.kernel(enable_backward=False)
-def jfa_last_pass_atomic_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    src: wp.array2d(dtype=wp.vec2i),
-    step: int,
-    from_mask: int,
-    settled: int,
-    color_in: wp.array2d(dtype=wp.vec3),
-    color_mode: int,
-    offsets: wp.array(dtype=wp.vec2i),
-    nearest: wp.array2d(dtype=wp.vec2i),
-    r2_out: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    max_r2: wp.array(dtype=wp.int32),
-    max_radius: wp.array(dtype=wp.float32),
-    unreached: wp.array(dtype=wp.int32),
-):
-    """The last pass as a plain launch, a thread per pixel, for masks with few non-seed pixels (CUDA): each
-    non-seed pixel with a seed folds its radius into its tile's entry of ``tile_r2`` (zeroed before the launch)
-    by an atomic maximum, and into the image statistics only when it raised the tile's maximum; a non-seed pixel
-    without one counts itself into ``unreached``. The values of ``jfa_last_pass_kernel`` (integer maxima and
-    counts; the largest radius's square root), without its per-block reductions, which cost a whole-image pass
-    of their own (0.105 of its 0.171 ms at 3840x2160, H100); with many non-seed pixels the atomics queue on
-    each tile's entry."""
-    y, x = wp.tid()
-    r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest, r2_out,
-                         color_out)
-    if r2 > 0:
-        old = wp.atomic_max(tile_r2, y // RTILE, x // RTILE, r2)
-        if r2 > old:
-            wp.atomic_max(max_r2, 0, r2)
-            wp.atomic_max(max_radius, 0, wp.sqrt(float(r2)))
-    elif r2 == -1:
-        wp.atomic_add(unreached, 0, 1)
-
-
-@wp.kernel(enable_backward=False)
-def jfa_last_pass_lanes_kernel(
-    mask: wp.array2d(dtype=wp.uint8),
-    src: wp.array2d(dtype=wp.vec2i),
-    step: int,
-    from_mask: int,
-    settled: int,
-    color_in: wp.array2d(dtype=wp.vec3),
-    color_mode: int,
-    offsets: wp.array(dtype=wp.vec2i),
-    nearest: wp.array2d(dtype=wp.vec2i),
-    r2_out: wp.array2d(dtype=wp.int32),
-    tile_r2: wp.array2d(dtype=wp.int32),
-    color_out: wp.array2d(dtype=wp.vec3),
-    max_r2: wp.array(dtype=wp.int32),
-    max_radius: wp.array(dtype=wp.float32),
-    unreached: wp.array(dtype=wp.int32),
-):
-    """The last pass as a plain launch, a thread per pixel, with the radii folded warp by warp (CUDA's form for
-    masks with many non-seed pixels; H100, 4K, 8 AO rays: 0.24-0.27 against 0.30-0.32 ms for the tiled kernel and
-    0.32-0.38 for an atomic per pixel): the lanes of a warp in the same screen tile reduce their largest radius (``kernels/lanes.py``) and one of them makes the
-    atomic maximum on the tile's entry of ``tile_r2`` (zeroed before the launch): a warp along a row makes one
-    atomic per tile it spans, not one per pixel. A raised tile maximum goes into the image maxima only when above
-    the value last seen there (a stale read costs an atomic, never a value: the maxima only grow). The values of
-    ``jfa_last_pass_kernel`` (integer maxima and counts; the largest radius's square root), without its per-block
-    reductions."""
-    y, x = wp.tid()
-    r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest, r2_out,
-                         color_out)
-    # only the lanes with something to fold take part (a warp of seeds skips both)
-    if r2 > 0:
-        ty = y // RTILE
-        tx = x // RTILE
-        m = lane_group_max(ty * tile_r2.shape[1] + tx, r2)
-        if m != LANE_NONE:
-            old = wp.atomic_max(tile_r2, ty, tx, m)
-            if m > old and m > max_r2[0]:
-                wp.atomic_max(max_r2, 0, m)
-                wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
-    elif r2 == -1:
-        miss = lane_count(1)
-        if miss > 0:
-            wp.atomic_add(unreached, 0, miss)
+jfa_last_pass_kernel = _make_last_pass("tiled")
+jfa_last_pass_atomic_kernel = _make_last_pass("atomic")
+jfa_last_pass_lanes_kernel = _make_last_pass("lanes")
 
 
 @wp.kernel(enable_backward=False)
