@@ -94,3 +94,34 @@ def test_tiles_order_renders_the_same_frames(device, size, shading, monkeypatch)
     for order in (8, 16):
         for a, b in zip(got[0], got[order]):
             assert a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("threads", [1, 4])
+def test_order_width_set_on_a_built_stage_takes_effect(device, threads, monkeypatch):
+    """``order_width`` changed on a G-buffer stage after construction (to another width, to the row launch and
+    back) still writes every pixel, equal to a stage built with that width; the CPU runs the per-pixel kernels here
+    in bands of threads (``row0`` is a range of threads for the tiles kernel)."""
+    from foveawarp import parallel
+    from foveawarp.buffers import GBuffer
+    from foveawarp.stages.gbuffer import GBufferStage
+
+    monkeypatch.setattr(parallel, "ROW_KERNELS", False)
+    w, h = 37, 23
+    loop = fw.FrameLoop("cornell", w, h, device=device, cpu_threads=threads)
+    cam = loop.scene.camera
+    ref = GBuffer(w, h, loop.device)
+    st = GBufferStage(loop.dscene, w, h, loop.device)
+    with parallel.cpu_threads(threads):
+        st.order_width = 0
+        st.run(ref, cam, cam)
+        want = ref.numpy()
+        for bw in (16, 0, 4, 8):
+            g = GBuffer(w, h, loop.device)
+            st.order_width = bw
+            st.run(g, cam, cam)
+            got = g.numpy()
+            for k in want:
+                assert np.ascontiguousarray(got[k]).tobytes() == np.ascontiguousarray(want[k]).tobytes(), (bw, k)
+        st.order_width = 12
+        with pytest.raises(ValueError, match=r"GBufferStage\.order_width.*12"):
+            st.run(g, cam, cam)

@@ -285,6 +285,10 @@ def test_few_holes_follows_the_shading_and_is_checked():
             ReconstructStage(16, 8, device=DEV)
     finally:
         ReconstructStage.last_pass = saved
+    st = ReconstructStage(16, 8, device=DEV)
+    st.last_pass = "atomc"  # set on the instance after construction: refused at the run
+    with pytest.raises(ValueError, match=r"ReconstructStage\.last_pass.*'atomc'"):
+        st.run_jfa(wp.zeros((8, 16), dtype=wp.uint8, device=DEV))
 
 
 @pytest.mark.parametrize("size", [(33, 19), (64, 48), (5, 3), (1, 1)])

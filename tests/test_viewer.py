@@ -509,16 +509,15 @@ def test_foveawarp_view_command_serves_and_stops_on_ctrl_c():
 
     repo = Path(__file__).resolve().parent.parent
 
-    def default_sigint():
-        # a terminal's foreground process gets Ctrl-C; a test run started in the background by a shell without job
-        # control inherits SIGINT ignored, and so would the viewer (it then never sees the signal and the wait
-        # below times out): give the child the default disposition a terminal would
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-    proc = subprocess.Popen([sys.executable, "-m", "foveawarp.cli", "view", "--device", "cpu", "--width", "32",
+    # a terminal's foreground process gets Ctrl-C with Python's default handler; a test run started in the
+    # background by a shell without job control inherits SIGINT ignored, and so would the viewer (it would never
+    # see the signal and the wait below would time out): the child installs the handler a terminal's process has,
+    # then runs the console command as `python -m foveawarp.cli` does
+    start = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+             "from foveawarp.cli import main; sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.Popen([sys.executable, "-c", start, "view", "--device", "cpu", "--width", "32",
                              "--height", "18", "--port", "0"], cwd=repo, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-                            preexec_fn=default_sigint if os.name == "posix" else None)
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines, found = [], threading.Event()
 
     def read():

@@ -24,11 +24,22 @@ class GBufferStage:
 
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
-        # recorded once on CUDA (per-frame head)
+        self._order_key = None  # (type, value) of the order_width the launch was made for
+        self._set_order()
+
+    def _set_order(self) -> None:
+        """The launch for ``order_width`` (checked), made again when the attribute changed: recorded once on CUDA
+        (per-frame head)."""
+        key = (type(self.order_width), self.order_width)
+        if key == self._order_key:
+            return
         wlog2 = check_order_width("GBufferStage.order_width", self.order_width)
         self._wlog2 = 0 if wlog2 is None else wlog2
         self._kernel = gbuffer_kernel if wlog2 is None else gbuffer_tiles_kernel
         self._launch = parallel.Relaunch(self._kernel, bands=True)
+        self._dim = (self.height, self.width) if wlog2 is None else tile_order_threads(self.height, self.width,
+                                                                                       self.order_width)
+        self._order_key = key
 
     def max_t(self, camera: Camera) -> float:
         """Ray length that reaches past the whole scene from ``camera``'s eye (finite, >= 1)."""
@@ -40,6 +51,7 @@ class GBufferStage:
     def run(self, gbuffer, camera: Camera, prev_camera: Camera) -> None:
         """Fill every field of ``gbuffer`` for ``camera``; reprojection fields refer to ``prev_camera`` and the
         scene's previous vertex positions."""
+        self._set_order()
         g, ds = gbuffer, self.dscene
         w, h = self.width, self.height
         inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
@@ -49,5 +61,4 @@ class GBufferStage:
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
-            dim = tile_order_threads(h, w, self.order_width) if self.order_width else (h, w)
-            self._launch(dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            self._launch(dim=self._dim, inputs=inputs, outputs=outputs, device=self.device)

@@ -195,8 +195,7 @@ class ReconstructStage:
         # the caller expects few non-seed pixels: elsewhere than the CPU's bands the last pass is then a per-pixel
         # launch with atomic tile maxima instead of the tiled kernel's per-block reductions
         self.few_holes = check_bool("few_holes", few_holes)
-        if self.last_pass not in _LAST_PASS_FORMS:
-            raise ValueError(f"ReconstructStage.last_pass must be one of {_LAST_PASS_FORMS}, got {self.last_pass!r}")
+        self._checked_last_pass()
         if window is not None:
             self.window = check_int_range("window", window, 1, 256)
         elif config.sibson_window is not None:
@@ -237,6 +236,12 @@ class ReconstructStage:
         self._disc_offsets = wp.array(offs if len(offs) else np.zeros((0, 2), np.int32), dtype=wp.vec2i, device=dev)
 
     # -- checks (host-side attribute reads only: no sync, no allocation) --------------------------------------
+    def _checked_last_pass(self):
+        """``last_pass`` (checked at construction and at each run: it may be set on the instance)."""
+        if not (self.last_pass is None or (isinstance(self.last_pass, str) and self.last_pass in _LAST_PASS_FORMS)):
+            raise ValueError(f"ReconstructStage.last_pass must be one of {_LAST_PASS_FORMS}, got {self.last_pass!r}")
+        return self.last_pass
+
     def _check(self, name, arr, dtype):
         if not isinstance(arr, wp.array) or arr.dtype != dtype or tuple(arr.shape) != (self.height, self.width):
             got = type(arr).__name__
@@ -257,6 +262,7 @@ class ReconstructStage:
         seeds) the last pass also writes ``voronoi_color`` (for the Sibson gather), or, when ``color_out`` is
         given too, the Voronoi fill of every pixel to ``color_out``."""
         self._check("seed_mask", seed_mask, wp.uint8)
+        last_pass = self._checked_last_pass()
         mode = 0
         cin, cout = self._dummy3, self._dummy3  # placeholders, never touched in mode 0
         if color_out is not None and color_in is None:
@@ -296,9 +302,9 @@ class ReconstructStage:
                             device=dev, min_band_items=8)
             self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
                                device=dev)
-        elif self.last_pass != "tiled":
+        elif last_pass != "tiled":
             self.tile_radius_sq.zero_()
-            form = self.last_pass or ("atomic" if self.few_holes else "lanes")
+            form = last_pass or ("atomic" if self.few_holes else "lanes")
             kern = jfa_last_pass_atomic_kernel if form == "atomic" else jfa_last_pass_lanes_kernel
             wp.launch(kern, dim=(self.height, self.width), inputs=last,
                       outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, *self._stats_args()],
