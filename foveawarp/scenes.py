@@ -206,7 +206,7 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
     return b, lights, areas, cam
 
 
-def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "sah") -> Scene:
+def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "auto") -> Scene:
     """Cornell box, 2 x 2 x 2 m, open at +z; red left wall, green right wall; a tall and a short block;
     a spot light under the ceiling pointing down. ``motion=True`` slides the short block."""
     check_bool("area_light", area_light)
@@ -217,7 +217,7 @@ def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str
                    name="cornell" + ("+motion" if motion else ""), bvh_constructor=bvh_constructor)
 
 
-def bunny_in_box(path=None, bvh_constructor: str = "sah") -> Scene:
+def bunny_in_box(path=None, bvh_constructor: str = "auto") -> Scene:
     """Cornell box with the Stanford bunny (0.9 m tall) replacing the tall block."""
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
     p = Path(path) if path is not None else find_named_mesh("bunny")
@@ -284,7 +284,7 @@ def _exposed_faces(occ: np.ndarray, color_of):
 
 
 def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_height: int = 44,
-         bvh_constructor: str = "sah") -> Scene:
+         bvh_constructor: str = "auto") -> Scene:
     """Seeded voxel city (1 voxel = 1 m): city blocks of buildings with window recesses and roof detail.
 
     The default has about 1.2M triangles. Deterministic for a given ``seed`` (in [0, 2^32 - 1]). ``size`` in
@@ -433,7 +433,7 @@ def _panel(b: SceneBuilder, origin, width: float, height: float, seed: int):
         size *= 0.6
 
 
-def eyechart(seed: int = 3, bvh_constructor: str = "sah") -> Scene:
+def eyechart(seed: int = 3, bvh_constructor: str = "auto") -> Scene:
     """Three chart panels at 4, 8 and 14 m from the camera, plus a floor: gratings of 4 periods
     (vertical / horizontal bars) and Snellen-like letter rows shrinking to a few millimetres. ``seed`` in
     [0, 2^32 - 3]."""
@@ -471,7 +471,7 @@ def _earth_albedo(centroids: np.ndarray) -> np.ndarray:
     return col.astype(np.float32)
 
 
-def earth(spin: bool = True, bvh_constructor: str = "sah") -> Scene:
+def earth(spin: bool = True, bvh_constructor: str = "auto") -> Scene:
     """Low-poly Earth: a 24 x 21 UV sphere (960 triangles) of radius 1 m with a procedural albedo, lit by
     a distant sun; ``spin`` rotates it once per 12 s."""
     check_bool("spin", spin)
@@ -492,7 +492,7 @@ def _rot4(r3):
 
 
 # ---------------------------------------------------------------------------------------------------
-def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "sah") -> Scene:
+def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "auto") -> Scene:
     """Any mesh file, in its own units and orientation (y up), centred on a ground plane, with a spot light
     and a camera framing it. Every mesh of the file is placed by its transform (glTF nodes, OBJ objects) and
     keeps its colour: material base colour factor times vertex colours, or face colours, averaged per face; a

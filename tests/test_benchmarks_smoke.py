@@ -201,3 +201,21 @@ def test_order_quick(tmp_path):
     bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "order.py"), "--widths", "3"],
                          capture_output=True, text=True, cwd=REPO)
     assert bad.returncode != 0 and "--widths" in bad.stderr
+
+
+def test_bvh_quick(tmp_path):
+    """benchmarks/bvh.py: build and launch times per BVH choice (no speed assertion), the reference images of
+    every choice compared with the first; a bad choice is refused by name."""
+    _run([str(REPO / "benchmarks" / "bvh.py"), "--quick", "--device", "cpu", "--scenes", "cornell", "--configs",
+          "auto,sah-2,cubql"], tmp_path)
+    res = json.loads((tmp_path / "bvh-cpu.json").read_text())
+    assert res["benchmark"] == "bvh" and res["commit"]
+    rec = res["records"]
+    assert [r["config"] for r in rec] == ["auto", "sah-2", "cubql"]
+    assert [r["constructor"] for r in rec] == ["sah", "sah", "cubql"] and rec[1]["leaf_size"] == 2
+    assert all(r["build_ms"] > 0 and r["gbuffer_ms"] > 0 and r["shade_ao8_ms"] > 0 for r in rec)
+    assert rec[0]["pixels_differ_from_first"] == 0
+    for bad_cfg in ("kd", "sah-0", "sah-x"):
+        bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bvh.py"), "--configs", bad_cfg],
+                             capture_output=True, text=True, cwd=REPO)
+        assert bad.returncode != 0 and "--configs" in bad.stderr

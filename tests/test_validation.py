@@ -380,6 +380,9 @@ case("Scene", "Scene:camera_path", fw.Scene, {**_sc, "camera_path": 5}, "Scene.c
 case("Scene", "Scene:name", fw.Scene, {**_sc, "name": 5}, "Scene.name", "5", "a str")
 case("Scene", "Scene:bvh_constructor", fw.Scene, {**_sc, "bvh_constructor": "kd"}, "Scene.bvh_constructor", "'kd'",
      "'sah'")
+for v in (0, 65, 2.5, "4", True):
+    case("Scene", f"Scene:bvh_leaf_size={v!r}", fw.Scene, {**_sc, "bvh_leaf_size": v}, "Scene.bvh_leaf_size",
+         repr(v), "[1, 64]")
 
 
 def _moving_scene(matrix):
@@ -400,6 +403,7 @@ arg("Scene", "DeviceScene", DeviceScene, {}, "scene", "foveawarp.Scene", [("corn
 DeviceScene_scene = functools.partial(lambda **kw: DeviceScene(_scene(), **kw))
 arg("Scene", "DeviceScene", DeviceScene_scene, {}, "device", "or None for the default", [("tpu:9", "'tpu:9'")])
 arg("Scene", "DeviceScene", DeviceScene_scene, {}, "bvh_constructor", "'sah'", [("kd", "'kd'"), (3, "3")])
+int_arg("Scene", "DeviceScene", DeviceScene_scene, {}, "bvh_leaf_size", "[1, 64]", [0, 65, -2], none_ok=True)
 real_arg("Scene", "DeviceScene.set_time", lambda t: _ds().set_time(t), {}, "t", "finite real number", param="time")
 
 # ================================================================================================================
