@@ -28,18 +28,18 @@ from benchmarks._common import base_parser, md_table, scenes_present, shading_co
 DEFAULT_SCENES = "cornell,eyechart,earth,bunny,spot,teapot,nefertiti,ogre,city"
 
 
-def parse_configs(p, text: str) -> list:
+def parse_configs(p, text: str, opt: str = "--configs") -> list:
     from foveawarp.scene import BVH_CONSTRUCTORS, BVH_MAX_LEAF
 
     out = []
     for item in [v for v in text.split(",") if v]:
         ctor, _, leaf = item.partition("-")
         if ctor not in BVH_CONSTRUCTORS or (leaf and not (leaf.isdigit() and 1 <= int(leaf) <= BVH_MAX_LEAF)):
-            p.error(f"--configs items must be ctor or ctor-leaf with ctor in {list(BVH_CONSTRUCTORS)} and leaf in "
+            p.error(f"{opt} items must be ctor or ctor-leaf with ctor in {list(BVH_CONSTRUCTORS)} and leaf in "
                     f"[1, {BVH_MAX_LEAF}], got {item!r}")
         out.append((ctor, int(leaf) if leaf else None))
     if not out:
-        p.error("--configs is empty")
+        p.error(f"{opt} is empty")
     return out
 
 

@@ -213,6 +213,7 @@ def main(argv=None):
     p.add_argument("--parts", default="quality,timing", help="quality,timing,stochastic")
     p.add_argument("--stochastic-scenes", default="cornell,city")
     p.add_argument("--name", default="frame")
+    p.add_argument("--bvh", default=None, help="every scene's BVH as CTOR or CTOR-LEAF (e.g. sah-4; default: auto)")
     p.add_argument("--psnr-only", action="store_true", help="skip SSIM (host PSNR only: fast sweeps)")
     args = p.parse_args(argv)
     import foveawarp as fw
@@ -221,6 +222,11 @@ def main(argv=None):
     dev = wp.get_device(args.device)
     metrics, where = _metric_fn(args.psnr_only)
     parts = set(args.parts.split(","))
+    bvh = None
+    if args.bvh:
+        from benchmarks.bvh import parse_configs
+
+        (bvh,) = parse_configs(p, args.bvh, "--bvh") if "," not in args.bvh else p.error("--bvh takes one choice")
     configs = []
     for item in args.configs.split(";"):
         name, _, lit = item.partition("=")
@@ -232,6 +238,8 @@ def main(argv=None):
     for name in args.scenes.split(","):
         try:
             scene = fw.load_scene(name)
+            if bvh is not None:
+                scene.bvh_constructor, scene.bvh_leaf_size = bvh
         except ValueError as e:
             print(f"skip {name}: {e}", flush=True)
             continue
@@ -239,7 +247,8 @@ def main(argv=None):
             for cname, over in configs:
                 cfg = fw.Config().with_(**over) if over else fw.Config()
                 base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "config": cname,
-                        "overrides": over, "metrics_on": where, "commit": git_commit()}
+                        "overrides": over, "metrics_on": where, "commit": git_commit(),
+                        "bvh": list(fw.scene.resolve_bvh(scene.bvh_constructor, scene.bvh_leaf_size, dev))}
                 t0 = time.perf_counter()
                 if "quality" in parts:
                     q = quality(fw, scene, w, h, dev, cfg, args.frames, metrics)

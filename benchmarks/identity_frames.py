@@ -31,13 +31,15 @@ STILL_FROM = 3  # "still" configs: the camera and gaze stop moving at this frame
 SCENES = ("cornell", "city", "earth")
 
 
-def render_all(device: str, width: int, height: int, frames: int) -> dict:
+def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> dict:
     import foveawarp as fw
 
     print(f"foveawarp from {fw.__file__}", flush=True)
     out = {}
     for scene_name in SCENES:
         scene = fw.load_scene(scene_name)
+        if bvh is not None:  # (constructor, leaf size): the Scene fields (trees from 1f42f5e on)
+            scene.bvh_constructor, scene.bvh_leaf_size = bvh
         for cname, over in CONFIGS.items():
             cfg = fw.Config().with_(**over) if over else fw.Config()
             loop = fw.FrameLoop(scene, width, height, config=cfg, device=device, timing=False, graph=False,
@@ -70,12 +72,19 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--size", default="96x64")
     p.add_argument("--frames", type=int, default=10)
+    p.add_argument("--bvh", default=None, help="the scenes' BVH as CTOR or CTOR-LEAF, e.g. sah-4 (default: theirs)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--save", help="write the arrays to this .npz")
     g.add_argument("--compare", help="compare against this .npz")
     a = p.parse_args(argv)
     w, h = (int(v) for v in a.size.split("x"))
-    got = render_all(a.device, w, h, a.frames)
+    bvh = None
+    if a.bvh:
+        ctor, _, leaf = a.bvh.partition("-")
+        if not ctor or (leaf and not leaf.isdigit()):
+            p.error(f"--bvh must be CTOR or CTOR-LEAF, got {a.bvh!r}")
+        bvh = (ctor, int(leaf) if leaf else None)
+    got = render_all(a.device, w, h, a.frames, bvh)
     if a.save:
         np.savez_compressed(a.save, **got)
         print(f"saved {len(got)} arrays to {a.save}")
@@ -91,6 +100,16 @@ def main(argv=None) -> int:
     print(f"{len(ref)} arrays compared, {len(bad)} differ")
     for b in bad[:40]:
         print("  ", b)
+    if bad:  # per scene: arrays that differ, and how far the displayed images moved
+        for scene in sorted({k.split(".")[0] for k in ref}):
+            keys = [k for k in ref if k.split(".")[0] == scene and k in got and ref[k].shape == got[k].shape]
+            diff = [k for k in keys if ref[k].tobytes() != got[k].tobytes()]
+            img = [np.abs(ref[k].astype(np.float64) - got[k].astype(np.float64)) for k in diff
+                   if k.endswith(".image")]
+            n_img = sum(1 for k in keys if k.endswith(".image"))
+            print(f"   {scene}: {len(diff)} of {len(keys)} arrays differ; {len(img)} of {n_img} images, "
+                  f"{max((int((d > 0).any(axis=-1).sum()) for d in img), default=0)} pixels at most, "
+                  f"max abs {max((float(d.max()) for d in img), default=0.0):.3g}")
     return 1 if bad else 0
 
 
