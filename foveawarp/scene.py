@@ -28,9 +28,9 @@ BVH_MAX_LEAF = 64
 def resolve_bvh(constructor: str, leaf_size, device) -> tuple:
     """The (constructor, leaf size) a :class:`DeviceScene` builds its ``wp.Mesh`` with on ``device``.
 
-    "auto" is "cubql" on CUDA (Warp's cuBQL builder: the fastest traversal measured on every built-in scene and
-    mesh on the H100 / H200, and 2-9x faster builds than "sah" on large meshes) and "sah" on the CPU device (where
-    the cuBQL tree traced slower). "lbvh" on the CPU is "sah" (Warp's own fallback). A leaf size of None is 2 for
+    "auto" is "cubql" on CUDA (Warp's cuBQL builder: on the H100 and H200 it traced every built-in scene and mesh
+    faster than "sah" with 4 per leaf, and built meshes of 70k triangles and more 2-8x faster; small ones take a
+    few ms more) and "sah" on the CPU device (where the cuBQL tree traced slower). "lbvh" on the CPU is "sah" (Warp's own fallback). A leaf size of None is 2 for
     "sah", "median" and "lbvh" on CUDA (against Warp's 4: cornell's shading with 8 AO rays at 4K 4.76 -> 2.61 ms),
     Warp's default otherwise (4 for the CPU trees, cuBQL's own for "cubql"). ``benchmarks/bvh.py`` measures every
     choice."""
