@@ -488,3 +488,54 @@ def test_row_kernels_equal_pixel_kernels(monkeypatch, config, scene):
         pix = _frame_state(n, config, scene, size)
         for i, (a, b) in enumerate(zip(rows, pix)):
             assert a.tobytes() == b.tobytes(), (n, i)
+
+
+# -- the native band dispatcher (kernels/bands.py) -----------------------------------------------------------------
+
+
+@wp.kernel(enable_backward=False)
+def _band_marks_kernel(marks: wp.array(dtype=wp.int32), owner: wp.array(dtype=wp.int64), row0: int):
+    """Each row adds 1 to its mark and records the address of its band's first row (one band = one row0)."""
+    i = wp.tid() + row0
+    marks[i] = marks[i] + 1
+    owner[i] = wp.int64(row0)
+
+
+@pytest.mark.parametrize("threads", [2, 3, 8, 33])
+@pytest.mark.parametrize("rows", [1, 7, 64, 1000])
+def test_native_dispatch_runs_every_band_once(every_band, monkeypatch, threads, rows):
+    """With the native dispatcher every row of every band is written exactly once (a band run twice would add
+    2; a band skipped, 0), each by the band the Python split gives it, and a second launch reuses the kept
+    dispatcher state (its counter starts again at 0); the Python band loop gives the same arrays."""
+    results = {}
+    for native in (True, False):
+        monkeypatch.setattr(parallel, "NATIVE_BANDS", native)
+        parallel._band_cache.clear()
+        marks = wp.zeros(rows, dtype=wp.int32, device=DEV)
+        owner = wp.zeros(rows, dtype=wp.int64, device=DEV)
+        for _ in range(3):
+            parallel.launch(_band_marks_kernel, rows, [], [marks, owner], DEV, threads=threads)
+        parts = parallel.bands(rows, threads * parallel.bands_per_thread(threads))
+        want_owner = np.concatenate([np.full(r1 - r0, r0) for r0, r1 in parts])
+        np.testing.assert_array_equal(marks.numpy(), 3)
+        np.testing.assert_array_equal(owner.numpy(), want_owner)
+        used = [s.native is not None for s in parallel._band_cache.values()]
+        assert any(used) == (native and len(parts) > 1)
+        results[native] = (marks.numpy(), owner.numpy())
+    for a, b in zip(results[True], results[False]):
+        assert a.tobytes() == b.tobytes()
+
+
+def test_native_dispatch_turns_itself_off_when_it_cannot_be_built(every_band, monkeypatch):
+    """A dispatcher that fails to build switches ``NATIVE_BANDS`` off and the launch runs its bands in Python."""
+    import foveawarp.kernels.bands as bands_mod
+
+    monkeypatch.setattr(parallel, "NATIVE_BANDS", True)  # restored after the test
+    monkeypatch.setattr(bands_mod, "band_dispatch_kernel", None)  # building the dispatcher's call fails
+    parallel._band_cache.clear()
+    marks = wp.zeros(50, dtype=wp.int32, device=DEV)
+    owner = wp.zeros(50, dtype=wp.int64, device=DEV)
+    parallel.launch(_band_marks_kernel, 50, [], [marks, owner], DEV, threads=4)
+    assert parallel.NATIVE_BANDS is False
+    assert all(s.native is None for s in parallel._band_cache.values())
+    np.testing.assert_array_equal(marks.numpy(), 1)
