@@ -219,14 +219,3 @@ def test_bvh_quick(tmp_path):
         bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bvh.py"), "--configs", bad_cfg],
                              capture_output=True, text=True, cwd=REPO)
         assert bad.returncode != 0 and "--configs" in bad.stderr
-
-
-def test_cpu_native_ab_quick(tmp_path):
-    """benchmarks/cpu_native_ab.py: both band-dispatch settings timed on the same loops (no speed assertion)."""
-    _run([str(REPO / "benchmarks" / "cpu_native_ab.py"), "--quick", "--threads", "2", "--scenes", "cornell",
-          "--shadings", "default"], tmp_path)
-    res = json.loads((tmp_path / "cpu-native-ab-cpu.json").read_text())
-    assert res["benchmark"] == "cpu-native-ab" and res["threads"] == 2
-    got = {(r["path"], r["native_bands"]) for r in res["records"]}
-    assert got == {(p, n) for p in ("foveated", "reference") for n in (True, False)}
-    assert all(0 < r["best_ms"] <= r["median_ms"] for r in res["records"])
