@@ -51,10 +51,6 @@ MAX_THREADS = 1024
 MIN_ITEMS_PER_BAND = int(os.environ.get("FOVEAWARP_CPU_MIN_BAND_ITEMS", "2048") or 2048)  # 0: split every launch
 # pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
 FAST_BANDS = True
-# each thread of a band-parallel launch runs its bands in one native call (kernels/bands.py: band indices from an
-# atomic counter), taking the GIL once per launch instead of twice per band; False: bands are taken in Python.
-# Set to False by the first launch if the dispatcher cannot be built.
-NATIVE_BANDS = True
 # bands per thread: the threads take bands from a shared queue, so rows of unequal cost (sky above, geometry
 # below) even out; each band costs a few microseconds of Python under the GIL. None: 4 (16 cores, cornell
 # 640x360 at 3264d20: 8.23 ms a frame with 4 bands per thread, 8.96 ms with 2)
@@ -270,12 +266,11 @@ _band_cache: dict = {}
 class _Bands:
     """The kept per-band launch state of one packed launch split one way."""
 
-    __slots__ = ("master", "last", "structs", "bounds", "calls", "native", "counter", "ptrs")
+    __slots__ = ("master", "last", "structs", "bounds", "calls")
 
 
 def _band_calls(packed, parts, dims):
-    """The kept band state (``_Bands``) of ``packed`` split into ``parts``: ``calls``, one (entry point, bounds,
-    arguments) per band, with every band's arguments up to date (see ``launch``)."""
+    """An iterator over (entry point, bounds, arguments) per band of ``parts`` for ``packed`` (see ``launch``)."""
     forward, struct_type, master, kdim = packed
     key = (id(master), tuple(parts), tuple(dims[1:]))
     st = _band_cache.get(key)
@@ -286,7 +281,6 @@ def _band_calls(packed, parts, dims):
         st.bounds = {r1 - r0: _bounds_of((r1 - r0, *dims[1:]), kdim) for r0, r1 in parts}  # at most two sizes
         st.calls = [(forward, ctypes.byref(st.bounds[r1 - r0]), ctypes.byref(a))
                     for a, (r0, r1) in zip(st.structs, parts)]
-        st.native = st.counter = st.ptrs = None
         if len(_band_cache) >= _PACK_CACHE_MAX:
             _band_cache.clear()
         _band_cache[key] = st
@@ -297,41 +291,7 @@ def _band_calls(packed, parts, dims):
             ctypes.memmove(ctypes.addressof(a), src, size)
             a.row0 = r0
         st.last = cur
-    return st
-
-
-def _native_call(st, dev):
-    """The band dispatcher's call (entry point, bounds, arguments) for the bands of ``st``, made once per
-    ``_Bands`` (its pointer tables and counter live as long as the band structs they point to); None when the
-    dispatcher cannot be used (``NATIVE_BANDS`` off, or it failed to build: then it is turned off)."""
-    global NATIVE_BANDS
-    if st.native is not None or not NATIVE_BANDS:
-        return st.native
-    try:
-        from .kernels.bands import band_dispatch_kernel
-
-        n = len(st.calls)
-        fn = ctypes.cast(st.calls[0][0], ctypes.c_void_p).value
-        bptr = (ctypes.c_uint64 * n)(*[ctypes.addressof(_obj(b)) for _, b, _ in st.calls])
-        aptr = (ctypes.c_uint64 * n)(*[ctypes.addressof(a) for a in st.structs])
-        counter = ctypes.c_int32(0)
-        band_dispatch_kernel.module.load(dev, 1)
-        forward, _, args, kdim = _record(band_dispatch_kernel, (1,),
-                                         [fn, ctypes.addressof(bptr), ctypes.addressof(aptr), n,
-                                          ctypes.addressof(counter)], [], dev)
-        bounds = _bounds_of((1,), kdim)
-        st.ptrs = (bptr, aptr, bounds, args)  # kept alive with the call
-        st.counter = counter
-        st.native = (forward, ctypes.byref(bounds), ctypes.byref(args))
-    except Exception:  # noqa: BLE001 - any failure to build or pack: the Python band loop stays
-        NATIVE_BANDS = False
-        st.native = None
-    return st.native
-
-
-def _obj(ref):
-    """The ctypes object behind a ``ctypes.byref`` reference."""
-    return ref._obj
+    return iter(st.calls)
 
 
 def _check_kernel(kernel) -> None:
@@ -391,8 +351,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # every band's launch bounds and argument struct (a copy of the packed one with its row0) are kept with
         # the packed arguments and copied again only when those changed: a band is then one ctypes call, the
         # least Python a member thread runs under the GIL
-        st = _band_calls(packed, parts, dims)
-        calls = iter(st.calls)
+        calls = _band_calls(packed, parts, dims)
         if len(parts) == 1:  # one band: this thread, with the kept arguments (no packing)
             for f, b, a in calls:
                 f(b, a)
@@ -401,8 +360,6 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         def worker():
             for f, b, a in calls:  # the list iterator is shared: each band goes to one thread
                 f(b, a)
-
-        native = _native_call(st, dev) if dev.is_cpu else None
     else:
         queue = iter(parts)
 
@@ -418,13 +375,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         worker()
         return
     try:
-        if packed is not None and native is not None:
-            # each thread: one native call that claims bands from the shared counter (kernels/bands.py)
-            st.counter.value = 0
-            f, b, a = native
-            team.run(lambda: f(b, a), workers)
-        else:
-            team.run(worker, workers)
+        team.run(worker, workers)
     finally:
         team.busy.release()
 
