@@ -34,7 +34,8 @@ def parse_configs(p, text: str, opt: str = "--configs") -> list:
     out = []
     for item in [v for v in text.split(",") if v]:
         ctor, _, leaf = item.partition("-")
-        if ctor not in BVH_CONSTRUCTORS or (leaf and not (leaf.isdigit() and 1 <= int(leaf) <= BVH_MAX_LEAF)):
+        dash = "-" in item
+        if ctor not in BVH_CONSTRUCTORS or (dash and not (leaf.isdigit() and 1 <= int(leaf) <= BVH_MAX_LEAF)):
             p.error(f"{opt} items must be ctor or ctor-leaf with ctor in {list(BVH_CONSTRUCTORS)} and leaf in "
                     f"[1, {BVH_MAX_LEAF}], got {item!r}")
         out.append((ctor, int(leaf) if leaf else None))
@@ -50,63 +51,60 @@ def main(argv=None) -> None:
     p.add_argument("--configs", default="auto,sah-4,sah-2,cubql,cubql-2,lbvh-2")
     args = p.parse_args(argv)
     import foveawarp as fw
-    from foveawarp.scene import resolve_bvh
 
     try:
         w, h = (int(v) for v in args.size.lower().split("x"))
+        if w < 1 or h < 1:
+            raise ValueError
     except ValueError:
-        p.error(f"--size must be WxH, got {args.size!r}")
+        p.error(f"--size must be WxH with positive integers, got {args.size!r}")
     configs = parse_configs(p, args.configs)
-    if args.quick:
+    if args.quick:  # the smoke-test size, whatever --size says
         w, h = 96, 54
     repeats = args.repeats or (3 if args.quick else 15)
     dev = wp.get_device(args.device)
     rows = []
-    for scene in scenes_present(fw, args.scenes):
-        saved = scene.bvh_constructor, scene.bvh_leaf_size
+    for scene in scenes_present(fw, args.scenes):  # a freshly loaded scene each: its BVH fields are ours to set
         first = None
-        try:
-            pts = wp.array(scene.vertices, dtype=wp.vec3, device=dev)
-            idx = wp.array(scene.faces.reshape(-1), dtype=wp.int32, device=dev)
-            for ctor, leaf in configs:
-                built = resolve_bvh(ctor, leaf, dev)
-                bt = []
-                for _ in range(3):
-                    wp.synchronize_device(dev)
-                    t0 = time.perf_counter()
-                    wp.Mesh(points=pts, indices=idx, bvh_constructor=built[0], bvh_leaf_size=built[1])
-                    wp.synchronize_device(dev)
-                    bt.append((time.perf_counter() - t0) * 1e3)
-                scene.bvh_constructor, scene.bvh_leaf_size = ctor, leaf
-                row = {"scene": scene.name, "triangles": int(len(scene.faces)), "width": w, "height": h,
-                       "config": ctor + (f"-{leaf}" if leaf else ""), "constructor": built[0],
-                       "leaf_size": built[1] if built[1] is not None else "Warp default",
-                       "build_ms": statistics.median(bt)}
-                for shading in ("default", "ao8"):
-                    loop = fw.FrameLoop(scene, w, h, config=shading_config(fw, shading), device=dev, graph=False,
-                                        timing=False)
-                    cam = scene.camera
-                    loop.render_reference(cam)
-                    if shading == "default":
-                        img = loop.image.numpy()
-                        first = img if first is None else first
-                        d = np.abs(img - first).max(axis=-1)
-                        row["pixels_differ_from_first"] = int((d > 0).sum())
-                        row["max_abs_diff_from_first"] = float(d.max())
-                    loop.upload_shade_params(cam)
-                    g = time_ms(lambda: loop.gbuffer_stage.run(loop.gbuffer, cam, cam), dev, repeats, args.warmup)
-                    s = time_ms(lambda: loop.shade.full(loop.gbuffer, loop.radiance, loop.radiance_stoch), dev,
-                                repeats, args.warmup)
-                    if shading == "default":
-                        row["gbuffer_ms"] = g["median_ms"]
-                    row[f"shade_{shading}_ms"] = s["median_ms"]
-                    del loop
-                rows.append(row)
-                print(f"{scene.name} {row['config']}: build {row['build_ms']:.2f} ms, gbuffer {row['gbuffer_ms']:.3f}, "
-                      f"shade {row['shade_default_ms']:.3f} / ao8 {row['shade_ao8_ms']:.3f} ms, "
-                      f"{row['pixels_differ_from_first']} px differ", flush=True)
-        finally:
-            scene.bvh_constructor, scene.bvh_leaf_size = saved
+        pts = wp.array(scene.vertices, dtype=wp.vec3, device=dev)
+        idx = wp.array(scene.faces.reshape(-1), dtype=wp.int32, device=dev)
+        for ctor, leaf in configs:
+            scene.bvh_constructor, scene.bvh_leaf_size = ctor, leaf
+            row = {"scene": scene.name, "triangles": int(len(scene.faces)), "width": w, "height": h,
+                   "config": ctor + (f"-{leaf}" if leaf else "")}
+            for shading in ("default", "ao8"):
+                loop = fw.FrameLoop(scene, w, h, config=shading_config(fw, shading), device=dev, graph=False,
+                                    timing=False)
+                built = (loop.dscene.bvh_constructor, loop.dscene.bvh_leaf_size)  # after any fallback
+                cam = scene.camera
+                loop.render_reference(cam)
+                if shading == "default":
+                    img = loop.image.numpy()
+                    first = img if first is None else first
+                    d = np.abs(img - first).max(axis=-1)
+                    row["pixels_differ_from_first"] = int((d > 0).sum())
+                    row["max_abs_diff_from_first"] = float(d.max())
+                loop.upload_shade_params(cam)
+                g = time_ms(lambda: loop.gbuffer_stage.run(loop.gbuffer, cam, cam), dev, repeats, args.warmup)
+                s = time_ms(lambda: loop.shade.full(loop.gbuffer, loop.radiance, loop.radiance_stoch), dev,
+                            repeats, args.warmup)
+                if shading == "default":
+                    row["gbuffer_ms"] = g["median_ms"]
+                row[f"shade_{shading}_ms"] = s["median_ms"]
+                del loop
+            bt = []
+            for _ in range(3):  # the build of the tree the loops got
+                wp.synchronize_device(dev)
+                t0 = time.perf_counter()
+                wp.Mesh(points=pts, indices=idx, bvh_constructor=built[0], bvh_leaf_size=built[1])
+                wp.synchronize_device(dev)
+                bt.append((time.perf_counter() - t0) * 1e3)
+            row.update(constructor=built[0], leaf_size=built[1] if built[1] is not None else "Warp default",
+                       build_ms=statistics.median(bt))
+            rows.append(row)
+            print(f"{scene.name} {row['config']}: build {row['build_ms']:.2f} ms, gbuffer {row['gbuffer_ms']:.3f}, "
+                  f"shade {row['shade_default_ms']:.3f} / ao8 {row['shade_ao8_ms']:.3f} ms, "
+                  f"{row['pixels_differ_from_first']} px differ", flush=True)
     cols = ["scene", "triangles", "config", "constructor", "leaf_size", "build_ms", "gbuffer_ms", "shade_default_ms",
             "shade_ao8_ms", "pixels_differ_from_first", "max_abs_diff_from_first"]
     md = (f"## Scene BVH choices ({dev}, {w}x{h}; launches: median of {repeats} synchronized runs, scene camera; "

@@ -166,7 +166,8 @@ def timing(fw, scene, w, h, dev, cfg, n):
                overhead_ms=float(max(fov_ms - traced, 0.0)),
                overhead_stage_sum_ms=float(sum(v for k, v in stage_ms.items()
                                                if k not in ("gbuffer", "shade", "indirect", "indirect_build", "scene"))),
-               timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms)
+               timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms,
+               bvh=[tl.dscene.bvh_constructor, tl.dscene.bvh_leaf_size])  # the tree built (after any fallback)
     return out
 
 
@@ -248,7 +249,7 @@ def main(argv=None):
                 cfg = fw.Config().with_(**over) if over else fw.Config()
                 base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "config": cname,
                         "overrides": over, "metrics_on": where, "commit": git_commit(),
-                        "bvh": list(fw.scene.resolve_bvh(scene.bvh_constructor, scene.bvh_leaf_size, dev))}
+                        "bvh_requested": [scene.bvh_constructor, scene.bvh_leaf_size]}
                 t0 = time.perf_counter()
                 if "quality" in parts:
                     q = quality(fw, scene, w, h, dev, cfg, args.frames, metrics)

@@ -79,10 +79,13 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     w, h = (int(v) for v in a.size.split("x"))
     bvh = None
-    if a.bvh:
-        ctor, _, leaf = a.bvh.partition("-")
-        if not ctor or (leaf and not leaf.isdigit()):
-            p.error(f"--bvh must be CTOR or CTOR-LEAF, got {a.bvh!r}")
+    if a.bvh:  # trees from 1f42f5e on (older ones have no BVH fields; run them without --bvh)
+        from foveawarp.scene import BVH_CONSTRUCTORS, BVH_MAX_LEAF
+
+        ctor, dash, leaf = a.bvh.partition("-")
+        if ctor not in BVH_CONSTRUCTORS or (dash and not (leaf.isdigit() and 1 <= int(leaf) <= BVH_MAX_LEAF)):
+            p.error(f"--bvh must be CTOR or CTOR-LEAF with CTOR in {list(BVH_CONSTRUCTORS)} and LEAF in "
+                    f"[1, {BVH_MAX_LEAF}], got {a.bvh!r}")
         bvh = (ctor, int(leaf) if leaf else None)
     got = render_all(a.device, w, h, a.frames, bvh)
     if a.save:

@@ -29,11 +29,11 @@ def resolve_bvh(constructor: str, leaf_size, device) -> tuple:
     """The (constructor, leaf size) a :class:`DeviceScene` builds its ``wp.Mesh`` with on ``device``.
 
     "auto" is "cubql" on CUDA (Warp's cuBQL builder: on the H100 and H200 it traced every built-in scene and mesh
-    faster than "sah" with 4 per leaf, and built meshes of 70k triangles and more 2-8x faster; small ones take a
-    few ms more) and "sah" on the CPU device (where the cuBQL tree traced slower). "lbvh" on the CPU is "sah" (Warp's own fallback). A leaf size of None is 2 for
-    "sah", "median" and "lbvh" on CUDA (against Warp's 4: cornell's shading with 8 AO rays at 4K 4.76 -> 2.61 ms),
-    Warp's default otherwise (4 for the CPU trees, cuBQL's own for "cubql"). ``benchmarks/bvh.py`` measures every
-    choice."""
+    faster than "sah" with 4 per leaf, and built the meshes of 69k triangles and more 1.9-8.4x faster; small ones
+    take a few ms more) and "sah" on the CPU device (where the cuBQL tree traced slower). "lbvh" on the CPU is
+    "sah" (Warp's own fallback). A leaf size of None is 2 for "sah", "median" and "lbvh" on CUDA (against Warp's 4:
+    cornell's shading with 8 AO rays at 4K 4.79 -> 2.61 ms on the H100), Warp's default otherwise (4 for the CPU
+    trees, cuBQL's own for "cubql"). ``benchmarks/bvh.py`` measures every choice."""
     from ._util import get_device
 
     constructor = check_choice("bvh_constructor", constructor, BVH_CONSTRUCTORS)
@@ -360,7 +360,7 @@ class DeviceScene:
         self.scene = scene
         self.device = get_device(device)
         self.animated = bool(scene.is_animated)  # read every frame by set_time
-        ctor = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
+        requested = ctor = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
         leaf = scene.bvh_leaf_size if bvh_leaf_size is None else bvh_leaf_size
         check_choice("bvh_constructor", ctor, BVH_CONSTRUCTORS)
         if leaf is not None:
@@ -372,11 +372,15 @@ class DeviceScene:
         ctor, leaf = resolve_bvh(ctor, leaf, dev)
         try:
             self.mesh = wp.Mesh(points=self.points, indices=self.indices, bvh_constructor=ctor, bvh_leaf_size=leaf)
-        except (RuntimeError, ValueError):
-            if ctor != "cubql" or scene.bvh_constructor == "cubql" or bvh_constructor == "cubql":
+        except (RuntimeError, ValueError) as e:
+            if requested != "auto" or ctor != "cubql":  # an explicit choice fails loudly
                 raise
-            # "auto" on a Warp built without cuBQL: the best of the others
-            ctor, leaf = resolve_bvh("sah", leaf, dev)
+            # "auto" on a Warp without cuBQL: SAH (the fastest of the others on CUDA, with 2 per leaf)
+            import warnings
+
+            warnings.warn(f"DeviceScene: the cuBQL BVH could not be built ({e}); using 'sah'", RuntimeWarning,
+                          stacklevel=2)
+            ctor, leaf = resolve_bvh("sah", scene.bvh_leaf_size if bvh_leaf_size is None else bvh_leaf_size, dev)
             self.mesh = wp.Mesh(points=self.points, indices=self.indices, bvh_constructor=ctor, bvh_leaf_size=leaf)
         # what the BVH was built with (leaf size None: Warp's default for that constructor)
         self.bvh_constructor, self.bvh_leaf_size = ctor, leaf

