@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
 from .camera import Camera
 from .config import check_array, check_bool, check_choice, check_finite, check_int_range, check_range, check_vec, show
 from .meshio import find_named_mesh, load_mesh_arrays, load_mesh_parts, named_mesh_help
-from .scene import BVH_CONSTRUCTORS, AreaLight, Light, Scene, SceneObject, register_builtin_scenes
+from .scene import BVH_CONSTRUCTORS, BVH_MAX_LEAF, AreaLight, Light, Scene, SceneObject, register_builtin_scenes
 
 __all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "mesh_on_ground", "BUILTIN"]
 
@@ -206,20 +207,27 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
     return b, lights, areas, cam
 
 
-def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "auto") -> Scene:
+def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "auto",
+            bvh_leaf_size: Optional[int] = None) -> Scene:
     """Cornell box, 2 x 2 x 2 m, open at +z; red left wall, green right wall; a tall and a short block;
     a spot light under the ceiling pointing down. ``motion=True`` slides the short block."""
     check_bool("area_light", area_light)
     check_bool("motion", motion)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     b, lights, areas, cam = _cornell_builder(area_light, motion)
     return b.build(lights=lights, area_lights=areas, camera=cam, camera_path=_orbit_path(cam, 12.0, 6.0),
-                   name="cornell" + ("+motion" if motion else ""), bvh_constructor=bvh_constructor)
+                   name="cornell" + ("+motion" if motion else ""), bvh_constructor=bvh_constructor,
+                   bvh_leaf_size=bvh_leaf_size)
 
 
-def bunny_in_box(path=None, bvh_constructor: str = "auto") -> Scene:
+def bunny_in_box(path=None, bvh_constructor: str = "auto",
+                 bvh_leaf_size: Optional[int] = None) -> Scene:
     """Cornell box with the Stanford bunny (0.9 m tall) replacing the tall block."""
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     p = Path(path) if path is not None else find_named_mesh("bunny")
     if p is None:
         raise ValueError("bunny-in-box: " + named_mesh_help("bunny"))
@@ -238,7 +246,7 @@ def bunny_in_box(path=None, bvh_constructor: str = "auto") -> Scene:
                     intensity=(9.0, 8.3, 7.2), penumbra=0.3)]
     cam = Camera(eye=(0.0, 1.0, 3.4), target=(0.0, 0.8, 0.0), up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 12.0, 6.0), name="bunny-in-box",
-                   bvh_constructor=bvh_constructor)
+                   bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -284,7 +292,8 @@ def _exposed_faces(occ: np.ndarray, color_of):
 
 
 def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_height: int = 44,
-         bvh_constructor: str = "auto") -> Scene:
+         bvh_constructor: str = "auto",
+         bvh_leaf_size: Optional[int] = None) -> Scene:
     """Seeded voxel city (1 voxel = 1 m): city blocks of buildings with window recesses and roof detail.
 
     The default has about 1.2M triangles. Deterministic for a given ``seed`` (in [0, 2^32 - 1]). ``size`` in
@@ -295,6 +304,8 @@ def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_h
     street = check_int_range("street", street, 0, 256)
     max_height = check_int_range("max_height", max_height, 5, 128)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     rng = np.random.default_rng(seed)
     H = max_height + 2
     occ = np.zeros((size, H, size), dtype=bool)
@@ -370,7 +381,7 @@ def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_h
     cam = Camera(eye=(-0.45 * size, 1.3 * max_height, 0.45 * size), target=(0.05 * size, 0.0, -0.05 * size),
                  up=(0.0, 1.0, 0.0), fov_y_deg=60.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 10.0, 10.0), name="city",
-                   bvh_constructor=bvh_constructor)
+                   bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -433,12 +444,15 @@ def _panel(b: SceneBuilder, origin, width: float, height: float, seed: int):
         size *= 0.6
 
 
-def eyechart(seed: int = 3, bvh_constructor: str = "auto") -> Scene:
+def eyechart(seed: int = 3, bvh_constructor: str = "auto",
+             bvh_leaf_size: Optional[int] = None) -> Scene:
     """Three chart panels at 4, 8 and 14 m from the camera, plus a floor: gratings of 4 periods
     (vertical / horizontal bars) and Snellen-like letter rows shrinking to a few millimetres. ``seed`` in
     [0, 2^32 - 3]."""
     seed = check_int_range("seed", seed, 0, 2**32 - 3)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     b = SceneBuilder()
     b.add_quad((-20, 0, 10), (40, 0, 0), (0, 0, -40), (0.35, 0.33, 0.3), name="floor")
     _panel(b, (-3.2, 0.4, 0.0), 3.0, 2.2, seed)  # 4 m from the eye
@@ -451,7 +465,7 @@ def eyechart(seed: int = 3, bvh_constructor: str = "auto") -> Scene:
     ]
     cam = Camera(eye=(0.0, 1.6, 4.0), target=(0.0, 1.8, -4.0), up=(0.0, 1.0, 0.0), fov_y_deg=60.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 6.0, 8.0), name="eyechart",
-                   bvh_constructor=bvh_constructor)
+                   bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
 
 
 def _earth_albedo(centroids: np.ndarray) -> np.ndarray:
@@ -471,18 +485,21 @@ def _earth_albedo(centroids: np.ndarray) -> np.ndarray:
     return col.astype(np.float32)
 
 
-def earth(spin: bool = True, bvh_constructor: str = "auto") -> Scene:
+def earth(spin: bool = True, bvh_constructor: str = "auto",
+          bvh_leaf_size: Optional[int] = None) -> Scene:
     """Low-poly Earth: a 24 x 21 UV sphere (960 triangles) of radius 1 m with a procedural albedo, lit by
     a distant sun; ``spin`` rotates it once per 12 s."""
     check_bool("spin", spin)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     b = SceneBuilder()
     motion = (lambda t: _rot4(rot_y(2.0 * math.pi * t / 12.0))) if spin else None
     b.add_sphere((0.0, 0.0, 0.0), 1.0, 24, 21, albedo_fn=_earth_albedo, smooth=True, name="earth", motion=motion)
     lights = [Light(kind="point", position=(30.0, 10.0, 25.0), intensity=(2200.0, 2150.0, 2000.0))]
     cam = Camera(eye=(0.0, 0.4, 3.2), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 20.0, 12.0), name="earth",
-                   bvh_constructor=bvh_constructor)
+                   bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
 
 
 def _rot4(r3):
@@ -492,7 +509,8 @@ def _rot4(r3):
 
 
 # ---------------------------------------------------------------------------------------------------
-def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "auto") -> Scene:
+def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "auto",
+                   bvh_leaf_size: Optional[int] = None) -> Scene:
     """Any mesh file, in its own units and orientation (y up), centred on a ground plane, with a spot light
     and a camera framing it. Every mesh of the file is placed by its transform (glTF nodes, OBJ objects) and
     keeps its colour: material base colour factor times vertex colours, or face colours, averaged per face; a
@@ -501,6 +519,8 @@ def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: 
         raise ValueError(f"name must be None or a str, got {show(name)}")
     albedo = check_vec("albedo", albedo, 3, 0.0, 1.0)
     check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
+    if bvh_leaf_size is not None:
+        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
     parts = load_mesh_parts(path)
     lo = np.min([pt.vertices.min(0) for pt in parts], axis=0)
     hi = np.max([pt.vertices.max(0) for pt in parts], axis=0)
@@ -524,7 +544,7 @@ def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: 
     center = (0.0, 0.45 * h, 0.0)
     cam = Camera(eye=(0.0, 0.7 * h + 0.2 * size, 2.0 * size), target=center, up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
     return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 15.0, 8.0), name=label,
-                   bvh_constructor=bvh_constructor)
+                   bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
 
 
 BUILTIN = {

@@ -177,6 +177,24 @@ def test_device_scene_passes_the_choice_to_warp(monkeypatch):
     assert seen[-1] == ("sah", 5)
 
 
+def test_scene_builders_and_load_scene_take_the_bvh_choice(tmp_path):
+    """``load_scene`` passes ``bvh_constructor`` / ``bvh_leaf_size`` to the builders, and the scene carries them to
+    its DeviceScene; a file mesh (the on-ground builder) takes them too."""
+    sc = fw.load_scene("cornell", bvh_constructor="median", bvh_leaf_size=2)
+    assert (sc.bvh_constructor, sc.bvh_leaf_size) == ("median", 2)
+    ds = DeviceScene(sc, "cpu")
+    assert (ds.bvh_constructor, ds.bvh_leaf_size) == ("median", 2)
+    for name in ("eyechart", "earth"):
+        sc = fw.load_scene(name, bvh_leaf_size=3)
+        assert (sc.bvh_constructor, sc.bvh_leaf_size) == ("auto", 3)
+    obj = tmp_path / "tri.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    sc = fw.load_scene(str(obj), bvh_constructor="sah", bvh_leaf_size=5)
+    assert (sc.bvh_constructor, sc.bvh_leaf_size) == ("sah", 5)
+    with pytest.raises(ValueError, match=r"bvh_leaf_size.*\[1, 64\].*0"):
+        fw.load_scene("cornell", bvh_leaf_size=0)
+
+
 def test_auto_falls_back_to_sah_when_cubql_cannot_be_built(monkeypatch):
     """Where "auto" picks cuBQL (CUDA; simulated here on the CPU) and Warp cannot build it, DeviceScene warns and
     builds SAH, and records that; an explicit "cubql" fails loudly. The scene's own "cubql" does not block the

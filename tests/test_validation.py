@@ -460,6 +460,7 @@ for b in ("area_light", "motion"):
 for fname, f in (("cornell", scenes.cornell), ("eyechart", scenes.eyechart), ("earth", scenes.earth),
                  ("city", functools.partial(scenes.city, size=16)), ("bunny_in_box", scenes.bunny_in_box)):
     choice_arg("scene builders", fname, f, {}, "bvh_constructor", "'sah'")
+    int_arg("scene builders", fname, f, {}, "bvh_leaf_size", "[1, 64]", [0, 65], none_ok=True)
 int_arg("scene builders", "city", scenes.city, {}, "seed", "[0, 4294967295]", [-1, 2**32])
 int_arg("scene builders", "city", scenes.city, {}, "size", "[1, 1024]", [0, -5, 5000])
 int_arg("scene builders", "city", scenes.city, {}, "block", "[9, 256]", [0, 8])
