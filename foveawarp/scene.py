@@ -25,6 +25,15 @@ BVH_CONSTRUCTORS = ("auto", "sah", "median", "lbvh", "cubql")
 BVH_MAX_LEAF = 64
 
 
+def check_bvh(constructor, leaf_size, prefix: str = "") -> tuple:
+    """``(constructor, leaf_size)`` checked: one of BVH_CONSTRUCTORS, and None or an int in [1, BVH_MAX_LEAF];
+    ``prefix`` goes before the names in the ValueError ("Scene." for the Scene's fields)."""
+    constructor = check_choice(prefix + "bvh_constructor", constructor, BVH_CONSTRUCTORS)
+    if leaf_size is not None:
+        leaf_size = check_int_range(prefix + "bvh_leaf_size", leaf_size, 1, BVH_MAX_LEAF)
+    return constructor, leaf_size
+
+
 def resolve_bvh(constructor: str, leaf_size, device) -> tuple:
     """The (constructor, leaf size) a :class:`DeviceScene` builds its ``wp.Mesh`` with on ``device``.
 
@@ -36,9 +45,7 @@ def resolve_bvh(constructor: str, leaf_size, device) -> tuple:
     trees, cuBQL's own for "cubql"). ``benchmarks/bvh.py`` measures every choice."""
     from ._util import get_device
 
-    constructor = check_choice("bvh_constructor", constructor, BVH_CONSTRUCTORS)
-    if leaf_size is not None:
-        leaf_size = check_int_range("bvh_leaf_size", leaf_size, 1, BVH_MAX_LEAF)
+    constructor, leaf_size = check_bvh(constructor, leaf_size)
     cuda = get_device(device).is_cuda
     if constructor == "auto":
         constructor = "cubql" if cuda else "sah"
@@ -219,9 +226,7 @@ class Scene:
         self.face_smooth = np.ascontiguousarray(fs != 0, dtype=np.uint8).reshape(nf)
         if self.vertex_normals is None and self.face_smooth.any():
             raise ValueError("Scene.face_smooth marks smooth faces but Scene.vertex_normals is None")
-        check_choice("Scene.bvh_constructor", self.bvh_constructor, BVH_CONSTRUCTORS)
-        if self.bvh_leaf_size is not None:
-            self.bvh_leaf_size = check_int_range("Scene.bvh_leaf_size", self.bvh_leaf_size, 1, BVH_MAX_LEAF)
+        self.bvh_constructor, self.bvh_leaf_size = check_bvh(self.bvh_constructor, self.bvh_leaf_size, "Scene.")
         for attr, typ in (("lights", Light), ("area_lights", AreaLight), ("objects", SceneObject)):
             items = getattr(self, attr)
             if not isinstance(items, (list, tuple)):
@@ -360,16 +365,13 @@ class DeviceScene:
         self.scene = scene
         self.device = get_device(device)
         self.animated = bool(scene.is_animated)  # read every frame by set_time
-        requested = ctor = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
-        leaf = scene.bvh_leaf_size if bvh_leaf_size is None else bvh_leaf_size
-        check_choice("bvh_constructor", ctor, BVH_CONSTRUCTORS)
-        if leaf is not None:
-            check_int_range("bvh_leaf_size", leaf, 1, BVH_MAX_LEAF)
+        requested = scene.bvh_constructor if bvh_constructor is None else bvh_constructor
+        requested_leaf = scene.bvh_leaf_size if bvh_leaf_size is None else bvh_leaf_size
         dev = self.device
+        ctor, leaf = resolve_bvh(requested, requested_leaf, dev)  # checks both before any allocation
         self.points = wp.array(scene.vertices, dtype=wp.vec3, device=dev)
         self.points_prev = wp.array(scene.vertices, dtype=wp.vec3, device=dev)
         self.indices = wp.array(scene.faces.reshape(-1), dtype=wp.int32, device=dev)
-        ctor, leaf = resolve_bvh(ctor, leaf, dev)
         try:
             self.mesh = wp.Mesh(points=self.points, indices=self.indices, bvh_constructor=ctor, bvh_leaf_size=leaf)
         except (RuntimeError, ValueError) as e:
@@ -380,7 +382,7 @@ class DeviceScene:
 
             warnings.warn(f"DeviceScene: the cuBQL BVH could not be built ({e}); using 'sah'", RuntimeWarning,
                           stacklevel=2)
-            ctor, leaf = resolve_bvh("sah", scene.bvh_leaf_size if bvh_leaf_size is None else bvh_leaf_size, dev)
+            ctor, leaf = resolve_bvh("sah", requested_leaf, dev)
             self.mesh = wp.Mesh(points=self.points, indices=self.indices, bvh_constructor=ctor, bvh_leaf_size=leaf)
         # what the BVH was built with (leaf size None: Warp's default for that constructor)
         self.bvh_constructor, self.bvh_leaf_size = ctor, leaf

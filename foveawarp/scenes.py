@@ -19,9 +19,9 @@ from typing import Optional
 import numpy as np
 
 from .camera import Camera
-from .config import check_array, check_bool, check_choice, check_finite, check_int_range, check_range, check_vec, show
+from .config import check_array, check_bool, check_finite, check_int_range, check_range, check_vec, show
 from .meshio import find_named_mesh, load_mesh_arrays, load_mesh_parts, named_mesh_help
-from .scene import BVH_CONSTRUCTORS, BVH_MAX_LEAF, AreaLight, Light, Scene, SceneObject, register_builtin_scenes
+from .scene import AreaLight, Light, Scene, SceneObject, check_bvh, register_builtin_scenes
 
 __all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "mesh_on_ground", "BUILTIN"]
 
@@ -213,9 +213,7 @@ def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str
     a spot light under the ceiling pointing down. ``motion=True`` slides the short block."""
     check_bool("area_light", area_light)
     check_bool("motion", motion)
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     b, lights, areas, cam = _cornell_builder(area_light, motion)
     return b.build(lights=lights, area_lights=areas, camera=cam, camera_path=_orbit_path(cam, 12.0, 6.0),
                    name="cornell" + ("+motion" if motion else ""), bvh_constructor=bvh_constructor,
@@ -225,9 +223,7 @@ def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str
 def bunny_in_box(path=None, bvh_constructor: str = "auto",
                  bvh_leaf_size: Optional[int] = None) -> Scene:
     """Cornell box with the Stanford bunny (0.9 m tall) replacing the tall block."""
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     p = Path(path) if path is not None else find_named_mesh("bunny")
     if p is None:
         raise ValueError("bunny-in-box: " + named_mesh_help("bunny"))
@@ -303,9 +299,7 @@ def city(seed: int = 7, size: int = 224, block: int = 16, street: int = 4, max_h
     block = check_int_range("block", block, 9, 256)
     street = check_int_range("street", street, 0, 256)
     max_height = check_int_range("max_height", max_height, 5, 128)
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     rng = np.random.default_rng(seed)
     H = max_height + 2
     occ = np.zeros((size, H, size), dtype=bool)
@@ -450,9 +444,7 @@ def eyechart(seed: int = 3, bvh_constructor: str = "auto",
     (vertical / horizontal bars) and Snellen-like letter rows shrinking to a few millimetres. ``seed`` in
     [0, 2^32 - 3]."""
     seed = check_int_range("seed", seed, 0, 2**32 - 3)
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     b = SceneBuilder()
     b.add_quad((-20, 0, 10), (40, 0, 0), (0, 0, -40), (0.35, 0.33, 0.3), name="floor")
     _panel(b, (-3.2, 0.4, 0.0), 3.0, 2.2, seed)  # 4 m from the eye
@@ -490,9 +482,7 @@ def earth(spin: bool = True, bvh_constructor: str = "auto",
     """Low-poly Earth: a 24 x 21 UV sphere (960 triangles) of radius 1 m with a procedural albedo, lit by
     a distant sun; ``spin`` rotates it once per 12 s."""
     check_bool("spin", spin)
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     b = SceneBuilder()
     motion = (lambda t: _rot4(rot_y(2.0 * math.pi * t / 12.0))) if spin else None
     b.add_sphere((0.0, 0.0, 0.0), 1.0, 24, 21, albedo_fn=_earth_albedo, smooth=True, name="earth", motion=motion)
@@ -518,9 +508,7 @@ def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: 
     if name is not None and not isinstance(name, str):
         raise ValueError(f"name must be None or a str, got {show(name)}")
     albedo = check_vec("albedo", albedo, 3, 0.0, 1.0)
-    check_choice("bvh_constructor", bvh_constructor, BVH_CONSTRUCTORS)
-    if bvh_leaf_size is not None:
-        check_int_range("bvh_leaf_size", bvh_leaf_size, 1, BVH_MAX_LEAF)
+    check_bvh(bvh_constructor, bvh_leaf_size)
     parts = load_mesh_parts(path)
     lo = np.min([pt.vertices.min(0) for pt in parts], axis=0)
     hi = np.max([pt.vertices.max(0) for pt in parts], axis=0)

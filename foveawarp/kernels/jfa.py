@@ -196,6 +196,32 @@ def last_pass_pixel(mask: wp.array2d(dtype=wp.uint8), src: wp.array2d(dtype=wp.v
     return r2
 
 
+@wp.func
+def tile_slot_pixel(k: int, ty: int, tx: int) -> wp.vec2i:
+    """(x, y) of slot ``k`` (row-major) of screen tile (ty, tx)."""
+    ly = k // RTILE
+    return wp.vec2i(tx * RTILE + (k - ly * RTILE), ty * RTILE + ly)
+
+
+@wp.func
+def publish_tile_stats(lane: int, ty: int, tx: int, r2max: int, missing: int, tile_r2: wp.array2d(dtype=wp.int32),
+                       max_r2: wp.array(dtype=wp.int32), max_radius: wp.array(dtype=wp.float32),
+                       unreached: wp.array(dtype=wp.int32)):
+    """The end of a tiled kernel's screen tile (one block): the block's largest ``r2max`` and summed ``missing``
+    (cooperative reductions: every thread of the block calls this) go to ``tile_r2[ty, tx]`` and, by lane 0's
+    atomics, into the image statistics."""
+    tmax = wp.tile_max(wp.tile(r2max))
+    tmiss = wp.tile_sum(wp.tile(missing))
+    if lane == 0:
+        m = tmax[0]
+        tile_r2[ty, tx] = m
+        if m > 0:
+            wp.atomic_max(max_r2, 0, m)
+            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
+        if tmiss[0] > 0:
+            wp.atomic_add(unreached, 0, tmiss[0])
+
+
 @wp.kernel(enable_backward=False)
 def jfa_pass_kernel(
     mask: wp.array2d(dtype=wp.uint8),
@@ -286,26 +312,15 @@ def _make_last_pass(form: str):
             r2max = int(0)
             missing = int(0)
             for k in range(lane, RTILE * RTILE, bd):
-                ly = k // RTILE
-                y = ty * RTILE + ly
-                x = tx * RTILE + (k - ly * RTILE)
-                if y < h and x < w:
-                    r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
-                                         nearest, r2_out, color_out)
+                p = tile_slot_pixel(k, ty, tx)
+                if p[1] < h and p[0] < w:
+                    r2 = last_pass_pixel(mask, src, p[0], p[1], step, from_mask, settled, color_in, color_mode,
+                                         offsets, nearest, r2_out, color_out)
                     r2max = wp.max(r2max, r2)
                     if r2 == -1:
                         missing += 1
             # cooperative block reductions: every thread of the block reaches them
-            tmax = wp.tile_max(wp.tile(r2max))
-            tmiss = wp.tile_sum(wp.tile(missing))
-            if lane == 0:
-                m = tmax[0]
-                tile_r2[ty, tx] = m
-                if m > 0:
-                    wp.atomic_max(max_r2, 0, m)
-                    wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
-                if tmiss[0] > 0:
-                    wp.atomic_add(unreached, 0, tmiss[0])
+            publish_tile_stats(lane, ty, tx, r2max, missing, tile_r2, max_r2, max_radius, unreached)
         else:
             y, x = wp.tid()
             r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets, nearest,
@@ -369,11 +384,9 @@ def jfa_last_pass_bands_kernel(
     # per-pixel step is emitted once (two nested 16-iteration loops were unrolled into 256 inlined copies,
     # which NVRTC took minutes to compile for CUDA, where this kernel never runs)
     for k in range(RTILE * RTILE):
-        ly = k // RTILE
-        y = ty * RTILE + ly
-        x = tx * RTILE + (k - ly * RTILE)
-        if y < h and x < w:
-            r2 = last_pass_pixel(mask, src, x, y, step, from_mask, settled, color_in, color_mode, offsets,
+        p = tile_slot_pixel(k, ty, tx)
+        if p[1] < h and p[0] < w:
+            r2 = last_pass_pixel(mask, src, p[0], p[1], step, from_mask, settled, color_in, color_mode, offsets,
                                  nearest, r2_out, color_out)
             r2max = wp.max(r2max, r2)
             if r2 == -1:
@@ -432,9 +445,9 @@ def voronoi_from_nearest_kernel(
     r2max = int(0)
     missing = int(0)
     for k in range(lane, RTILE * RTILE, bd):
-        ly = k // RTILE
-        y = ty * RTILE + ly
-        x = tx * RTILE + (k - ly * RTILE)
+        p = tile_slot_pixel(k, ty, tx)
+        x = p[0]
+        y = p[1]
         if y < h and x < w:
             s = given[y, x]
             nearest[y, x] = s
@@ -451,16 +464,7 @@ def voronoi_from_nearest_kernel(
                     missing += 1
                 r2_out[y, x] = r2
                 vor[y, x] = voronoi_color(color_in, s)
-    tmax = wp.tile_max(wp.tile(r2max))
-    tmiss = wp.tile_sum(wp.tile(missing))
-    if lane == 0:
-        m = tmax[0]
-        tile_r2[ty, tx] = m
-        if m > 0:
-            wp.atomic_max(max_r2, 0, m)
-            wp.atomic_max(max_radius, 0, wp.sqrt(float(m)))
-        if tmiss[0] > 0:
-            wp.atomic_add(unreached, 0, tmiss[0])
+    publish_tile_stats(lane, ty, tx, r2max, missing, tile_r2, max_r2, max_radius, unreached)
 
 
 @wp.kernel(enable_backward=False)
