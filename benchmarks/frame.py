@@ -12,6 +12,11 @@ Per scene x resolution:
   shading + indirect) stage times;
 * stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
   reference (256 AO rays), and a moving path with history on and off against the converged reference.
+* ao quality (part ``aoquality``): the heavy shading's error in motion. Along the same camera path and moving
+  gaze, the full-resolution frame with ``--ao-samples`` AO rays per pixel (``policy="full"``, the timing's
+  reference) and the foveated frame with as many are both compared with a converged frame (``--converged-ao``
+  rays per pixel, ``render_reference``); per-frame PSNR, SSIM and foveal PSNR of both. The timing records of
+  "ao8" then carry the foveated frame's quality (``psnr``) and the reference's (``ref_psnr``) from this part.
 
 python benchmarks/frame.py --device cuda:0 [--scenes ...] [--sizes 1920x1080,3840x2160] [--frames 60]
 """
@@ -109,6 +114,39 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
         rec["fovea_psnr_off"].append(_fovea_key(m))
     d = np.asarray(rec["psnr"]) - np.asarray(rec["psnr_off"])
     rec["history_gain_db_min"] = float(np.nanmin(np.where(np.isfinite(d), d, 100.0)))
+    return rec
+
+
+def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=256):
+    """The full-resolution frame and the foveated frame, both with ``ao`` AO rays per pixel, against a converged
+    frame (``converged_ao`` rays per pixel) of the same camera, time and gaze, along the camera path with a
+    moving gaze. Returns per-frame series for both and the per-frame difference (foveated - reference, dB)."""
+    fov = scene.camera.fov_y_deg
+    cao = cfg.with_(shading={"ao_samples": int(ao)})
+    conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": int(converged_ao)}), device=dev,
+                        timing=False, policy="foveated")
+    full = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="full")
+    fovl = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="foveated")
+    conv_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+    rec = {"ao_samples": int(ao), "converged_ao": int(converged_ao), "psnr": [], "ssim": [], "fovea_psnr": [],
+           "ref_psnr": [], "ref_ssim": [], "ref_fovea_psnr": [], "sampling_rate": []}
+    for i in range(frames):
+        t = i / 30.0
+        g = gaze_path(i, frames, w, h)
+        wp.copy(conv_img, conv.render_reference(scene.camera_at(t), time=t, gaze_px=g).image)
+        f = fovl.render(scene.camera_at(t), gaze_px=g, time=t)
+        m = metrics(f.image, conv_img, g, fov)
+        rec["psnr"].append(m["psnr"])
+        rec["ssim"].append(m["ssim"])
+        rec["fovea_psnr"].append(_fovea_key(m))
+        rec["sampling_rate"].append(f.stats["sampling_rate"])
+        m = metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, conv_img, g, fov)
+        rec["ref_psnr"].append(m["psnr"])
+        rec["ref_ssim"].append(m["ssim"])
+        rec["ref_fovea_psnr"].append(_fovea_key(m))
+    d = np.asarray(rec["psnr"]) - np.asarray(rec["ref_psnr"])
+    rec["gain_db"] = d.tolist()
+    rec["gain_db_min"] = float(np.min(d))
     return rec
 
 
@@ -211,7 +249,10 @@ def main(argv=None):
     p.add_argument("--timing-frames", type=int, default=50)
     p.add_argument("--configs", default="default={}",
                    help="';'-separated name=python-dict Config.with_ overrides (quality part per config)")
-    p.add_argument("--parts", default="quality,timing", help="quality,timing,stochastic")
+    p.add_argument("--parts", default="quality,timing", help="quality,timing,aoquality,stochastic")
+    p.add_argument("--ao-samples", type=int, default=8, help="AO rays per pixel of the aoquality part (1-64)")
+    p.add_argument("--converged-ao", type=int, default=256,
+                   help="AO rays per pixel of the aoquality part's converged frame (above --ao-samples, <= 4096)")
     p.add_argument("--stochastic-scenes", default="cornell,city")
     p.add_argument("--name", default="frame")
     p.add_argument("--bvh", default=None, help="every scene's BVH as CTOR or CTOR-LEAF (e.g. sah-4; default: auto)")
@@ -223,6 +264,13 @@ def main(argv=None):
     dev = wp.get_device(args.device)
     metrics, where = _metric_fn(args.psnr_only)
     parts = set(args.parts.split(","))
+    unknown = parts - {"quality", "timing", "aoquality", "stochastic"}
+    if unknown:
+        p.error(f"--parts items must be in [quality, timing, aoquality, stochastic], got {sorted(unknown)}")
+    if not 1 <= args.ao_samples <= 64:
+        p.error(f"--ao-samples must be in [1, 64], got {args.ao_samples}")
+    if not args.ao_samples < args.converged_ao <= 4096:
+        p.error(f"--converged-ao must be in [{args.ao_samples + 1}, 4096] (above --ao-samples), got {args.converged_ao}")
     bvh = None
     if args.bvh:
         from benchmarks.bvh import parse_configs
@@ -232,7 +280,7 @@ def main(argv=None):
     for item in args.configs.split(";"):
         name, _, lit = item.partition("=")
         configs.append((name.strip(), ast.literal_eval(lit) if lit.strip() else {}))
-    records, rows = [], []
+    records, rows, arows = [], [], []
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     if args.quick:
         sizes, args.frames, args.timing_frames = [(96, 54)], 4, 3
@@ -264,17 +312,41 @@ def main(argv=None):
                            "psnr_off": _summ(q["psnr_off"])["mean"], "hist_gain_min": q["history_gain_db_min"]}
                     rows.append(row)
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+                if "aoquality" in parts:
+                    aq = ao_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.ao_samples,
+                                    args.converged_ao)
+                    aq["sampling_rate_series"] = aq.pop("sampling_rate")
+                    rec = {**base, "kind": "ao_quality", "sampling_rate": float(np.mean(aq["sampling_rate_series"])),
+                           **aq}
+                    records.append(rec)
+                    row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname, "ao": args.ao_samples,
+                           "rate": rec["sampling_rate"],
+                           "ref_psnr": _summ(aq["ref_psnr"])["mean"], "ref_psnr_min": _summ(aq["ref_psnr"])["min"],
+                           "fov_psnr": _summ(aq["psnr"])["mean"], "fov_psnr_min": _summ(aq["psnr"])["min"],
+                           "ref_ssim": float(np.mean(aq["ref_ssim"])), "fov_ssim": float(np.mean(aq["ssim"])),
+                           "ref_fovea": _summ(aq["ref_fovea_psnr"])["mean"], "fov_fovea": _summ(aq["fovea_psnr"])["mean"],
+                           "gain_db_min": aq["gain_db_min"]}
+                    arows.append(row)
+                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "timing" in parts:
                     qrec = next((r for r in reversed(records) if r["kind"] == "quality" and r["scene"] == scene.name
                                  and r["width"] == w and r["config"] == cname), None)
                     qual = {} if qrec is None else {
                         "psnr": _summ(qrec["psnr"])["mean"], "ssim": float(np.mean(qrec["ssim"])),
                         "fovea_psnr": _summ(qrec["fovea_psnr"])["mean"], "quality_shading": "default"}
+                    arec = next((r for r in reversed(records) if r["kind"] == "ao_quality" and r["ao_samples"] == 8
+                                 and r["scene"] == scene.name and r["width"] == w and r["config"] == cname), None)
+                    aqual = {} if arec is None else {
+                        "psnr": _summ(arec["psnr"])["mean"], "ssim": float(np.mean(arec["ssim"])),
+                        "fovea_psnr": _summ(arec["fovea_psnr"])["mean"], "ref_psnr": _summ(arec["ref_psnr"])["mean"],
+                        "ref_ssim": float(np.mean(arec["ref_ssim"])),
+                        "quality_shading": f"ao8 against {arec['converged_ao']} AO rays"}
                     for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
                         c2 = cfg.with_(**sover) if sover else cfg
                         tm = timing(fw, scene, w, h, dev, c2, args.timing_frames)
                         rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": c2.foveation.gbuffer,
-                               "sampling_rate": tm["timing_sampling_rate"], **qual, **tm}
+                               "sampling_rate": tm["timing_sampling_rate"],
+                               **(aqual if shading == "ao8" and aqual else qual), **tm}
                         records.append(rec)
                         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
                                if k not in ("stage_ms", "overrides", "auto_estimates")}, flush=True)
@@ -293,6 +365,8 @@ def main(argv=None):
               "shading": r["shading"], "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
               "speedup": r["speedup"], "auto_ms": r["auto_ms"], "auto_path": r["auto_path"],
               "overhead_ms": r["overhead_ms"]} for r in records if r["kind"] == "timing"]
+    if arows:
+        md += "\n\n" + md_table(arows, list(arows[0]))
     if trows:
         md += "\n\n" + md_table(trows, list(trows[0]))
     write_results(args.name, dev, {"records": records, "frames": args.frames, "timing_frames": args.timing_frames},
@@ -309,7 +383,9 @@ def pareto(points):
 
 def plot(records, folder, name, dev):
     """Time against error per scene and resolution: foveated points per configuration and shading, the
-    full-resolution reference's time as a vertical line, the Pareto front of the foveated points."""
+    full-resolution reference's time as a vertical line, the Pareto front of the foveated points; where a
+    record carries the reference's own error (``ref_psnr``: heavy shading against a converged frame), the
+    reference as a cross at its time and error."""
     try:
         import matplotlib
 
@@ -336,6 +412,10 @@ def plot(records, folder, name, dev):
             line = ax.axvline(ref, ls="--", lw=1, color="C0" if shading == "default" else "C3")
             ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
                        label=f"{shading} (ref {ref:.2f} ms)")
+            refq = [(r["ref_ms"], r["ref_psnr"]) for r in rs if r["shading"] == shading and "ref_psnr" in r]
+            if refq:  # the reference's own error (heavy shading, both against a converged frame)
+                ax.scatter([q[0] for q in refq], [q[1] for q in refq], marker="x", color=line.get_color(),
+                           label=f"{shading} reference")
             front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
             ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
             for p in pts:

@@ -220,3 +220,40 @@ def test_bvh_quick(tmp_path):
         bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bvh.py"), "--configs", bad_cfg],
                              capture_output=True, text=True, cwd=REPO)
         assert bad.returncode != 0 and "--configs" in bad.stderr
+
+
+def test_frame_quick(tmp_path):
+    """benchmarks/frame.py: quality in motion, the heavy shading's error against a converged frame (both the
+    full-resolution and the foveated frame), and the interleaved timing (no speed assertion). The ao8 timing
+    record carries the aoquality part's figures, the default one the default-shading quality run's; bad
+    arguments are refused by name."""
+    _run([str(REPO / "benchmarks" / "frame.py"), "--quick", "--device", "cpu", "--scenes", "cornell", "--parts",
+          "quality,aoquality,timing", "--converged-ao", "32"], tmp_path)
+    res = json.loads((tmp_path / "frame-cpu.json").read_text())
+    assert res["benchmark"] == "frame" and res["commit"]
+    kinds = [r["kind"] for r in res["records"]]
+    assert kinds == ["quality", "ao_quality", "timing", "timing"]
+    q, aq, td, ta = res["records"]
+    n = res["frames"]
+    assert n == 4 and (aq["width"], aq["height"], aq["ao_samples"], aq["converged_ao"]) == (96, 54, 8, 32)
+    for k in ("psnr", "ssim", "fovea_psnr", "ref_psnr", "ref_ssim", "ref_fovea_psnr", "gain_db",
+              "sampling_rate_series"):
+        assert len(aq[k]) == n, k
+    # 8 rays against 32: neither frame equals the converged one, both are close to it
+    assert all(15.0 < v < 100.0 for v in aq["psnr"] + aq["ref_psnr"])
+    assert all(0.0 < v <= 1.0 for v in aq["ssim"] + aq["ref_ssim"])
+    assert aq["gain_db"] == pytest.approx([a - b for a, b in zip(aq["psnr"], aq["ref_psnr"])], abs=1e-12)
+    assert aq["gain_db_min"] == min(aq["gain_db"])
+    assert (td["shading"], td["quality_shading"]) == ("default", "default")
+    assert td["psnr"] == pytest.approx(min(100.0, sum(min(v, 100.0) for v in q["psnr"]) / n))
+    assert "ref_psnr" not in td
+    assert ta["shading"] == "ao8" and ta["quality_shading"] == "ao8 against 32 AO rays"
+    assert ta["psnr"] == pytest.approx(sum(aq["psnr"]) / n) and ta["ref_psnr"] == pytest.approx(sum(aq["ref_psnr"]) / n)
+    assert all(r["ref_ms"] > 0 and r["fov_ms"] > 0 for r in (td, ta))
+    md = (tmp_path / "frame-cpu.md").read_text()
+    assert "| ref_psnr |" in md and "| speedup |" in md
+    for bad_args, name in ((["--parts", "quality,bogus"], "--parts"), (["--ao-samples", "0"], "--ao-samples"),
+                           (["--converged-ao", "8"], "--converged-ao")):
+        bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frame.py"), "--device", "cpu", *bad_args],
+                             capture_output=True, text=True, cwd=REPO)
+        assert bad.returncode != 0 and name in bad.stderr, bad.stderr
