@@ -15,8 +15,10 @@ Per scene x resolution:
 * ao quality (part ``aoquality``): the heavy shading's error in motion. Along the same camera path and moving
   gaze, the full-resolution frame with ``--ao-samples`` AO rays per pixel (``policy="full"``, the timing's
   reference) and the foveated frame with as many are both compared with a converged frame (``--converged-ao``
-  rays per pixel, ``render_reference``); per-frame PSNR, SSIM and foveal PSNR of both. The timing records of
-  "ao8" then carry the foveated frame's quality (``psnr``) and the reference's (``ref_psnr``) from this part.
+  rays per pixel, ``render_reference``); per-frame PSNR, SSIM and foveal PSNR of both; the full-resolution
+  frame with fewer AO rays (``--ao-sweep``) against the same converged frames, and (with the timing part) all
+  of them timed with the foveated frame, interleaved: brute force with fewer rays at its error. The timing
+  records of "ao8" then carry the foveated frame's quality (``psnr``) and the reference's (``ref_psnr``).
 
 python benchmarks/frame.py --device cuda:0 [--scenes ...] [--sizes 1920x1080,3840x2160] [--frames 60]
 """
@@ -117,19 +119,27 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
     return rec
 
 
-def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=256):
+def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=256, sweep=(), timing_frames=0):
     """The full-resolution frame and the foveated frame, both with ``ao`` AO rays per pixel, against a converged
     frame (``converged_ao`` rays per pixel) of the same camera, time and gaze, along the camera path with a
-    moving gaze. Returns per-frame series for both and the per-frame difference (foveated - reference, dB)."""
+    moving gaze. Returns per-frame series for both and the per-frame difference (foveated - reference, dB).
+
+    ``sweep``: other AO ray counts of the full-resolution frame (brute force with fewer rays), each with its
+    PSNR series against the same converged frames; with ``timing_frames`` > 0, every full-resolution frame of
+    the sweep and the foveated frame are then timed the way ``timing`` times them (interleaved, medians), so
+    time can be set against error at equal footing."""
     fov = scene.camera.fov_y_deg
     cao = cfg.with_(shading={"ao_samples": int(ao)})
     conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": int(converged_ao)}), device=dev,
                         timing=False, policy="foveated")
     full = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="full")
     fovl = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="foveated")
+    others = {int(a): fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": int(a)}), device=dev,
+                                   timing=False, policy="full") for a in sweep if int(a) != int(ao)}
     conv_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
     rec = {"ao_samples": int(ao), "converged_ao": int(converged_ao), "psnr": [], "ssim": [], "fovea_psnr": [],
-           "ref_psnr": [], "ref_ssim": [], "ref_fovea_psnr": [], "sampling_rate": []}
+           "ref_psnr": [], "ref_ssim": [], "ref_fovea_psnr": [], "sampling_rate": [],
+           "sweep_psnr": {str(a): [] for a in others}}
     for i in range(frames):
         t = i / 30.0
         g = gaze_path(i, frames, w, h)
@@ -144,9 +154,17 @@ def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=25
         rec["ref_psnr"].append(m["psnr"])
         rec["ref_ssim"].append(m["ssim"])
         rec["ref_fovea_psnr"].append(_fovea_key(m))
+        for a, lp in others.items():
+            rec["sweep_psnr"][str(a)].append(metrics(lp.render(scene.camera_at(t), gaze_px=g, time=t).image,
+                                                     conv_img, g, fov)["psnr"])
     d = np.asarray(rec["psnr"]) - np.asarray(rec["ref_psnr"])
     rec["gain_db"] = d.tolist()
     rec["gain_db_min"] = float(np.min(d))
+    if timing_frames > 0:
+        loops = {"foveated": fovl, str(int(ao)): full, **{str(a): lp for a, lp in others.items()}}
+        med = _timed_interleaved(loops, scene, w, h, timing_frames, {k: 8 for k in loops})
+        rec["fov_ms"] = med.pop("foveated")
+        rec["sweep_ms"] = med  # full-resolution frame ms per AO ray count (the timed ``ao`` one included)
     return rec
 
 
@@ -251,6 +269,8 @@ def main(argv=None):
                    help="';'-separated name=python-dict Config.with_ overrides (quality part per config)")
     p.add_argument("--parts", default="quality,timing", help="quality,timing,aoquality,stochastic")
     p.add_argument("--ao-samples", type=int, default=8, help="AO rays per pixel of the aoquality part (1-64)")
+    p.add_argument("--ao-sweep", default="1,2,4",
+                   help="other AO ray counts of the full-resolution frame in the aoquality part ('' for none)")
     p.add_argument("--converged-ao", type=int, default=256,
                    help="AO rays per pixel of the aoquality part's converged frame (above --ao-samples, <= 4096)")
     p.add_argument("--stochastic-scenes", default="cornell,city")
@@ -269,6 +289,12 @@ def main(argv=None):
         p.error(f"--parts items must be in [quality, timing, aoquality, stochastic], got {sorted(unknown)}")
     if not 1 <= args.ao_samples <= 64:
         p.error(f"--ao-samples must be in [1, 64], got {args.ao_samples}")
+    try:
+        sweep = [int(v) for v in args.ao_sweep.split(",") if v.strip()]
+    except ValueError:
+        sweep = [-1]
+    if any(not 1 <= a <= 64 for a in sweep):
+        p.error(f"--ao-sweep items must be integers in [1, 64], got {args.ao_sweep!r}")
     if not args.ao_samples < args.converged_ao <= 4096:
         p.error(f"--converged-ao must be in [{args.ao_samples + 1}, 4096] (above --ao-samples), got {args.converged_ao}")
     bvh = None
@@ -314,7 +340,7 @@ def main(argv=None):
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "aoquality" in parts:
                     aq = ao_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.ao_samples,
-                                    args.converged_ao)
+                                    args.converged_ao, sweep, args.timing_frames if "timing" in parts else 0)
                     aq["sampling_rate_series"] = aq.pop("sampling_rate")
                     rec = {**base, "kind": "ao_quality", "sampling_rate": float(np.mean(aq["sampling_rate_series"])),
                            **aq}
@@ -325,7 +351,10 @@ def main(argv=None):
                            "fov_psnr": _summ(aq["psnr"])["mean"], "fov_psnr_min": _summ(aq["psnr"])["min"],
                            "ref_ssim": float(np.mean(aq["ref_ssim"])), "fov_ssim": float(np.mean(aq["ssim"])),
                            "ref_fovea": _summ(aq["ref_fovea_psnr"])["mean"], "fov_fovea": _summ(aq["fovea_psnr"])["mean"],
-                           "gain_db_min": aq["gain_db_min"]}
+                           "gain_db_min": aq["gain_db_min"],
+                           **{f"ref{a}_psnr": _summ(v)["mean"] for a, v in aq["sweep_psnr"].items()},
+                           **({"fov_ms": aq["fov_ms"], **{f"ref{a}_ms": v for a, v in aq["sweep_ms"].items()}}
+                              if "fov_ms" in aq else {})}
                     arows.append(row)
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "timing" in parts:
@@ -413,9 +442,17 @@ def plot(records, folder, name, dev):
             ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
                        label=f"{shading} (ref {ref:.2f} ms)")
             refq = [(r["ref_ms"], r["ref_psnr"]) for r in rs if r["shading"] == shading and "ref_psnr" in r]
-            if refq:  # the reference's own error (heavy shading, both against a converged frame)
+            aq = [r for r in records if r["kind"] == "ao_quality" and "sweep_ms" in r
+                  and (r["scene"], r["width"], r["height"]) == key and f"ao{r['ao_samples']}" == shading]
+            if refq and not aq:  # the reference's own error (heavy shading, both against a converged frame)
                 ax.scatter([q[0] for q in refq], [q[1] for q in refq], marker="x", color=line.get_color(),
                            label=f"{shading} reference")
+            if aq:  # brute force with fewer AO rays: full-resolution frames at their time and error
+                a = aq[-1]
+                series = {**a["sweep_psnr"], str(a["ao_samples"]): a["ref_psnr"]}
+                bf = sorted((a["sweep_ms"][k], _summ(v)["mean"], k) for k, v in series.items() if k in a["sweep_ms"])
+                ax.plot([b[0] for b in bf], [b[1] for b in bf], ls=":", marker="x", lw=1, color=line.get_color(),
+                        label="full resolution, " + "/".join(b[2] for b in bf) + " AO rays")
             front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
             ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
             for p in pts:

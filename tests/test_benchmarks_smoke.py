@@ -244,6 +244,10 @@ def test_frame_quick(tmp_path):
     assert all(0.0 < v <= 1.0 for v in aq["ssim"] + aq["ref_ssim"])
     assert aq["gain_db"] == pytest.approx([a - b for a, b in zip(aq["psnr"], aq["ref_psnr"])], abs=1e-12)
     assert aq["gain_db_min"] == min(aq["gain_db"])
+    # brute force with fewer rays: its error series, and every full-resolution frame timed with the foveated one
+    assert sorted(aq["sweep_psnr"]) == ["1", "2", "4"] and all(len(v) == n for v in aq["sweep_psnr"].values())
+    assert all(15.0 < v < 100.0 for v in sum(aq["sweep_psnr"].values(), []))
+    assert sorted(aq["sweep_ms"]) == ["1", "2", "4", "8"] and min(aq["sweep_ms"].values()) > 0 and aq["fov_ms"] > 0
     assert (td["shading"], td["quality_shading"]) == ("default", "default")
     assert td["psnr"] == pytest.approx(min(100.0, sum(min(v, 100.0) for v in q["psnr"]) / n))
     assert "ref_psnr" not in td
@@ -253,7 +257,8 @@ def test_frame_quick(tmp_path):
     md = (tmp_path / "frame-cpu.md").read_text()
     assert "| ref_psnr |" in md and "| speedup |" in md
     for bad_args, name in ((["--parts", "quality,bogus"], "--parts"), (["--ao-samples", "0"], "--ao-samples"),
-                           (["--converged-ao", "8"], "--converged-ao")):
+                           (["--converged-ao", "8"], "--converged-ao"), (["--ao-sweep", "2,x"], "--ao-sweep"),
+                           (["--ao-sweep", "0"], "--ao-sweep")):
         bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frame.py"), "--device", "cpu", *bad_args],
                              capture_output=True, text=True, cwd=REPO)
         assert bad.returncode != 0 and name in bad.stderr, bad.stderr
