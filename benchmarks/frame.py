@@ -16,8 +16,9 @@ Per scene x resolution:
   gaze, the full-resolution frame with ``--ao-samples`` AO rays per pixel (``policy="full"``, the timing's
   reference) and the foveated frame with as many are both compared with a converged frame (``--converged-ao``
   rays per pixel, ``render_reference``); per-frame PSNR, SSIM and foveal PSNR of both; the full-resolution
-  frame with fewer AO rays (``--ao-sweep``) against the same converged frames, and (with the timing part) all
-  of them timed with the foveated frame, interleaved: brute force with fewer rays at its error. The timing
+  frame with fewer AO rays (``--ao-sweep``) against the same converged frames, and all of them timed with the
+  foveated frame as the timing part times (``--timing-frames``; 0: none): brute force with fewer rays at its
+  error. The timing
   records of "ao8" then carry the foveated frame's quality (``psnr``) and the reference's (``ref_psnr``).
 
 python benchmarks/frame.py --device cuda:0 [--scenes ...] [--sizes 1920x1080,3840x2160] [--frames 60]
@@ -264,7 +265,7 @@ def main(argv=None):
     p.add_argument("--scenes", default=ALL_SCENES)
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--frames", type=int, default=60)
-    p.add_argument("--timing-frames", type=int, default=50)
+    p.add_argument("--timing-frames", type=int, default=50, help="timed frames per loop (0: the aoquality part times nothing)")
     p.add_argument("--configs", default="default={}",
                    help="';'-separated name=python-dict Config.with_ overrides (quality part per config)")
     p.add_argument("--parts", default="quality,timing", help="quality,timing,aoquality,stochastic")
@@ -340,7 +341,7 @@ def main(argv=None):
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "aoquality" in parts:
                     aq = ao_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.ao_samples,
-                                    args.converged_ao, sweep, args.timing_frames if "timing" in parts else 0)
+                                    args.converged_ao, sweep, args.timing_frames)
                     aq["sampling_rate_series"] = aq.pop("sampling_rate")
                     rec = {**base, "kind": "ao_quality", "sampling_rate": float(np.mean(aq["sampling_rate_series"])),
                            **aq}

@@ -37,6 +37,7 @@ class TemporalParams:
     # unroll the window loop, which took 106 registers per thread instead of 72 on sm_90)
     motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
     min_age_reuse: int  # a moving unsampled pixel reuses history of at least this many accumulated frames
+    stale_max_moving: int  # stochastic shading: a moving unsampled pixel's history is dropped at this staleness
     background: wp.vec3  # radiance of rays that miss
 
 
@@ -289,7 +290,7 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                     young_ok = young_ok or still
                     stale_max = tp.max_frames
                     if wp.static(stochastic) and not still:
-                        stale_max = wp.max(tp.max_frames / 2, 1)  # repeated bilinear resampling blurs the noisy history
+                        stale_max = tp.stale_max_moving  # repeated bilinear resampling blurs the noisy history
                     if stale_h + 1 < stale_max and young_ok:
                         col = hc
                         st = hs

@@ -29,6 +29,8 @@ __all__ = ["TemporalStage", "STOCHASTIC_MIN_AGE"]
 # each pixel's own past samples beat an interpolation of this frame's sparse ones. Moving stochastic history
 # is also dropped after max_history_frames / 2 reprojections (its repeated bilinear resampling blurs it).
 STOCHASTIC_MIN_AGE = 4
+# ... and is dropped after max_history_frames // STOCHASTIC_STALE_DIVISOR reprojections without a trace (at least 1)
+STOCHASTIC_STALE_DIVISOR = 2
 # the variance clipping box of stochastic shading is over the 5 x 5 neighbourhood
 CLIP_BOX_RADIUS = 2
 
@@ -159,6 +161,7 @@ class TemporalStage:
         tp.box_radius = CLIP_BOX_RADIUS
         tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
         tp.min_age_reuse = STOCHASTIC_MIN_AGE if stochastic else 1
+        tp.stale_max_moving = max(tp.max_frames // STOCHASTIC_STALE_DIVISOR, 1) if stochastic else tp.max_frames
         tp.background = wp.vec3(*(float(v) for v in background))
         return tp
 
