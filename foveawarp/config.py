@@ -576,6 +576,12 @@ class TemporalConfig:
             stand still and the accumulation is not yet full (fewer than ``max_history_frames`` still frames),
             the sampling map's minimum probability is raised to this, in [0, 1], so that the periphery
             converges too (progressive refinement); then the refresh budget takes over. 0 disables it.
+        stochastic_min_samples: with stochastic shading, an unsampled pixel that moved on screen (more than half
+            a pixel) reuses history only once it holds at least this many Monte Carlo samples, i.e. at least
+            ``ceil(stochastic_min_samples / samples per pixel per frame)`` accumulated frames (the samples per
+            pixel: ``ao_samples`` plus ``area_light_samples`` per area light); younger, noisier history is left
+            to the reconstruction. In [1, 4096]; the default 8 reuses any history with 8 AO rays, history of 2
+            frames with 4 and of 4 frames with 2.
     """
 
     enabled: bool = True
@@ -587,6 +593,7 @@ class TemporalConfig:
     clamp_gamma: float = 1.25
     motion_alpha_per_px: float = 0.05
     still_min_probability: float = 0.25
+    stochastic_min_samples: int = 8
 
     def __post_init__(self):
         check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)
@@ -597,6 +604,7 @@ class TemporalConfig:
         check_range("TemporalConfig.clamp_gamma", self.clamp_gamma, 0.0, 100.0)
         check_range("TemporalConfig.motion_alpha_per_px", self.motion_alpha_per_px, 0.0, 1.0)
         check_range("TemporalConfig.still_min_probability", self.still_min_probability, 0.0, 1.0)
+        check_int_range("TemporalConfig.stochastic_min_samples", self.stochastic_min_samples, 1, 4096)
         check_bool("TemporalConfig.enabled", self.enabled)
 
 

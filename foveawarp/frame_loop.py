@@ -644,7 +644,8 @@ class FrameLoop:
         if self.sparse_gbuffer or not self.config.temporal.enabled:
             return False
         self.temporal.run(self.full_map, self.gbuffer, self.radiance, self.radiance_stoch, use_history=False,
-                          stochastic=self._stochastic_shading(), background=self.config.shading.background)
+                          stochastic=self._stochastic_shading(), background=self.config.shading.background,
+                          samples=max(self.shade.stochastic_samples(), 1))
         return True
 
     def _refresh_due(self, foveated: bool) -> bool:
@@ -694,6 +695,7 @@ class FrameLoop:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   stochastic=self._stochastic_shading(), background=cfg.shading.background,
+                                  samples=max(self.shade.stochastic_samples(), 1),
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
                                   count=self.reorder.count if listed else None)

@@ -15,8 +15,10 @@ from foveawarp.stages.temporal import TemporalStage
 BG = np.array([0.02, 0.02, 0.03])
 
 
-def ref_resolve(inp, prev, cfg, use_history, stochastic):
-    """Per-pixel loop of the rule in TemporalStage's docstring (NumPy, float64)."""
+def ref_resolve(inp, prev, cfg, use_history, stochastic, samples=1):
+    """Per-pixel loop of the rule in TemporalStage's docstring (NumPy, float64); ``samples``: Monte Carlo samples
+    per pixel per frame of the stochastic shading."""
+    min_age = math.ceil(cfg.stochastic_min_samples / samples) if stochastic else 1
     h, w = inp["hit"].shape
     out = np.zeros((h, w, 3))
     filled = np.zeros((h, w), np.uint8)
@@ -75,10 +77,8 @@ def ref_resolve(inp, prev, cfg, use_history, stochastic):
                     c = c - s + sacc
                 out[y, x] = c
                 filled[y, x] = 1
-            elif (have and not inp["moved"][y, x]
-                  and stale + 1 < (cfg.max_history_frames // 2 if stochastic and np.linalg.norm(inp["vel"][y, x]) > 0.5
-                                   else cfg.max_history_frames)
-                  and (age >= (4 if stochastic else 1) or np.linalg.norm(inp["vel"][y, x]) <= 0.5)):
+            elif (have and not inp["moved"][y, x] and stale + 1 < cfg.max_history_frames
+                  and (age >= min_age or np.linalg.norm(inp["vel"][y, x]) <= 0.5)):
                 out[y, x] = hc
                 filled[y, x] = 1
     return out, filled
@@ -130,15 +130,15 @@ def _setup(rng, h, w, device, stochastic):
     return cfg, st, g, inp, prev, arrs, smap
 
 
-@pytest.mark.parametrize("stochastic", [False, True])
+@pytest.mark.parametrize("stochastic,samples", [(False, 1), (True, 1), (True, 3), (True, 8), (True, 64)])
 @pytest.mark.parametrize("use_history", [False, True])
-def test_resolve_matches_numpy_rule(device, rng, stochastic, use_history):
+def test_resolve_matches_numpy_rule(device, rng, stochastic, samples, use_history):
     h, w = 13, 17
     cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
     st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
-           background=tuple(BG))
+           background=tuple(BG), samples=samples)
     got, filled = st.color.numpy(), st.filled.numpy()
-    ref, rfilled = ref_resolve(inp, prev, cfg, use_history, stochastic)
+    ref, rfilled = ref_resolve(inp, prev, cfg, use_history, stochastic, samples)
     np.testing.assert_array_equal(filled, rfilled)
     np.testing.assert_allclose(got, ref, atol=2e-5, rtol=1e-5)
     assert np.isfinite(got).all()
@@ -450,3 +450,25 @@ def test_clip_box_list_kernel_against_numpy(rng):
             np.testing.assert_allclose(lo[y, x], mu - 1.25 * sd, rtol=1e-5, atol=1e-5)
             np.testing.assert_allclose(hi[y, x], mu + 1.25 * sd, rtol=1e-5, atol=1e-5)
     assert lo[1, 1][0] > hi[1, 1][0]
+
+
+def test_stochastic_min_age_counts_samples():
+    """The minimum age of reused moving stochastic history is the samples it must hold over the samples per
+    frame, rounded up, at least one frame; the TemporalStage's parameters carry it, and bad counts are refused."""
+    from foveawarp.stages.temporal import stochastic_min_age
+
+    for need, spp, want in ((8, 8, 1), (8, 4, 2), (8, 3, 3), (8, 2, 4), (8, 1, 8), (8, 64, 1), (1, 1, 1), (4096, 1, 4096),
+                            (8, 0, 8), (8, -3, 8)):
+        assert stochastic_min_age(need, spp) == want, (need, spp)
+    st = TemporalStage(8, 4, fw.TemporalConfig(stochastic_min_samples=12), "cpu")
+    assert st.params(use_history=True, stochastic=True, samples=5).min_age_reuse == 3
+    assert st.params(use_history=True, stochastic=False, samples=5).min_age_reuse == 1
+    g = GBuffer(8, 4, "cpu")
+    z = wp.zeros((4, 8), dtype=wp.vec3, device="cpu")
+    m = wp.zeros((4, 8), dtype=wp.uint8, device="cpu")
+    for bad in (0, -1, 65537, 2.5, True):
+        with pytest.raises(ValueError, match="samples"):
+            st.run(m, g, z, z, stochastic=True, samples=bad)
+    for bad in (0, 4097, 1.5):
+        with pytest.raises(ValueError, match="TemporalConfig.stochastic_min_samples"):
+            fw.TemporalConfig(stochastic_min_samples=bad)

@@ -37,7 +37,6 @@ class TemporalParams:
     # unroll the window loop, which took 106 registers per thread instead of 72 on sm_90)
     motion_alpha_per_px: float  # weight of the fresh stochastic value per pixel of screen motion
     min_age_reuse: int  # a moving unsampled pixel reuses history of at least this many accumulated frames
-    stale_max_moving: int  # stochastic shading: a moving unsampled pixel's history is dropped at this staleness
     background: wp.vec3  # radiance of rays that miss
 
 
@@ -282,16 +281,11 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                 filled = wp.uint8(1)
             elif have:
                 if load_u8(moved, y, x) == wp.uint8(0):
-                    # still (screen motion <= half a pixel): read only where the rule depends on it
-                    still = True
                     young_ok = age_h >= tp.min_age_reuse
-                    if wp.static(stochastic) or not young_ok:
-                        still = wp.length(load_vec2(velocity, y, x)) <= 0.5
-                    young_ok = young_ok or still
-                    stale_max = tp.max_frames
-                    if wp.static(stochastic) and not still:
-                        stale_max = tp.stale_max_moving  # repeated bilinear resampling blurs the noisy history
-                    if stale_h + 1 < stale_max and young_ok:
+                    if not young_ok:
+                        # still (screen motion <= half a pixel): read only where the rule depends on it
+                        young_ok = wp.length(load_vec2(velocity, y, x)) <= 0.5
+                    if stale_h + 1 < tp.max_frames and young_ok:
                         col = hc
                         st = hs
                         age = age_h

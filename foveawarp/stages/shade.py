@@ -47,9 +47,14 @@ class ShadeStage:
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
         samples)."""
+        return self.stochastic_samples(ao_samples) > 0
+
+    def stochastic_samples(self, ao_samples: Optional[int] = None) -> int:
+        """Monte Carlo samples per pixel per frame: the AO rays plus ``area_light_samples`` per area light (0:
+        deterministic shading)."""
         sc = self.config
         ao = sc.ao_samples if ao_samples is None else ao_samples
-        return bool(ao > 0 or (self.dscene.num_area_lights > 0 and sc.area_light_samples > 0))
+        return int(ao) + int(self.dscene.num_area_lights) * int(sc.area_light_samples)
 
     def params(self, camera: Camera, frame_index: int, ao_samples: Optional[int] = None) -> ShadeParams:
         sc, ds = self.config, self.dscene
