@@ -258,6 +258,7 @@ field(fw.TemporalConfig, "normal_cos_min", "[-1.0, 1.0]", [-1.5, 1.5])
 field(fw.TemporalConfig, "clamp_gamma", "[0.0, 100.0]", [-0.1, 101.0])
 field(fw.TemporalConfig, "motion_alpha_per_px", "[0.0, 1.0]", [-0.1, 1.1])
 field(fw.TemporalConfig, "still_min_probability", "[0.0, 1.0]", [-0.1, 1.1])
+field(fw.TemporalConfig, "stochastic_min_samples", "[1, 4096]", [0, -1, 4097], kind="int")
 for st in ("foveation", "saliency", "reorder", "shading", "reconstruction", "dof", "indirect", "temporal"):
     case("Config fields", f"Config.{st}=5", fw.Config, {st: 5}, f"Config.{st}", "5", "Config")
 case("Config fields", "Config.with_:unknown stage", lambda **kw: fw.Config().with_(**kw), {"bogus": {}},
