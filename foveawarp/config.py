@@ -580,8 +580,8 @@ class TemporalConfig:
             a pixel) reuses history only once it holds at least this many Monte Carlo samples, i.e. at least
             ``ceil(stochastic_min_samples / samples per pixel per frame)`` accumulated frames (the samples per
             pixel: ``ao_samples`` plus ``area_light_samples`` per area light); younger, noisier history is left
-            to the reconstruction. In [1, 4096]; the default 8 reuses any history with 8 AO rays, history of 2
-            frames with 4 and of 4 frames with 2.
+            to the reconstruction. In [1, 4096]; the default 4 reuses any history with 4 or more AO rays per
+            pixel, history of 2 frames with 2 and of 4 frames with 1.
     """
 
     enabled: bool = True
@@ -593,7 +593,7 @@ class TemporalConfig:
     clamp_gamma: float = 1.25
     motion_alpha_per_px: float = 0.05
     still_min_probability: float = 0.25
-    stochastic_min_samples: int = 8
+    stochastic_min_samples: int = 4
 
     def __post_init__(self):
         check_int_range("TemporalConfig.max_history_frames", self.max_history_frames, 1, 1024)

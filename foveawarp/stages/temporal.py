@@ -25,13 +25,15 @@ __all__ = ["TemporalStage", "stochastic_min_age"]
 # With stochastic shading an unsampled pixel that moved on screen (more than half a pixel) reuses history only
 # once it has accumulated ``TemporalConfig.stochastic_min_samples`` Monte Carlo samples (``stochastic_min_age``):
 # a younger history is a noisy sample or two, and the reconstruction from this frame's neighbouring samples (a
-# spatial average) is closer. The rule counts samples, not frames, because the noise falls with the samples a
-# history holds while the reconstruction's error (edges blurred) does not: on the H100, 30 frames of each
-# scene's camera path with a moving gaze against 256-ray frames, reusing any history (the deterministic rule)
-# raised the foveated frame's mean PSNR by 1.2-2.6 dB at 2, 4 and 8 AO rays on every scene but the earth
-# (unchanged), but after a camera cut cornell's worst frame fell by 0.3 dB at 8 rays, 1.5 dB at 4 and 2.8 dB at
-# 2 (``benchmarks/results/stoch-3b15937-*``). On a still view any age is kept: there each pixel's own past
-# samples beat an interpolation of this frame's sparse ones.
+# spatial average) is closer. The rule counts samples, not frames: the noise of a history falls with the samples
+# it holds, the reconstruction's error (edges blurred) does not. Measured on the H100 (30 frames of each scene's
+# camera path with a moving gaze, against 256-ray frames; ``benchmarks/results/stoch-*``) against the rule before
+# (4 frames at any sample count, and moving history dropped after max_history_frames // 2 reprojections): with 4
+# samples (1 frame at 4 and 8 AO rays, 2 at 2, 4 at 1) the foveated frame's mean PSNR rose by 0.0-0.7 dB at 1 AO
+# ray, 0.7-1.8 at 2, 1.2-2.6 at 4 and 1.3-2.6 at 8 on every scene but the earth (unchanged); the worst frame of
+# a path (just after its first frame) stayed or rose, but on cornell, where it fell by 0.9-1.5 dB at 4 rays,
+# 0.04-0.3 dB at 8 and 0.08 dB at 2. With 8 samples, 1 AO ray lost 0.2-1.3 dB. On a still view any age is kept:
+# there each pixel's own past samples beat an interpolation of this frame's sparse ones.
 
 
 def stochastic_min_age(min_samples: int, samples_per_pixel: int) -> int:
@@ -68,7 +70,7 @@ class TemporalStage:
       ``depth_eps_rel * depth``, and its normal is within ``normal_cos_min``; the weights are renormalised over
       the valid taps (with stochastic shading and more than half a pixel of screen motion, only history of at
       least ``stochastic_min_age(TemporalConfig.stochastic_min_samples, samples)`` accumulated frames: 1 with
-      8 AO rays per pixel, 2 with 4, 4 with 2). A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
+      4 or more AO rays per pixel, 2 with 2, 4 with 1). A value reprojected ``max_history_frames - 1`` times without being traced is dropped, and
       so is the history of a surface point that moved since the last frame (object motion, G-buffer ``moved``):
       its lighting changed with it (a spinning globe turns its day side), so the reconstruction from this
       frame's samples is closer than any reprojected colour.
