@@ -466,7 +466,10 @@ def plot(records, folder, name, dev):
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     alias = dev if isinstance(dev, str) else wp.get_device(dev).alias  # a string: redraw from a JSON elsewhere
-    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias})",
+    note = ("; circles: default shading against full-resolution tracing; squares and crosses: "
+            f"{int(aqs[0]['ao_samples'])} AO rays and fewer against {int(aqs[0]['converged_ao'])}-ray frames"
+            if (aqs := [r for r in records if r["kind"] == "ao_quality"]) else "")
+    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias}){note}",
                  fontsize=9)
     fig.tight_layout()
     tag = "cuda" if alias.startswith("cuda") else "cpu"
