@@ -415,7 +415,8 @@ def plot(records, folder, name, dev):
     """Time against error per scene and resolution: foveated points per configuration and shading, the
     full-resolution reference's time as a vertical line, the Pareto front of the foveated points; where a
     record carries the reference's own error (``ref_psnr``: heavy shading against a converged frame), the
-    reference as a cross at its time and error."""
+    reference as a cross at its time and error. Where the aoquality part timed its loops, that shading's panel
+    takes every time from that one loop (the foveated point, the reference line and the brute-force crosses)."""
     try:
         import matplotlib
 
@@ -428,6 +429,7 @@ def plot(records, folder, name, dev):
     if not tim:
         return
     keys = sorted({(r["scene"], r["width"], r["height"]) for r in tim}, key=lambda k: (k[1], k[0]))
+    configs_seen = {r["config"] for r in tim}  # points are labelled by configuration only where there are several
     n = len(keys)
     cols = min(n, 6)
     rows = (n + cols - 1) // cols
@@ -439,17 +441,22 @@ def plot(records, folder, name, dev):
             if not pts:
                 continue
             ref = [r["ref_ms"] for r in rs if r["shading"] == shading][0]
-            line = ax.axvline(ref, ls="--", lw=1, color="C0" if shading == "default" else "C3")
-            ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
-                       label=f"{shading} (ref {ref:.2f} ms)")
-            refq = [(r["ref_ms"], r["ref_psnr"]) for r in rs if r["shading"] == shading and "ref_psnr" in r]
             aq = [r for r in records if r["kind"] == "ao_quality" and "sweep_ms" in r
                   and (r["scene"], r["width"], r["height"]) == key and f"ao{r['ao_samples']}" == shading]
+            if aq:
+                # one timing loop for the whole panel of this shading: the aoquality part's, where the foveated
+                # frame and every full-resolution frame took turns
+                a = aq[-1]
+                pts = [(a["fov_ms"], p[1], p[2]) for p in pts]
+                ref = a["sweep_ms"][str(a["ao_samples"])]
+            line = ax.axvline(ref, ls="--", lw=1, color="C0" if shading == "default" else "C3")
+            ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
+                       label=f"{shading} foveated (ref {ref:.2f} ms)")
+            refq = [(r["ref_ms"], r["ref_psnr"]) for r in rs if r["shading"] == shading and "ref_psnr" in r]
             if refq and not aq:  # the reference's own error (heavy shading, both against a converged frame)
                 ax.scatter([q[0] for q in refq], [q[1] for q in refq], marker="x", color=line.get_color(),
                            label=f"{shading} reference")
             if aq:  # brute force with fewer AO rays: full-resolution frames at their time and error
-                a = aq[-1]
                 series = {**a["sweep_psnr"], str(a["ao_samples"]): a["ref_psnr"]}
                 bf = sorted((a["sweep_ms"][k], _summ(v)["mean"], k) for k, v in series.items() if k in a["sweep_ms"])
                 ax.plot([b[0] for b in bf], [b[1] for b in bf], ls=":", marker="x", lw=1, color=line.get_color(),
@@ -457,7 +464,7 @@ def plot(records, folder, name, dev):
             front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
             ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
             for p in pts:
-                ax.annotate(p[2], (p[0], p[1]), fontsize=6)
+                ax.annotate(p[2] if len(configs_seen) > 1 else shading, (p[0], p[1]), fontsize=6)
         ax.set_title(f"{key[0]} {key[1]}x{key[2]}", fontsize=8)
         ax.set_xlabel("frame ms", fontsize=7)
         ax.set_ylabel("PSNR dB (mean over the path)", fontsize=7)

@@ -577,11 +577,12 @@ class TemporalConfig:
             the sampling map's minimum probability is raised to this, in [0, 1], so that the periphery
             converges too (progressive refinement); then the refresh budget takes over. 0 disables it.
         stochastic_min_samples: with stochastic shading, an unsampled pixel that moved on screen (more than half
-            a pixel) reuses history only once it holds at least this many Monte Carlo samples, i.e. at least
-            ``ceil(stochastic_min_samples / samples per pixel per frame)`` accumulated frames (the samples per
-            pixel: ``ao_samples`` plus ``area_light_samples`` per area light); younger, noisier history is left
-            to the reconstruction. In [1, 4096]; the default 4 reuses any history with 4 or more AO rays per
-            pixel, history of 2 frames with 2 and of 4 frames with 1.
+            a pixel) reuses history only once it has accumulated ``ceil(stochastic_min_samples / samples per
+            pixel per frame)`` frames (the samples per pixel: ``ao_samples`` plus ``area_light_samples`` per area
+            light); younger, noisier history is left to the reconstruction. In [1, 4096]; the default 4 reuses
+            any history with 4 or more AO rays per pixel, history of 2 frames with 2 and of 4 frames with 1.
+            Accumulation stops at ``max_history_frames``, so a value above ``max_history_frames`` times the
+            samples per pixel never reuses moving stochastic history.
     """
 
     enabled: bool = True

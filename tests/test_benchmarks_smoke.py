@@ -248,6 +248,10 @@ def test_frame_quick(tmp_path):
     assert sorted(aq["sweep_psnr"]) == ["1", "2", "4"] and all(len(v) == n for v in aq["sweep_psnr"].values())
     assert all(15.0 < v < 100.0 for v in sum(aq["sweep_psnr"].values(), []))
     assert sorted(aq["sweep_ms"]) == ["1", "2", "4", "8"] and min(aq["sweep_ms"].values()) > 0 and aq["fov_ms"] > 0
+    # more rays, closer to the converged frame (means over the path); the foveated loop traced a part of the pixels
+    means = [sum(aq["sweep_psnr"][k]) / n for k in ("1", "2", "4")] + [sum(aq["ref_psnr"]) / n]
+    assert means == sorted(means) and means[0] < means[-1] - 3.0, means
+    assert all(0.0 < r < 1.0 for r in aq["sampling_rate_series"])
     assert (td["shading"], td["quality_shading"]) == ("default", "default")
     assert td["psnr"] == pytest.approx(min(100.0, sum(min(v, 100.0) for v in q["psnr"]) / n))
     assert "ref_psnr" not in td
@@ -259,6 +263,7 @@ def test_frame_quick(tmp_path):
     for bad_args, name in ((["--parts", "quality,bogus"], "--parts"), (["--ao-samples", "0"], "--ao-samples"),
                            (["--converged-ao", "8"], "--converged-ao"), (["--ao-sweep", "2,x"], "--ao-sweep"),
                            (["--ao-sweep", "0"], "--ao-sweep")):
-        bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frame.py"), "--device", "cpu", *bad_args],
-                             capture_output=True, text=True, cwd=REPO)
+        bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frame.py"), "--quick", "--device", "cpu",
+                              "--scenes", "cornell", "--out", str(tmp_path / "bad"), *bad_args],
+                             capture_output=True, text=True, cwd=REPO, timeout=120)
         assert bad.returncode != 0 and name in bad.stderr, bad.stderr

@@ -84,8 +84,8 @@ def ref_resolve(inp, prev, cfg, use_history, stochastic, samples=1):
     return out, filled
 
 
-def _setup(rng, h, w, device, stochastic):
-    cfg = fw.TemporalConfig()
+def _setup(rng, h, w, device, stochastic, min_samples=4):
+    cfg = fw.TemporalConfig(stochastic_min_samples=min_samples)
     st = TemporalStage(w, h, cfg, device)
     n = h * w
     normal = rng.normal(size=(h, w, 3))
@@ -130,11 +130,12 @@ def _setup(rng, h, w, device, stochastic):
     return cfg, st, g, inp, prev, arrs, smap
 
 
-@pytest.mark.parametrize("stochastic,samples", [(False, 1), (True, 1), (True, 3), (True, 8), (True, 64)])
+@pytest.mark.parametrize("stochastic,samples,min_samples", [(False, 1, 4), (True, 1, 4), (True, 2, 4), (True, 3, 4),
+                                                            (True, 8, 4), (True, 5, 12)])
 @pytest.mark.parametrize("use_history", [False, True])
-def test_resolve_matches_numpy_rule(device, rng, stochastic, samples, use_history):
+def test_resolve_matches_numpy_rule(device, rng, stochastic, samples, min_samples, use_history):
     h, w = 13, 17
-    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+    cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic, min_samples)
     st.run(smap, g, arrs["fresh"], arrs["stoch"], use_history=use_history, stochastic=stochastic,
            background=tuple(BG), samples=samples)
     got, filled = st.color.numpy(), st.filled.numpy()
@@ -458,17 +459,43 @@ def test_stochastic_min_age_counts_samples():
     from foveawarp.stages.temporal import stochastic_min_age
 
     for need, spp, want in ((8, 8, 1), (8, 4, 2), (8, 3, 3), (8, 2, 4), (8, 1, 8), (8, 64, 1), (1, 1, 1), (4096, 1, 4096),
-                            (8, 0, 8), (8, -3, 8)):
+                            (4, 2**31 - 1, 1)):
         assert stochastic_min_age(need, spp) == want, (need, spp)
+    for need, spp, name in ((0, 1, "min_samples"), (4097, 1, "min_samples"), (2.5, 1, "min_samples"),
+                            (4, 0, "samples_per_pixel"), (4, -3, "samples_per_pixel"), (4, True, "samples_per_pixel")):
+        with pytest.raises(ValueError, match=name):
+            stochastic_min_age(need, spp)
     st = TemporalStage(8, 4, fw.TemporalConfig(stochastic_min_samples=12), "cpu")
     assert st.params(use_history=True, stochastic=True, samples=5).min_age_reuse == 3
     assert st.params(use_history=True, stochastic=False, samples=5).min_age_reuse == 1
     g = GBuffer(8, 4, "cpu")
     z = wp.zeros((4, 8), dtype=wp.vec3, device="cpu")
     m = wp.zeros((4, 8), dtype=wp.uint8, device="cpu")
-    for bad in (0, -1, 65537, 2.5, True):
+    for bad in (0, -1, 2**31, 2.5, True):
         with pytest.raises(ValueError, match="samples"):
             st.run(m, g, z, z, stochastic=True, samples=bad)
     for bad in (0, 4097, 1.5):
         with pytest.raises(ValueError, match="TemporalConfig.stochastic_min_samples"):
             fw.TemporalConfig(stochastic_min_samples=bad)
+
+
+@pytest.mark.parametrize("ao,area,want", [(0, False, 1), (3, False, 3), (8, False, 8), (2, True, 2 + 4)])
+def test_frame_loop_passes_its_samples_per_pixel(monkeypatch, ao, area, want):
+    """FrameLoop hands the temporal resolve its Monte Carlo samples per pixel (AO rays plus the area lights'
+    samples; 1 for deterministic shading): the frame-loop side of the stochastic rule."""
+    scene = fw.scenes.cornell(area_light=area)
+    cfg = fw.Config().with_(shading={"ao_samples": ao, "area_light_samples": 4})
+    loop = fw.FrameLoop(scene, 48, 27, config=cfg, device="cpu", policy="foveated")
+    assert loop.shade.stochastic_samples() == want - (1 if ao == 0 and not area else 0)
+    got = []
+    orig = TemporalStage.run
+
+    def spy(self, *a, **k):
+        got.append((k.get("stochastic"), k.get("samples")))
+        return orig(self, *a, **k)
+
+    monkeypatch.setattr(TemporalStage, "run", spy)
+    for i in range(3):
+        loop.render(scene.camera_at(i / 30.0), gaze_px=(24, 13), time=i / 30.0)
+    assert got and all(s == want for _, s in got), got
+    assert all(st == (ao > 0 or area) for st, _ in got), got

@@ -23,7 +23,9 @@ from ..kernels.temporal import (
 __all__ = ["TemporalStage", "stochastic_min_age"]
 
 # With stochastic shading an unsampled pixel that moved on screen (more than half a pixel) reuses history only
-# once it has accumulated ``TemporalConfig.stochastic_min_samples`` Monte Carlo samples (``stochastic_min_age``):
+# once it has accumulated frames worth ``TemporalConfig.stochastic_min_samples`` Monte Carlo samples at this
+# frame's samples per pixel (``stochastic_min_age``; under motion the blend weights the fresh samples more, so the
+# history holds fewer effective samples than that count):
 # a younger history is a noisy sample or two, and the reconstruction from this frame's neighbouring samples (a
 # spatial average) is closer. The rule counts samples, not frames: the noise of a history falls with the samples
 # it holds, the reconstruction's error (edges blurred) does not. Measured on the H100 (30 frames of each scene's
@@ -38,9 +40,11 @@ __all__ = ["TemporalStage", "stochastic_min_age"]
 
 def stochastic_min_age(min_samples: int, samples_per_pixel: int) -> int:
     """Accumulated frames a moving unsampled pixel's stochastic history needs before it is reused:
-    ``ceil(min_samples / samples_per_pixel)``, at least 1 (``samples_per_pixel`` <= 0 counts as 1)."""
-    spp = max(int(samples_per_pixel), 1)
-    return max(1, -(-int(min_samples) // spp))
+    ``ceil(min_samples / samples_per_pixel)`` (frames of ``samples_per_pixel`` Monte Carlo samples each, at least 1).
+    Both are integers >= 1 (``min_samples`` <= 4096, ``samples_per_pixel`` < 2^31)."""
+    need = check_int_range("min_samples", min_samples, 1, 4096)
+    spp = check_int_range("samples_per_pixel", samples_per_pixel, 1, 2**31 - 1)
+    return -(-need // spp)
 
 
 # the variance clipping box of stochastic shading is over the 5 x 5 neighbourhood
@@ -196,9 +200,11 @@ class TemporalStage:
             fresh_stoch: (H, W) vec3, the stochastic part of ``fresh`` (read only when ``stochastic``).
             use_history: False on the first frame and after a cut.
             stochastic: whether the shading has Monte Carlo terms.
-            samples: their Monte Carlo samples per pixel per frame (AO rays plus area-light samples; an integer in
-                [1, 65536]): moving unsampled pixels reuse stochastic history of at least
-                ``stochastic_min_age(config.stochastic_min_samples, samples)`` frames. Unused without ``stochastic``.
+            samples: their Monte Carlo samples per pixel per frame (AO rays plus area-light samples; an integer
+                >= 1): moving unsampled pixels reuse stochastic history of at least
+                ``stochastic_min_age(config.stochastic_min_samples, samples)`` frames. Unused without
+                ``stochastic``; the default 1 is the most cautious (``stochastic_min_samples`` frames), so a caller
+                with stochastic shading should pass its count (``ShadeStage.stochastic_samples``).
             background: radiance of rays that miss (linear RGB).
             shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
                 ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
@@ -210,7 +216,7 @@ class TemporalStage:
                 same values. Two (H, W) vec3 box buffers are allocated on the first such run.
         """
         stochastic = bool(stochastic)
-        samples = check_int_range("samples", samples, 1, 65536)
+        samples = check_int_range("samples", samples, 1, 2**31 - 1)
         if shade is not None and not self.can_shade(stochastic):
             raise ValueError("shade must be None unless can_shade(stochastic) (the CPU's rows kernels with "
                              f"deterministic shading), got a {type(shade).__name__} with stochastic={stochastic} "
