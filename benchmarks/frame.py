@@ -120,6 +120,20 @@ def quality(fw, scene, w, h, dev, cfg, frames, metrics):
     return rec
 
 
+def _add_metrics(rec, prefix, m):
+    """Append one frame's whole-frame PSNR, SSIM and foveal PSNR (``metrics``' dict ``m``) to the series
+    ``{prefix}psnr``, ``{prefix}ssim`` and ``{prefix}fovea_psnr`` of ``rec``."""
+    rec[f"{prefix}psnr"].append(m["psnr"])
+    rec[f"{prefix}ssim"].append(m["ssim"])
+    rec[f"{prefix}fovea_psnr"].append(_fovea_key(m))
+
+
+def _last_record(records, kind, scene, width, config):
+    """The last record of ``kind`` for (scene, width, config), or None."""
+    return next((r for r in reversed(records) if r["kind"] == kind and r["scene"] == scene and r["width"] == width
+                 and r["config"] == config), None)
+
+
 def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=256, sweep=(), timing_frames=0):
     """The full-resolution frame and the foveated frame, both with ``ao`` AO rays per pixel, against a converged
     frame (``converged_ao`` rays per pixel) of the same camera, time and gaze, along the camera path with a
@@ -146,15 +160,9 @@ def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=25
         g = gaze_path(i, frames, w, h)
         wp.copy(conv_img, conv.render_reference(scene.camera_at(t), time=t, gaze_px=g).image)
         f = fovl.render(scene.camera_at(t), gaze_px=g, time=t)
-        m = metrics(f.image, conv_img, g, fov)
-        rec["psnr"].append(m["psnr"])
-        rec["ssim"].append(m["ssim"])
-        rec["fovea_psnr"].append(_fovea_key(m))
+        _add_metrics(rec, "", metrics(f.image, conv_img, g, fov))
         rec["sampling_rate"].append(f.stats["sampling_rate"])
-        m = metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, conv_img, g, fov)
-        rec["ref_psnr"].append(m["psnr"])
-        rec["ref_ssim"].append(m["ssim"])
-        rec["ref_fovea_psnr"].append(_fovea_key(m))
+        _add_metrics(rec, "ref_", metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, conv_img, g, fov))
         for a, lp in others.items():
             rec["sweep_psnr"][str(a)].append(metrics(lp.render(scene.camera_at(t), gaze_px=g, time=t).image,
                                                      conv_img, g, fov)["psnr"])
@@ -290,12 +298,10 @@ def main(argv=None):
         p.error(f"--parts items must be in [quality, timing, aoquality, stochastic], got {sorted(unknown)}")
     if not 1 <= args.ao_samples <= 64:
         p.error(f"--ao-samples must be in [1, 64], got {args.ao_samples}")
-    try:
-        sweep = [int(v) for v in args.ao_sweep.split(",") if v.strip()]
-    except ValueError:
-        sweep = [-1]
-    if any(not 1 <= a <= 64 for a in sweep):
+    items = [v.strip() for v in args.ao_sweep.split(",") if v.strip()]
+    if not all(v.isdigit() and 1 <= int(v) <= 64 for v in items):
         p.error(f"--ao-sweep items must be integers in [1, 64], got {args.ao_sweep!r}")
+    sweep = [int(v) for v in items]
     if not args.ao_samples < args.converged_ao <= 4096:
         p.error(f"--converged-ao must be in [{args.ao_samples + 1}, 4096] (above --ao-samples), got {args.converged_ao}")
     bvh = None
@@ -359,14 +365,12 @@ def main(argv=None):
                     arows.append(row)
                     print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
                 if "timing" in parts:
-                    qrec = next((r for r in reversed(records) if r["kind"] == "quality" and r["scene"] == scene.name
-                                 and r["width"] == w and r["config"] == cname), None)
+                    qrec = _last_record(records, "quality", scene.name, w, cname)
                     qual = {} if qrec is None else {
                         "psnr": _summ(qrec["psnr"])["mean"], "ssim": float(np.mean(qrec["ssim"])),
                         "fovea_psnr": _summ(qrec["fovea_psnr"])["mean"], "quality_shading": "default"}
-                    arec = next((r for r in reversed(records) if r["kind"] == "ao_quality" and r["ao_samples"] == 8
-                                 and r["scene"] == scene.name and r["width"] == w and r["config"] == cname), None)
-                    aqual = {} if arec is None else {
+                    arec = _last_record(records, "ao_quality", scene.name, w, cname)
+                    aqual = {} if arec is None or arec["ao_samples"] != 8 else {
                         "psnr": _summ(arec["psnr"])["mean"], "ssim": float(np.mean(arec["ssim"])),
                         "fovea_psnr": _summ(arec["fovea_psnr"])["mean"], "ref_psnr": _summ(arec["ref_psnr"])["mean"],
                         "ref_ssim": float(np.mean(arec["ref_ssim"])),

@@ -246,6 +246,12 @@ class FrameLoop:
         samples): the temporal resolve then accumulates them (``TemporalStage``)."""
         return self.shade.stochastic(ao_samples)
 
+    def _resolve_kind(self) -> dict:
+        """The temporal resolve's shading-kind arguments: ``stochastic`` and its Monte Carlo ``samples`` per pixel
+        per frame (1 for deterministic shading, where the resolve does not use it), from one count."""
+        n = self.shade.stochastic_samples()
+        return {"stochastic": n > 0, "samples": max(n, 1)}
+
     @staticmethod
     def _require_camera(camera) -> Camera:
         if not isinstance(camera, Camera):
@@ -644,8 +650,7 @@ class FrameLoop:
         if self.sparse_gbuffer or not self.config.temporal.enabled:
             return False
         self.temporal.run(self.full_map, self.gbuffer, self.radiance, self.radiance_stoch, use_history=False,
-                          stochastic=self._stochastic_shading(), background=self.config.shading.background,
-                          samples=max(self.shade.stochastic_samples(), 1))
+                          background=self.config.shading.background, **self._resolve_kind())
         return True
 
     def _refresh_due(self, foveated: bool) -> bool:
@@ -694,8 +699,7 @@ class FrameLoop:
             if foveated:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
-                                  stochastic=self._stochastic_shading(), background=cfg.shading.background,
-                                  samples=max(self.shade.stochastic_samples(), 1),
+                                  background=cfg.shading.background, **self._resolve_kind(),
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
                                   count=self.reorder.count if listed else None)
