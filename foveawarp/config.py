@@ -325,16 +325,23 @@ class ReorderConfig:
             tiles in Morton order).
         balance_rows: rows per balancing block for "rows+balance", in [1, 1024].
         tile: tile edge in pixels for "tile", a power of two in [2, 64] (8 x 8 = 64 rays: two warps).
+        skip_misses: list only the sampled pixels whose primary ray hit a surface (the compacting strategies;
+            with the full G-buffer). A miss shows the background, which the temporal resolve writes without
+            reading the shading, so the shading launch need not spend a lane on it: in a warp of the list, a
+            miss's lane idles while its neighbours trace. False: every sampled pixel is listed (and shaded to the
+            background), as before this option; the image is the same either way.
     """
 
     strategy: str = "auto"
     balance_rows: int = 8
     tile: int = 8
+    skip_misses: bool = True
 
     def __post_init__(self):
         check_choice("ReorderConfig.strategy", self.strategy, REORDER_STRATEGIES)
         check_int_range("ReorderConfig.balance_rows", self.balance_rows, 1, 1024)
         check_int_range("ReorderConfig.tile", self.tile, 2, 64)
+        check_bool("ReorderConfig.skip_misses", self.skip_misses)
         if self.tile & (self.tile - 1):
             raise ValueError(f"ReorderConfig.tile must be a power of two in [2, 64], got {self.tile!r}")
 

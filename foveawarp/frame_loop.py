@@ -686,7 +686,7 @@ class FrameLoop:
         reorders = strategy in ("scan", "tile", "rows", "rows+balance")
         with self._stage("reorder", reorders):
             if reorders:
-                self.reorder.run(smap)
+                self.reorder.run(smap, keep=self._list_keep())
         fused = self._tonemap_fused(strategy)
         # the CPU's masked shading and deterministic resolve run as one launch (the "temporal" stage's time)
         shade_in_resolve = self._shade_in_resolve(strategy)
@@ -789,6 +789,12 @@ class FrameLoop:
         wp.capture_launch(cap.graph)
         return "captured"
 
+    def _list_keep(self):
+        """The second mask of the full-G-buffer frame's compaction (``ReorderStage.run(keep=...)``): the G-buffer's
+        hits with ``ReorderConfig.skip_misses``, else None (every sampled pixel). A miss's colour is the
+        background, written by the temporal resolve, and the indirect gather skips it too."""
+        return self.gbuffer.hit if self.config.reorder.skip_misses else None
+
     def _rays_per_sample(self) -> int:
         """Secondary rays per shaded pixel (shadow rays, area-light samples, AO rays)."""
         sc = self.config.shading
@@ -818,7 +824,7 @@ class FrameLoop:
             return
         if strategy not in ("scan", "tile"):
             # the row and masked launches have no flat list: compact one for the gather
-            self.reorder.run(smap, strategy="scan")
+            self.reorder.run(smap, strategy="scan", keep=self._list_keep())
         self.indirect.run_list(self.gbuffer, self.reorder.work, self.reorder.count, self.radiance, self.width)
 
 

@@ -44,8 +44,38 @@ def test_only_sampled_pixels_are_traced(strategy, device):
     f = loop.render(gaze_px=(48.0, 32.0))
     written = np.any(loop.radiance.numpy() != -7.0, axis=2)
     smap = f.sampling_map.numpy().astype(bool)
-    np.testing.assert_array_equal(written, smap)
+    # the compacting strategies list only the sampled pixels that hit (ReorderConfig.skip_misses, the default);
+    # the masked launch writes the background at the sampled misses
+    hit = loop.gbuffer.hit.numpy().astype(bool)
+    np.testing.assert_array_equal(written, smap if strategy == "none" else smap & hit)
     assert f.stats["sampling_rate"] == pytest.approx(smap.mean())
+
+
+@pytest.mark.parametrize("strategy", ["tile", "rows"])
+@pytest.mark.parametrize("shading", [{"ao_samples": 0}, {"ao_samples": 2}, {"indirect": "lighttree"}])
+def test_skip_misses_lists_only_hits_and_keeps_the_image(strategy, shading, device):
+    """``ReorderConfig.skip_misses`` (the default) lists only the sampled pixels whose primary ray hit: the
+    shading writes exactly those, and the images, sampling maps and temporal colours along a moving camera and
+    gaze equal those of the loop that lists (and shades) every sampled pixel, bit for bit."""
+    scene = fw.load_scene("bunny")
+    loops = {k: _loop(scene, device, reorder={"strategy": strategy, "skip_misses": k}, shading=shading)
+             for k in (True, False)}
+    misses_sampled = 0
+    for i in range(6):
+        cam, gaze = scene.camera_at(i / 20), (30.0 + 6 * i, 40.0 - 3 * i)
+        out = {}
+        for k, loop in loops.items():
+            loop.radiance.assign(np.full((H, W, 3), -7.0, np.float32))
+            f = loop.render(cam, gaze_px=gaze, time=i / 20)
+            smap = f.sampling_map.numpy().astype(bool)
+            hit = loop.gbuffer.hit.numpy().astype(bool)
+            written = np.any(loop.radiance.numpy() != -7.0, axis=2)
+            np.testing.assert_array_equal(written, smap & hit if k else smap, err_msg=f"skip_misses={k}, frame {i}")
+            out[k] = (f.numpy().copy(), smap, loop.temporal.color.numpy().copy())
+        misses_sampled += int((smap & ~hit).sum())
+        for a, b in zip(out[True], out[False]):
+            np.testing.assert_array_equal(a, b, err_msg=f"frame {i}")
+    assert misses_sampled > 0  # the case under test happened: sampled pixels on the background
 
 
 def test_foveated_close_to_reference_and_fovea_exact(device):

@@ -248,3 +248,72 @@ def test_compaction_by_words_only_where_it_applies(rng):
         m1, m2 = rng.random((20, 64)) < 0.2, rng.random((20, 64)) < 0.6
         np.testing.assert_array_equal(_words_run(st8, m1, "tile", True), tile_order_ref(m1, 8))
         np.testing.assert_array_equal(_words_run(st8, m2, "tile", True), tile_order_ref(m2, 8))
+
+
+# -- issue 14: the second mask (``keep``): the frame loop lists only the sampled pixels that hit a surface -----------
+
+
+def _keep_run(stage, m, k, strategy):
+    """(work list or row CSR) of the stage for uint8 masks ``m`` and ``k`` (``keep``)."""
+    dev = stage.device
+    mk = wp.array(np.ascontiguousarray(m, dtype=np.uint8), dtype=wp.uint8, device=dev)
+    kk = wp.array(np.ascontiguousarray(k, dtype=np.uint8), dtype=wp.uint8, device=dev)
+    stage.run(mk, strategy=strategy, keep=kk)
+    if strategy in ("tile", "scan"):
+        return stage.work.numpy()[:int(stage.count.numpy()[0])]
+    return stage.coords.numpy(), stage.counts.numpy()
+
+
+@pytest.mark.parametrize("packed", [True, False])
+@pytest.mark.parametrize("shape", [(45, 64), (130, 72), (1, 8), (37, 50)])
+def test_compaction_keep_equals_reference(shape, packed, device, rng):
+    """``run(mask, keep=k)`` lists exactly the pixels set in both, in the reference order, for every strategy,
+    by words (where the width allows) and by bytes; bytes other than 0 / 1 count as set in both masks."""
+    h, w = shape
+    stage = ReorderStage(w, h, fw.ReorderConfig(strategy="tile", tile=8), device)
+    stage.packed = packed
+    vm = rng.integers(1, 256, (h, w)).astype(np.uint8)
+    vk = rng.integers(1, 256, (h, w)).astype(np.uint8)
+    for m, k in ((rng.random((h, w)) < 0.3, rng.random((h, w)) < 0.6),
+                 (filled_mask(h, w, rng), rng.random((h, w)) < 0.5), (np.ones((h, w), bool), np.zeros((h, w), bool)), (np.ones((h, w), bool), np.ones((h, w), bool))):
+        mb, kb = np.where(m, vm, 0), np.where(k, vk, 0)
+        both = m & k
+        np.testing.assert_array_equal(_keep_run(stage, mb, kb, "tile"), tile_order_ref(both, 8))
+        np.testing.assert_array_equal(_keep_run(stage, mb, kb, "scan"), np.flatnonzero(both))
+        for s in ("rows", "rows+balance"):
+            coords, counts = _keep_run(stage, mb, kb, s)
+            ref = rows_ref(both)
+            if s == "rows+balance":
+                ref = balance_ref(ref, stage.config.balance_rows)
+            np.testing.assert_array_equal(counts, [len(r) for r in ref])
+            for y, r in enumerate(ref):
+                np.testing.assert_array_equal(coords[y, :len(r)], np.array(r, np.int32).reshape(-1, 2))
+        # the same stage without keep: every set pixel of the mask again (no state left from the keep run)
+        stage.run(wp.array(mb, dtype=wp.uint8, device=device), strategy="tile")
+        np.testing.assert_array_equal(stage.work.numpy()[:int(stage.count.numpy()[0])], tile_order_ref(m, 8))
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.uint8, st.tuples(st.integers(1, 24), st.integers(1, 5).map(lambda k: 8 * k))),
+       st.integers(0, 2**32 - 1), st.sampled_from(["tile", "scan"]))
+def test_compaction_keep_properties(mask, seed, strategy):
+    """Any bytes in both masks: the word kernels and the byte kernels list the pixels set in both."""
+    h, w = mask.shape
+    keep = np.random.default_rng(seed).integers(0, 3, (h, w)).astype(np.uint8)
+    stage = ReorderStage(w, h, fw.ReorderConfig(strategy=strategy, tile=8), "cpu")
+    both = (mask != 0) & (keep != 0)
+    ref = tile_order_ref(both, 8) if strategy == "tile" else np.flatnonzero(both)
+    for packed in (True, False):
+        stage.packed = packed
+        np.testing.assert_array_equal(_keep_run(stage, mask, keep, strategy), ref)
+
+
+def test_compaction_keep_bad_arguments():
+    st_ = ReorderStage(16, 8, fw.ReorderConfig(strategy="tile"), "cpu")
+    m = wp.zeros((8, 16), dtype=wp.uint8, device="cpu")
+    for bad in (np.ones((8, 16), np.uint8), wp.zeros((8, 15), dtype=wp.uint8, device="cpu"),
+                wp.zeros((8, 16), dtype=wp.int32, device="cpu")):
+        with pytest.raises(ValueError, match="keep must be a \\(8, 16\\) uint8"):
+            st_.run(m, keep=bad)
+    with pytest.raises(ValueError, match="ReorderConfig.skip_misses"):
+        fw.ReorderConfig(skip_misses="yes")

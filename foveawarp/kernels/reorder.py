@@ -13,6 +13,11 @@
   without recounting). The output order (tile rank, then raster
   inside the tile; or raster) is fixed by the positions, so the list is deterministic.
 The compacted count stays on the device (``count[0]``).
+
+Every compaction kernel takes a second mask, ``keep``: a pixel is listed when it is set in both. The frame loop
+passes the G-buffer's hit mask, so the sampled pixels whose primary ray missed (their colour is the background,
+which the temporal resolve writes without reading the shading) take no lane of the shading launch; a caller with
+nothing to drop passes the mask itself.
 """
 
 import warp as wp
@@ -22,11 +27,11 @@ import warp as wp
 
 
 @wp.kernel(enable_backward=False)
-def rows_compact_kernel(mask: wp.array2d(dtype=wp.uint8), coords: wp.array2d(dtype=wp.vec2i),
-                        counts: wp.array(dtype=wp.int32)):
-    """Tiled, one block per row (thesis strategy 1): sampled (x, y) to the left of coords[y], in raster order,
-    count to counts[y]. Thread i takes a contiguous segment of ceil(W / block_dim) pixels; one block-local
-    exclusive prefix sum of the segment counts places every segment."""
+def rows_compact_kernel(mask: wp.array2d(dtype=wp.uint8), keep: wp.array2d(dtype=wp.uint8),
+                        coords: wp.array2d(dtype=wp.vec2i), counts: wp.array(dtype=wp.int32)):
+    """Tiled, one block per row (thesis strategy 1): sampled (x, y) (set in ``mask`` and in ``keep``) to the left
+    of coords[y], in raster order, count to counts[y]. Thread i takes a contiguous segment of ceil(W / block_dim)
+    pixels; one block-local exclusive prefix sum of the segment counts places every segment."""
     y, lane = wp.tid()
     w = mask.shape[1]
     seg = (w + wp.block_dim() - 1) // wp.block_dim()
@@ -37,13 +42,13 @@ def rows_compact_kernel(mask: wp.array2d(dtype=wp.uint8), coords: wp.array2d(dty
     c = int(0)
     if not alone:
         for x in range(x0, x1):
-            if mask[y, x] != wp.uint8(0):
+            if mask[y, x] != wp.uint8(0) and keep[y, x] != wp.uint8(0):
                 c += 1
     start = wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
     o = start
     if alone or c > 0:
         for x in range(x0, x1):
-            if mask[y, x] != wp.uint8(0):
+            if mask[y, x] != wp.uint8(0) and keep[y, x] != wp.uint8(0):
                 coords[y, o] = wp.vec2i(x, y)
                 o += 1
     tot = wp.tile_sum(wp.tile(o - start))
@@ -83,10 +88,12 @@ def rows_balance_kernel(coords: wp.array2d(dtype=wp.vec2i), counts: wp.array(dty
 
 
 @wp.func
-def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int, tile: int, tiles_x: int,
+def walk_run(mask: wp.array2d(dtype=wp.uint8), keep: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int,
+             tile: int, tiles_x: int,
              tile_order: wp.array(dtype=wp.int32), write: int, o: int, work: wp.array(dtype=wp.int32)) -> int:
     """Visit positions g0, g0 + 1, ... (``per_thread`` of them, below ``n``) of the output order and count
-    the set pixels; with ``write`` != 0 also store their flat indices y * W + x at ``work[o]``, ``work[o + 1]``...
+    the pixels set in both ``mask`` and ``keep``; with ``write`` != 0 also store their flat indices y * W + x at
+    ``work[o]``, ``work[o + 1]``...
 
     Output order: ``tile`` 0: raster (position g is pixel g); else tiles in the order ``tile_order`` (row-major
     tile indices), raster order inside a tile, positions that fall outside the image (partial edge tiles)
@@ -101,7 +108,7 @@ def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int,
         while remaining > 0:
             seg = wp.min(w - x, remaining)
             for xx in range(x, x + seg):
-                if mask[y, xx] != wp.uint8(0):
+                if mask[y, xx] != wp.uint8(0) and keep[y, xx] != wp.uint8(0):
                     if write != 0:
                         work[o + c] = y * w + xx
                     c += 1
@@ -122,7 +129,7 @@ def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int,
         if y < h:
             x0 = (t - ty * tiles_x) * tile + i
             for x in range(x0, wp.min(x0 + seg, w)):
-                if mask[y, x] != wp.uint8(0):
+                if mask[y, x] != wp.uint8(0) and keep[y, x] != wp.uint8(0):
                     if write != 0:
                         work[o + c] = y * w + x
                     c += 1
@@ -136,13 +143,14 @@ def walk_run(mask: wp.array2d(dtype=wp.uint8), g0: int, per_thread: int, n: int,
 
 
 @wp.kernel(enable_backward=False)
-def compact_count_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
+def compact_count_kernel(mask: wp.array2d(dtype=wp.uint8), keep: wp.array2d(dtype=wp.uint8),
+                         tile_order: wp.array(dtype=wp.int32), tile: int,
                          tiles_x: int, n: int, per_thread: int, block_counts: wp.array(dtype=wp.int32)):
     """Tiled: block b counts the set pixels of positions [b * m, (b + 1) * m) of the output order
     (m = block_dim * ``per_thread``; ``n`` positions in all)."""
     blk, lane = wp.tid()
     g0 = (blk * wp.block_dim() + lane) * per_thread
-    c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, block_counts)
+    c = walk_run(mask, keep, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, block_counts)
     tot = wp.tile_sum(wp.tile(c))
     if lane == 0:
         block_counts[blk] = tot[0]
@@ -173,7 +181,8 @@ def block_scan_kernel(block_counts: wp.array(dtype=wp.int32), block_offsets: wp.
 
 
 @wp.kernel(enable_backward=False)
-def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.array(dtype=wp.int32), tile: int,
+def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), keep: wp.array2d(dtype=wp.uint8),
+                           tile_order: wp.array(dtype=wp.int32), tile: int,
                            tiles_x: int, n: int, per_thread: int, block_offsets: wp.array(dtype=wp.int32),
                            work: wp.array(dtype=wp.int32)):
     """Tiled, same blocks as :func:`compact_count_kernel`: flat indices y * W + x of the set pixels of the
@@ -186,10 +195,10 @@ def compact_scatter_kernel(mask: wp.array2d(dtype=wp.uint8), tile_order: wp.arra
     alone = wp.block_dim() == 1
     c = int(0)
     if not alone:
-        c = walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
+        c = walk_run(mask, keep, g0, per_thread, n, tile, tiles_x, tile_order, 0, 0, work)
     o = block_offsets[blk] + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
     if alone or c > 0:
-        walk_run(mask, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)
+        walk_run(mask, keep, g0, per_thread, n, tile, tiles_x, tile_order, 1, o, work)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -237,21 +246,20 @@ def count_set(v: wp.uint64) -> int:
 
 
 @wp.func
-def walk_words(mask64: wp.array(dtype=wp.uint64), k0: int, words: int, nwords: int, tile: int, tiles_x: int,
-               words_x: int, h: int, tile_order: wp.array(dtype=wp.int32), write: int, o: int,
-               work: wp.array(dtype=wp.int32)) -> int:
-    """Runs k0 .. k0 + words - 1 (below ``nwords``): count their set pixels; with ``write`` != 0 also store the
-    flat pixel indices from ``work[o]`` on, in order."""
+def walk_words(mask64: wp.array(dtype=wp.uint64), keep64: wp.array(dtype=wp.uint64), k0: int, words: int,
+               nwords: int, tile: int, tiles_x: int, words_x: int, h: int, tile_order: wp.array(dtype=wp.int32),
+               write: int, o: int, work: wp.array(dtype=wp.int32)) -> int:
+    """Runs k0 .. k0 + words - 1 (below ``nwords``): count their pixels set in both ``mask64`` and ``keep64``; with
+    ``write`` != 0 also store the flat pixel indices from ``work[o]`` on, in order."""
     c = int(0)
     for k in range(k0, wp.min(k0 + words, nwords)):
         i = word_of(k, tile, tiles_x, words_x, h, tile_order)
         if i >= 0:
-            v = mask64[i]
+            v = set_bytes(mask64[i]) & set_bytes(keep64[i])
             if v != wp.uint64(0):
                 if write != 0:
-                    s = set_bytes(v)
                     for b in range(8):
-                        if ((s >> wp.uint64(8 * b)) & wp.uint64(1)) != wp.uint64(0):
+                        if ((v >> wp.uint64(8 * b)) & wp.uint64(1)) != wp.uint64(0):
                             work[o + c] = i * 8 + b
                             c += 1
                 else:
@@ -260,21 +268,23 @@ def walk_words(mask64: wp.array(dtype=wp.uint64), k0: int, words: int, nwords: i
 
 
 @wp.kernel(enable_backward=False)
-def compact_count_words_kernel(mask64: wp.array(dtype=wp.uint64), tile_order: wp.array(dtype=wp.int32), tile: int,
+def compact_count_words_kernel(mask64: wp.array(dtype=wp.uint64), keep64: wp.array(dtype=wp.uint64),
+                               tile_order: wp.array(dtype=wp.int32), tile: int,
                                tiles_x: int, words_x: int, h: int, nwords: int, words: int,
                                block_counts: wp.array(dtype=wp.int32)):
     """:func:`compact_count_kernel` over 8-pixel words: block b counts runs [b * m, (b + 1) * m) of the output
     order (m = block_dim * ``words``; ``nwords`` runs in all)."""
     blk, lane = wp.tid()
     k0 = (blk * wp.block_dim() + lane) * words
-    c = walk_words(mask64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 0, 0, block_counts)
+    c = walk_words(mask64, keep64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 0, 0, block_counts)
     tot = wp.tile_sum(wp.tile(c))
     if lane == 0:
         block_counts[blk] = tot[0]
 
 
 @wp.kernel(enable_backward=False)
-def compact_scatter_words_kernel(mask64: wp.array(dtype=wp.uint64), tile_order: wp.array(dtype=wp.int32),
+def compact_scatter_words_kernel(mask64: wp.array(dtype=wp.uint64), keep64: wp.array(dtype=wp.uint64),
+                                 tile_order: wp.array(dtype=wp.int32),
                                  tile: int, tiles_x: int, words_x: int, h: int, nwords: int, words: int,
                                  block_offsets: wp.array(dtype=wp.int32), work: wp.array(dtype=wp.int32)):
     """:func:`compact_scatter_kernel` over 8-pixel words (same blocks as :func:`compact_count_words_kernel`)."""
@@ -283,7 +293,7 @@ def compact_scatter_words_kernel(mask64: wp.array(dtype=wp.uint64), tile_order: 
     alone = wp.block_dim() == 1
     c = int(0)
     if not alone:
-        c = walk_words(mask64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 0, 0, work)
+        c = walk_words(mask64, keep64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 0, 0, work)
     o = block_offsets[blk] + wp.untile(wp.tile_scan_exclusive(wp.tile(c)))
     if alone or c > 0:
-        walk_words(mask64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 1, o, work)
+        walk_words(mask64, keep64, k0, words, nwords, tile, tiles_x, words_x, h, tile_order, 1, o, work)

@@ -98,48 +98,67 @@ class ReorderStage:
                 b = (nw + self._block_dim * self._words - 1) // (self._block_dim * self._words)
                 if b <= nb:  # fits the block buffers (always, at these block sizes)
                     self._word_blocks[s] = (nw, b, self.block_counts[:b], self.block_offsets[:b])
-        self._view = (None, None)  # (mask, its uint64 view): the last mask compacted by words
+        self._views = {}  # id(mask) -> (mask, its uint64 view): the masks compacted by words
 
     @property
     def strategy(self) -> str:
         """The configured strategy with "auto" resolved for the stage's device."""
         return resolve_reorder_strategy(self.config.strategy, self.device)
 
-    def run(self, mask, strategy: str | None = None) -> None:
+    def _check_mask(self, name: str, a) -> None:
+        if (not isinstance(a, wp.array) or a.dtype != wp.uint8
+                or tuple(a.shape) != (self.height, self.width) or a.device != self.device):
+            raise ValueError(f"{name} must be a ({self.height}, {self.width}) uint8 wp.array on {self.device}, got "
+                             f"{type(a).__name__} {getattr(a, 'dtype', None)} "
+                             f"{tuple(getattr(a, 'shape', ()))} on {getattr(a, 'device', None)}")
+
+    def _words_view(self, a) -> wp.array:
+        """A non-owning uint64 view of the bytes of ``a``, made once per array (the last few kept)."""
+        v = self._views.get(id(a))
+        if v is None or v[0] is not a:
+            if len(self._views) >= 4:
+                self._views.clear()
+            v = (a, wp.array(ptr=a.ptr, dtype=wp.uint64, shape=(self.width * self.height // 8,), device=a.device))
+            self._views[id(a)] = v
+        return v[1]
+
+    def run(self, mask, strategy: str | None = None, keep=None) -> None:
         """Compact ``mask`` ((H, W) uint8 wp.array on the stage's device, nonzero = sampled) with ``strategy``
-        (default: the config's). Launches only (no host reads of the mask)."""
+        (default: the config's). Launches only (no host reads of the mask).
+
+        ``keep`` (optional, the same kind of array): list only the pixels set in both ``mask`` and ``keep``
+        (``FrameLoop`` passes the G-buffer's hit mask: a sampled pixel whose primary ray missed needs no shading,
+        and in the list it would hold a lane of a warp whose other lanes trace). None: every set pixel of
+        ``mask``. Ignored by "none", which lists nothing."""
         s = resolve_reorder_strategy(self.config.strategy if strategy is None
                                      else check_choice("strategy", strategy, REORDER_STRATEGIES), self.device)
-        if (not isinstance(mask, wp.array) or mask.dtype != wp.uint8
-                or tuple(mask.shape) != (self.height, self.width) or mask.device != self.device):
-            raise ValueError(f"mask must be a ({self.height}, {self.width}) uint8 wp.array on {self.device}, got "
-                             f"{type(mask).__name__} {getattr(mask, 'dtype', None)} "
-                             f"{tuple(getattr(mask, 'shape', ()))} on {getattr(mask, 'device', None)}")
+        self._check_mask("mask", mask)
+        if keep is None:
+            keep = mask
+        else:
+            self._check_mask("keep", keep)
         dev = self.device
         if s == "none":
             return
         if s in ("rows", "rows+balance"):
-            wp.launch_tiled(rows_compact_kernel, dim=[self.height], inputs=[mask], outputs=[self.coords, self.counts],
-                            block_dim=self._block_dim, device=dev)
+            wp.launch_tiled(rows_compact_kernel, dim=[self.height], inputs=[mask, keep],
+                            outputs=[self.coords, self.counts], block_dim=self._block_dim, device=dev)
             if s == "rows+balance":
                 k = self.config.balance_rows
                 nb = (self.height + k - 1) // k
                 wp.launch(rows_balance_kernel, dim=nb, inputs=[self.coords, self.counts, k], device=dev)
             return
         tile = 0 if s == "scan" else self.config.tile
-        if self.packed and s in self._word_blocks and tile in (0, 8) and mask.is_contiguous:
-            # by 8-pixel words: a non-owning uint64 view of the mask's bytes, made once per mask array
-            if self._view[0] is not mask:
-                self._view = (mask, wp.array(ptr=mask.ptr, dtype=wp.uint64, shape=(self.width * self.height // 8,),
-                                             device=mask.device))
+        if self.packed and s in self._word_blocks and tile in (0, 8) and mask.is_contiguous and keep.is_contiguous:
+            # by 8-pixel words: non-owning uint64 views of the masks' bytes
             nw, nb, counts, offsets = self._word_blocks[s]
             kernels = (compact_count_words_kernel, compact_scatter_words_kernel)
-            common = [self._view[1], self.tile_order, tile, self.tiles_x, self.width // 8, self.height, nw,
-                      self._words]
+            common = [self._words_view(mask), self._words_view(keep), self.tile_order, tile, self.tiles_x,
+                      self.width // 8, self.height, nw, self._words]
         else:
             nb, counts, offsets = self._blocks[s]
             kernels = (compact_count_kernel, compact_scatter_kernel)
-            common = [mask, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
+            common = [mask, keep, self.tile_order, tile, self.tiles_x, self._n_order[s], self._per_thread]
         wp.launch_tiled(kernels[0], dim=[nb], inputs=common, outputs=[counts], block_dim=self._block_dim, device=dev)
         wp.launch_tiled(block_scan_kernel, dim=[1], inputs=[counts], outputs=[offsets, self.count],
                         block_dim=self._scan_block_dim, device=dev)
