@@ -357,6 +357,12 @@ class ShadingConfig:
         shininess: Blinn-Phong exponent in [1, 4096].
         ao_samples: ambient-occlusion rays per shaded pixel, in [0, 256]; 0 disables AO.
         ao_radius_rel: AO ray length as a fraction of the scene's bounding-box diagonal, in (0, 10].
+        ao_lanes: threads per pixel for the AO rays of a compacted work list (the foveated frame's "scan" /
+            "tile" strategies), in [1, 16]. A first launch traces them, ``min(ao_lanes, ao_samples)`` threads per
+            pixel, a second shades the pixels with their counts: a list of a tenth of the pixels, one thread each
+            tracing all its pixel's rays in turn, is too short to fill a GPU (its time is one thread's chain of
+            rays, not the rays' throughput). 1: one thread per pixel traces them. The image is the same for every
+            value (the same rays, counted in another order).
         area_light_samples: shadow rays per area light, in [1, 256].
         indirect: "none" or "lighttree" (one-bounce indirect from the light quad-tree, see IndirectConfig).
         background: linear RGB radiance of rays that miss, each channel >= 0.
@@ -371,6 +377,7 @@ class ShadingConfig:
     shininess: float = 48.0
     ao_samples: int = 0
     ao_radius_rel: float = 0.1
+    ao_lanes: int = 8
     area_light_samples: int = 4
     indirect: str = "none"
     background: tuple = (0.02, 0.02, 0.03)
@@ -385,6 +392,7 @@ class ShadingConfig:
         check_range("ShadingConfig.shininess", self.shininess, 1.0, 4096.0)
         check_int_range("ShadingConfig.ao_samples", self.ao_samples, 0, 256)
         check_range("ShadingConfig.ao_radius_rel", self.ao_radius_rel, 0.0, 10.0, lo_open=True)
+        check_int_range("ShadingConfig.ao_lanes", self.ao_lanes, 1, 16)
         check_int_range("ShadingConfig.area_light_samples", self.area_light_samples, 1, 256)
         check_choice("ShadingConfig.indirect", self.indirect, ("none", "lighttree"))
         check_range("ShadingConfig.exposure", self.exposure, 0.0, None, lo_open=True)

@@ -219,3 +219,45 @@ def test_visibility_any_hit_equals_closest_hit_and_brute_force(device, scene_nam
     assert 0.05 < blocked.mean() < 0.95  # both answers occur
     disagree = (vis[:m] == 0.0) != blocked
     assert disagree.mean() <= 0.005, f"{disagree.sum()} of {m} segments disagree with brute force"
+
+
+@pytest.mark.parametrize("ao, lanes", [(8, 8), (8, 3), (5, 8), (5, 2), (2, 16), (256, 16), (3, 1)])
+def test_ao_lanes_trace_the_same_rays(device, ao, lanes):
+    """``ShadingConfig.ao_lanes``: a work list's AO rays traced ``min(lanes, ao)`` threads per pixel, then the
+    pixels shaded with their counts, give the values of one thread per pixel tracing them all, bit for bit, and
+    those of the full-frame shading at the listed pixels; with an area light whose samples come first in each
+    pixel's random stream, lanes left without a ray (5 rays on 8 lanes), misses in the list, two frames."""
+    scene = fw.load_scene("cornell", area_light=True)
+    cfg = fw.Config().with_(shading={"ao_samples": ao, "ao_lanes": lanes})
+    loop = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full")
+    one = fw.FrameLoop(scene, W, H, config=cfg.with_(shading={"ao_lanes": 1}), device=device, policy="full")
+    assert loop.shade.stochastic() and scene.area_lights
+    rng = np.random.default_rng(ao * 17 + lanes)
+    for frame in range(2):
+        cam = scene.camera_at(frame / 10)
+        loop.frame_index = one.frame_index = frame  # the AO noise of this frame (render_reference keeps the index)
+        loop.render_reference(cam)
+        one.render_reference(cam)
+        full = loop.radiance.numpy().copy()
+        full_st = loop.radiance_stoch.numpy().copy()
+        hit = loop.gbuffer.hit.numpy().astype(bool)
+        pick = np.flatnonzero(rng.random(W * H) < 0.3)
+        assert (~hit.ravel()[pick]).any() and hit.ravel()[pick].any()  # misses and hits in the list
+        work = wp.array(np.concatenate([rng.permutation(pick), np.zeros(7, np.int64)]).astype(np.int32),
+                        dtype=wp.int32, device=device)
+        count = wp.array([len(pick)], dtype=wp.int32, device=device)
+        res = {}
+        for name, lp in (("lanes", loop), ("one", one)):
+            out = wp.array(np.full((H, W, 3), -3.0, np.float32), dtype=wp.vec3, device=device)
+            lp.radiance_stoch.assign(np.full((H, W, 3), -3.0, np.float32))
+            lp.shade_list(cam, work, count, out)
+            res[name] = (out.numpy(), lp.radiance_stoch.numpy())
+        assert loop.shade.ao_lanes() == min(lanes, ao) and one.shade.ao_lanes() == 1
+        for a, b in zip(res["lanes"], res["one"]):
+            np.testing.assert_array_equal(a, b)
+        out, st = res["lanes"]
+        flat = lambda a: a.reshape(-1, 3)  # noqa: E731
+        np.testing.assert_array_equal(flat(out)[pick], flat(full)[pick])
+        np.testing.assert_array_equal(flat(st)[pick], flat(full_st)[pick])
+        rest = np.setdiff1d(np.arange(W * H), pick)
+        assert np.all(flat(out)[rest] == -3.0)  # nothing written outside the list

@@ -208,10 +208,12 @@ for n in ("use_albedo", "use_normal", "use_velocity", "use_dof"):
 field(fw.ReorderConfig, "strategy", "'tile'", kind="choice")
 field(fw.ReorderConfig, "balance_rows", "[1, 1024]", [0, 1025], kind="int")
 field(fw.ReorderConfig, "tile", "[2, 64]", [1, 3, 128], kind="int")
+field(fw.ReorderConfig, "skip_misses", "True or False", kind="bool")
 field(fw.ShadingConfig, "specular", "[0.0, 1.0]", [-0.1, 1.5])
 field(fw.ShadingConfig, "shininess", "[1.0, 4096.0]", [0.5, 5000.0])
 field(fw.ShadingConfig, "ao_samples", "[0, 256]", [-1, 257], kind="int")
 field(fw.ShadingConfig, "ao_radius_rel", "(0.0, 10.0]", [0.0, 11.0])
+field(fw.ShadingConfig, "ao_lanes", "[1, 16]", [0, -1, 17], kind="int")
 field(fw.ShadingConfig, "area_light_samples", "[1, 256]", [0, 300], kind="int")
 field(fw.ShadingConfig, "indirect", "'lighttree'", kind="choice")
 for n in ("exposure", "white_point"):

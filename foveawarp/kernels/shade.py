@@ -74,7 +74,7 @@ def spot_factor(l: LightParams, to_point: wp.vec3) -> float:
 
 
 @wp.func
-def shade_point_parts(
+def shade_point_ao(
     sp: ShadeParams,
     pixel: int,
     p: wp.vec3,
@@ -84,9 +84,11 @@ def shade_point_parts(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
+    ao_unocc: float,
 ):
     """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
-    with AO rays, the occluded ambient term."""
+    with AO rays, the occluded ambient term. ``ao_unocc`` < 0: the AO rays are traced here; else it is how many
+    of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the same rays)."""
     v = wp.normalize(sp.eye - p)
     diffuse = albedo / wp.pi
     col = wp.vec3(0.0, 0.0, 0.0)
@@ -137,13 +139,44 @@ def shade_point_parts(
     amb = wp.cw_mul(albedo, sp.ambient)
     if sp.ao_samples > 0:
         unocc = float(0.0)
-        for s in range(sp.ao_samples):
-            d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
-            unocc += visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius)
+        if ao_unocc < 0.0:
+            for s in range(sp.ao_samples):
+                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+                unocc += visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius)
+        else:
+            unocc = ao_unocc
         stoch += amb * (unocc / float(sp.ao_samples))
     else:
         col += amb
     return col + stoch + face_emission[face], stoch
+
+
+@wp.func
+def shade_point_parts(
+    sp: ShadeParams,
+    pixel: int,
+    p: wp.vec3,
+    n: wp.vec3,
+    albedo: wp.vec3,
+    face: int,
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+):
+    """:func:`shade_point_ao` with the AO rays traced here."""
+    return shade_point_ao(sp, pixel, p, n, albedo, face, lights, area_lights, face_emission, -1.0)
+
+
+@wp.func
+def area_light_draws(sp: ShadeParams, area_lights: wp.array(dtype=AreaLightParams)) -> int:
+    """How many random numbers :func:`shade_point_ao` draws from the pixel's stream before its AO rays: two per
+    sample of each area light of non-zero area (the same test as there, on the same values)."""
+    k = int(0)
+    for ai in range(sp.num_area_lights):
+        a = area_lights[ai]
+        if wp.length(wp.cross(a.edge_u, a.edge_v)) > 1.0e-30:
+            k += 2 * sp.area_samples
+    return k
 
 
 @wp.func
@@ -164,6 +197,38 @@ def shade_point(
 
 
 @wp.func
+def shade_pixel_ao(
+    sp: ShadeParams,
+    x: int,
+    y: int,
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    ao_unocc: float,
+):
+    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
+    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``: as in
+    :func:`shade_point_ao`."""
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+    else:
+        c, st = shade_point_ao(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                               area_lights, face_emission, ao_unocc)
+        out[y, x] = c
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = st
+
+
+@wp.func
 def shade_pixel(
     sp: ShadeParams,
     x: int,
@@ -179,18 +244,8 @@ def shade_pixel(
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
 ):
-    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
-    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss)."""
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
-    else:
-        c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                                  area_lights, face_emission)
-        out[y, x] = c
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = st
+    """:func:`shade_pixel_ao` with the AO rays traced here."""
+    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, -1.0)
 
 
 def _make_shade_full(mode: str):
@@ -289,6 +344,79 @@ def shade_list_kernel(
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+
+
+@wp.kernel(enable_backward=False)
+def shade_ao_list_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    area_lights: wp.array(dtype=AreaLightParams),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    row0: int,
+):
+    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread (i, g) traces rays
+    [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes how many were unoccluded to
+    ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_ao` would trace there: the pixel's
+    random stream is advanced past the draws before it (the area-light samples', then two per earlier ray)."""
+    i, g = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    sp = spa[0]
+    groups = ao_part.shape[1]
+    x, y = list_pixel(work[i], sp.width)
+    c = int(0)
+    if hit[y, x] != wp.uint8(0):
+        s0 = (g * sp.ao_samples) // groups
+        s1 = ((g + 1) * sp.ao_samples) // groups
+        if s1 > s0:
+            rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
+            for k in range(area_light_draws(sp, area_lights) + 2 * s0):
+                wp.randf(rng)
+            p = pos[y, x]
+            n = normal[y, x]
+            for s in range(s0, s1):
+                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+                if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
+                    c += 1
+    ao_part[i, g] = wp.uint8(c)
+
+
+@wp.kernel(enable_backward=False)
+def shade_list_ao_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """:func:`shade_list_kernel` with the AO rays already traced by :func:`shade_ao_list_kernel`: the unoccluded
+    count is the sum of ``ao_part[i, :]`` (a sum of ones in any order: the same value as tracing them here)."""
+    i = wp.tid()
+    i += row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    sp = spa[0]
+    x, y = list_pixel(work[i], sp.width)
+    c = int(0)
+    for g in range(ao_part.shape[1]):
+        c += int(ao_part[i, g])
+    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch,
+                   float(c))
 
 
 def _make_shade_masked(rows: bool):

@@ -15,7 +15,9 @@ from ..kernels.shade import (
     set_shade_params_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
+    shade_ao_list_kernel,
     shade_full_tiles_kernel,
+    shade_list_ao_kernel,
     shade_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
@@ -43,6 +45,8 @@ class ShadeStage:
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
         self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
         self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
+        self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
+        self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -94,6 +98,7 @@ class ShadeStage:
     def upload(self, sp: ShadeParams) -> wp.array:
         """Write ``sp`` to the device array the launches read; returns that array."""
         self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)
+        self._ao_samples = int(sp.ao_samples)
         return self.params_dev
 
     def inputs(self, gbuffer) -> list:
@@ -130,8 +135,31 @@ class ShadeStage:
                         inputs=[self.params_dev, coords, counts, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device)
 
+    def ao_lanes(self) -> int:
+        """Threads per pixel that ``list`` gives the AO rays of the last uploaded parameters: ``min(ao_lanes,
+        ao_samples)``; below 2, one thread per pixel traces them with its shading."""
+        return min(int(self.config.ao_lanes), self._ao_samples)
+
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
-        """The flat pixel indices ``work[0:count[0]]`` (count read on the device)."""
-        parallel.launch(shade_list_kernel, dim=work.shape[0],
-                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer)], outputs=[out, out_stoch],
-                        device=self.device, count=count)
+        """The flat pixel indices ``work[0:count[0]]`` (count read on the device). With ``ao_lanes()`` >= 2 the
+        AO rays are traced first, that many threads per pixel (``ShadingConfig.ao_lanes``), then the pixels
+        shaded with their counts: the same values."""
+        lanes = self.ao_lanes()
+        if lanes < 2:
+            parallel.launch(shade_list_kernel, dim=work.shape[0],
+                            inputs=[self.params_dev, work, count, *self.inputs(gbuffer)], outputs=[out, out_stoch],
+                            device=self.device, count=count)
+            return
+        n = int(work.shape[0])
+        if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
+            self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
+        g = gbuffer
+        # CUDA: a grid of about 32 blocks per SM looping over the capacity-sized launch (its threads past the
+        # count only exit)
+        blocks = 32 * max(1, int(getattr(self.device, "sm_count", 0) or 0)) if self.device.is_cuda else 0
+        parallel.launch(shade_ao_list_kernel, dim=(n, lanes),
+                        inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, self.dscene.area_lights],
+                        outputs=[self._ao_part], device=self.device, count=count, max_blocks=blocks)
+        parallel.launch(shade_list_ao_kernel, dim=n,
+                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer), self._ao_part],
+                        outputs=[out, out_stoch], device=self.device, count=count)
