@@ -304,17 +304,14 @@ def _check_kernel(kernel) -> None:
 
 
 def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
-           threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None,
-           max_blocks: int = 0) -> None:
+           threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None) -> None:
     """Launch ``kernel`` (last argument ``row0: int``) over ``dim``; on the CPU split ``dim[0]`` into bands
     run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
 
     ``count``: for a work list whose live entries are ``[0, count[0])`` (a (1,) int32 array the kernel also
     reads, exiting past it): on the CPU only those rows are split into bands (the count is read straight from
     host memory, no ``.numpy()``: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim``
-    is launched. ``max_blocks`` (CUDA; 0: no limit): launch at most this many thread blocks, each thread looping
-    over the ``dim`` indices a grid's stride apart (``wp.launch(max_blocks=...)``): for a list launch sized for its
-    capacity, whose threads past the live count only exit, that costs a loop step each instead of a block."""
+    is launched."""
     _check_kernel(kernel)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
@@ -339,8 +336,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
     fast = dev.is_cpu and _invoke is not None and FAST_BANDS
     if len(parts) == 1 and not fast:
-        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev,
-                  max_blocks=int(max_blocks) if dev.is_cuda else 0)
+        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
     packed = None

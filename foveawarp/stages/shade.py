@@ -154,12 +154,18 @@ class ShadeStage:
         if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
             self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
         g = gbuffer
-        # CUDA: a grid of about 32 blocks per SM looping over the capacity-sized launch (its threads past the
-        # count only exit)
-        blocks = 32 * max(1, int(getattr(self.device, "sm_count", 0) or 0)) if self.device.is_cuda else 0
-        parallel.launch(shade_ao_list_kernel, dim=(n, lanes),
+        # a fixed grid looping over the live items (kernels/shade.py): on CUDA as many threads as the SMs hold
+        # at once; on the CPU enough rows for the bands of foveawarp.parallel
+        grid = self._list_grid()  # the kernels' ``stride`` argument (last before row0)
+        parallel.launch(shade_ao_list_kernel, dim=grid,
                         inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, self.dscene.area_lights],
-                        outputs=[self._ao_part], device=self.device, count=count, max_blocks=blocks)
-        parallel.launch(shade_list_ao_kernel, dim=n,
+                        outputs=[self._ao_part, grid], device=self.device)
+        parallel.launch(shade_list_ao_kernel, dim=grid,
                         inputs=[self.params_dev, work, count, *self.inputs(gbuffer), self._ao_part],
-                        outputs=[out, out_stoch], device=self.device, count=count)
+                        outputs=[out, out_stoch, grid], device=self.device)
+
+    def _list_grid(self) -> int:
+        """Threads of the fixed-grid list launches: 2048 per SM on CUDA (the most an SM holds), 256 on the CPU."""
+        if self.device.is_cuda:
+            return 2048 * max(1, int(getattr(self.device, "sm_count", 0) or 1))
+        return 256
