@@ -304,14 +304,18 @@ def _check_kernel(kernel) -> None:
 
 
 def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
-           threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None) -> None:
+           threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None, per_count: int = 1,
+           max_blocks: int = 0) -> None:
     """Launch ``kernel`` (last argument ``row0: int``) over ``dim``; on the CPU split ``dim[0]`` into bands
     run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
 
     ``count``: for a work list whose live entries are ``[0, count[0])`` (a (1,) int32 array the kernel also
     reads, exiting past it): on the CPU only those rows are split into bands (the count is read straight from
     host memory, no ``.numpy()``: CPU launches are synchronous, so this costs no wait); on CUDA the full ``dim``
-    is launched."""
+    is launched. ``per_count``: launch rows per live entry (a list launch with that many threads per entry: the
+    CPU splits the first ``count[0] * per_count`` rows). ``max_blocks`` (CUDA; 0: no limit): at most this many
+    thread blocks, each thread stepping over the ``dim`` indices a grid apart (``wp.launch(max_blocks=...)``): a
+    capacity-sized list launch then costs its threads past the count a few instructions each, not a block each."""
     _check_kernel(kernel)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
@@ -328,7 +332,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
             live = int(ctypes.c_int32.from_address(count.ptr).value)  # host memory on the CPU device
             if live <= 0:
                 return
-            dims = (min(dims[0], live), *dims[1:])
+            dims = (min(dims[0], live * int(per_count)), *dims[1:])
     row_items = 1
     for d in dims[1:]:
         row_items *= d
@@ -336,7 +340,8 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
     fast = dev.is_cpu and _invoke is not None and FAST_BANDS
     if len(parts) == 1 and not fast:
-        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev)
+        wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev,
+                  max_blocks=int(max_blocks) if dev.is_cuda else 0)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
     packed = None

@@ -356,41 +356,36 @@ def shade_ao_list_kernel(
     hit: wp.array2d(dtype=wp.uint8),
     area_lights: wp.array(dtype=AreaLightParams),
     ao_part: wp.array2d(dtype=wp.uint8),
-    stride: int,
     row0: int,
 ):
-    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` items per pixel: item k = i G + g traces rays
-    [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes how many were unoccluded to
-    ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_ao` would trace there: the pixel's
-    random stream is advanced past the draws before it (the area-light samples', then two per earlier ray).
-
-    A fixed grid of ``stride`` threads, thread t taking items t, t + stride, ... below ``count[0] * G``: the
-    launch does not depend on the count (a captured graph replays it), and no thread is spent past it."""
-    t = wp.tid() + row0  # band offset (foveawarp.parallel)
-    sp = spa[0]
+    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread k = i G + g (k below
+    ``count[0] * G``) traces rays [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes
+    how many were unoccluded to ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_ao` would
+    trace there: the pixel's random stream is advanced past the draws before it (the area-light samples', then
+    two per earlier ray)."""
+    k = wp.tid() + row0  # band offset (foveawarp.parallel)
     groups = ao_part.shape[1]
-    n = count[0] * groups
-    k = t
-    while k < n:
-        i = k // groups
-        g = k - i * groups
-        x, y = list_pixel(work[i], sp.width)
-        c = int(0)
-        if hit[y, x] != wp.uint8(0):
-            s0 = (g * sp.ao_samples) // groups
-            s1 = ((g + 1) * sp.ao_samples) // groups
-            if s1 > s0:
-                rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
-                for j in range(area_light_draws(sp, area_lights) + 2 * s0):
-                    wp.randf(rng)
-                p = pos[y, x]
-                nrm = normal[y, x]
-                for s in range(s0, s1):
-                    d = cosine_hemisphere(nrm, wp.randf(rng), wp.randf(rng))
-                    if visible(sp.mesh, p, nrm, sp.ray_eps, d, sp.ao_radius) > 0.0:
-                        c += 1
-        ao_part[i, g] = wp.uint8(c)
-        k += stride
+    if k >= count[0] * groups:
+        return
+    i = k // groups
+    g = k - i * groups
+    sp = spa[0]
+    x, y = list_pixel(work[i], sp.width)
+    c = int(0)
+    if hit[y, x] != wp.uint8(0):
+        s0 = (g * sp.ao_samples) // groups
+        s1 = ((g + 1) * sp.ao_samples) // groups
+        if s1 > s0:
+            rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
+            for j in range(area_light_draws(sp, area_lights) + 2 * s0):
+                wp.randf(rng)
+            p = pos[y, x]
+            n = normal[y, x]
+            for s in range(s0, s1):
+                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+                if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
+                    c += 1
+    ao_part[i, g] = wp.uint8(c)
 
 
 @wp.kernel(enable_backward=False)
@@ -409,23 +404,20 @@ def shade_list_ao_kernel(
     ao_part: wp.array2d(dtype=wp.uint8),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
-    stride: int,
     row0: int,
 ):
     """:func:`shade_list_kernel` with the AO rays already traced by :func:`shade_ao_list_kernel`: the unoccluded
-    count is the sum of ``ao_part[i, :]`` (a sum of ones in any order: the same value as tracing them here). The
-    same fixed grid of ``stride`` threads looping over the list."""
+    count is the sum of ``ao_part[i, :]`` (a sum of ones in any order: the same value as tracing them here)."""
     i = wp.tid() + row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
     sp = spa[0]
-    n = count[0]
-    while i < n:
-        x, y = list_pixel(work[i], sp.width)
-        c = int(0)
-        for g in range(ao_part.shape[1]):
-            c += int(ao_part[i, g])
-        shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
-                       out_stoch, float(c))
-        i += stride
+    x, y = list_pixel(work[i], sp.width)
+    c = int(0)
+    for g in range(ao_part.shape[1]):
+        c += int(ao_part[i, g])
+    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch,
+                   float(c))
 
 
 def _make_shade_masked(rows: bool):
