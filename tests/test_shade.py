@@ -261,3 +261,50 @@ def test_ao_lanes_trace_the_same_rays(device, ao, lanes):
         np.testing.assert_array_equal(flat(st)[pick], flat(full_st)[pick])
         rest = np.setdiff1d(np.arange(W * H), pick)
         assert np.all(flat(out)[rest] == -3.0)  # nothing written outside the list
+
+
+def _lights_scene(n_lights):
+    """A plane under two boxes lit by ``n_lights`` point and spot lights around and above them (some behind the
+    plane's back, some casting the boxes' shadows)."""
+    b = SceneBuilder()
+    b.add_quad((-5, 0, -5), (0, 0, 10), (10, 0, 0), (0.6, 0.5, 0.4))
+    b.add_box((0.3, 0.5, 0.0), (0.8, 1.0, 0.8), (0.5, 0.5, 0.5))
+    b.add_box((-1.0, 0.3, 0.6), (0.5, 0.6, 0.5), (0.4, 0.6, 0.5))
+    rng = np.random.default_rng(n_lights)
+    lights = []
+    for k in range(n_lights):
+        pos = (float(rng.uniform(-2, 2)), float(rng.uniform(-0.5, 3.0)), float(rng.uniform(-2, 2)))
+        lights.append(fw.Light(kind="spot" if k % 3 == 0 else "point", position=pos, direction=(0, -1, 0),
+                               cone_deg=50.0, intensity=(4.0, 3.5, 3.0), penumbra=0.2))
+    cam = fw.Camera(eye=(0.0, 4.0, 4.0), target=(0.0, 0.0, 0.0), fov_y_deg=60.0)
+    return b.build(lights=lights, camera=cam)
+
+
+@pytest.mark.parametrize("n_lights, shadows", [(3, True), (3, False), (34, True)])
+def test_traced_list_shadow_rays_equal_inline(device, n_lights, shadows):
+    """The list shading with its rays traced ahead (AO lanes plus one shadow-ray item per light, at most 32 of
+    them; the 33rd and later traced in the shading pass) equals one thread per pixel tracing them all, bit for
+    bit, and the full-frame shading at the listed pixels; the lights shadow part of the plane (a test that the
+    shadow answers matter)."""
+    scene = _lights_scene(n_lights)
+    cfg = fw.Config().with_(shading={"ao_samples": 4, "ao_lanes": 2, "shadows": shadows})
+    loop = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full")
+    one = fw.FrameLoop(scene, W, H, config=cfg.with_(shading={"ao_lanes": 1}), device=device, policy="full")
+    noshadow = fw.FrameLoop(scene, W, H, config=cfg.with_(shading={"shadows": False}), device=device, policy="full")
+    loop.render_reference(scene.camera)
+    one.render_reference(scene.camera)
+    noshadow.render_reference(scene.camera)
+    full = loop.radiance.numpy().copy()
+    if shadows:
+        assert (np.abs(full - noshadow.radiance.numpy()).max(axis=2) > 1e-3).mean() > 0.02
+    pick = np.flatnonzero(np.random.default_rng(5).random(W * H) < 0.4).astype(np.int32)
+    work = wp.array(pick, dtype=wp.int32, device=device)
+    count = wp.array([len(pick)], dtype=wp.int32, device=device)
+    res = []
+    for lp in (loop, one):
+        lp.frame_index = 0
+        out = wp.zeros((H, W), dtype=wp.vec3, device=device)
+        lp.shade_list(scene.camera, work, count, out)
+        res.append(out.numpy().reshape(-1, 3))
+    np.testing.assert_array_equal(res[0], res[1])
+    np.testing.assert_array_equal(res[0][pick], full.reshape(-1, 3)[pick])
