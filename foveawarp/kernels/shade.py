@@ -396,18 +396,31 @@ def shade_rays_list_kernel(
     rays: wp.array2d(dtype=wp.uint8),
     row0: int,
 ):
-    """The secondary rays of the list's pixels, ``m = rays.shape[1]`` threads per pixel: thread k = i m + j (k
-    below ``count[0] * m``) takes item j of pixel ``work[i]`` and writes its answer to ``rays[i, j]`` (0 on a
-    miss). Items j < ``groups``: AO rays [j S / groups, (j + 1) S / groups) (S = ``sp.ao_samples``), the answer how
-    many were unoccluded; each ray is the one :func:`shade_point_ao` would trace there (the pixel's random stream
-    advanced past the draws before it: the area-light samples', then two per earlier ray). Items j >= ``groups``:
-    the shadow ray of light j - groups (:func:`light_visible`), the answer 1 when it is unblocked."""
+    """The secondary rays of the list's pixels, ``m = rays.shape[1]`` items per pixel, a thread per item (threads
+    below ``count[0] * m``); item j of pixel ``work[i]`` writes its answer to ``rays[i, j]`` (0 on a miss). Items
+    j < ``groups``: AO rays [j S / groups, (j + 1) S / groups) (S = ``sp.ao_samples``), the answer how many were
+    unoccluded; each ray is the one :func:`shade_point_ao` would trace there (the pixel's random stream advanced
+    past the draws before it: the area-light samples', then two per earlier ray). Items j >= ``groups``: the
+    shadow ray of light j - groups (:func:`light_visible`), the answer 1 when it is unblocked.
+
+    Threads take every pixel's AO items first (thread i groups + j), then every pixel's light items: a warp runs
+    one kind of ray (a warp mixing them ran both traversals one after the other: city 1080p 3.40 against 2.31 ms
+    per frame, H100, aeb7420)."""
     k = wp.tid() + row0  # band offset (foveawarp.parallel)
     m = rays.shape[1]
-    if k >= count[0] * m:
+    npx = count[0]
+    if k >= npx * m:
         return
-    i = k // m
-    j = k - i * m
+    i = int(0)
+    j = int(0)
+    if k < npx * groups:
+        i = k // groups
+        j = k - i * groups
+    else:
+        q = k - npx * groups
+        nl = m - groups
+        i = q // nl
+        j = groups + (q - i * nl)
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     c = int(0)
