@@ -281,11 +281,10 @@ def _lights_scene(n_lights):
 
 
 @pytest.mark.parametrize("n_lights, shadows", [(3, True), (3, False), (34, True)])
-def test_traced_list_shadow_rays_equal_inline(device, n_lights, shadows):
-    """The list shading with its rays traced ahead (AO lanes plus one shadow-ray item per light, at most 32 of
-    them; the 33rd and later traced in the shading pass) equals one thread per pixel tracing them all, bit for
-    bit, and the full-frame shading at the listed pixels; the lights shadow part of the plane (a test that the
-    shadow answers matter)."""
+def test_ao_lanes_with_many_lights_equal_one_thread(device, n_lights, shadows):
+    """The list shading with its AO rays traced ahead in lanes equals one thread per pixel tracing every ray,
+    bit for bit, and the full-frame shading at the listed pixels, with 3 and 34 point and spot lights whose
+    shadows matter (checked against the same frame without shadows), shadows on and off."""
     scene = _lights_scene(n_lights)
     cfg = fw.Config().with_(shading={"ao_samples": 4, "ao_lanes": 2, "shadows": shadows})
     loop = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full")

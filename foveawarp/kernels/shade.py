@@ -85,15 +85,10 @@ def shade_point_ao(
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
     ao_unocc: float,
-    vis_known: int,
-    vis_bits: int,
 ):
     """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
     with AO rays, the occluded ambient term. ``ao_unocc`` < 0: the AO rays are traced here; else it is how many
-    of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_rays_list_kernel``: the same rays).
-    The shadow rays of the point and spot lights li < ``vis_known`` (at most 32) were traced beforehand by that
-    kernel (:func:`light_visible`, the same ray): bit li of ``vis_bits`` is the answer; the others are traced
-    here (``vis_known`` = 0: all of them)."""
+    of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the same rays)."""
     v = wp.normalize(sp.eye - p)
     diffuse = albedo / wp.pi
     col = wp.vec3(0.0, 0.0, 0.0)
@@ -111,10 +106,7 @@ def shade_point_ao(
                 if att > 0.0:
                     vis = 1.0
                     if sp.shadows != 0:
-                        if li < vis_known:
-                            vis = float((vis_bits >> li) & 1)
-                        else:
-                            vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
+                        vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
                     if vis > 0.0:
                         h = wp.normalize(wi + v)
                         spec = sp.specular * norm_spec * wp.pow(wp.max(wp.dot(n, h), 0.0), sp.shininess)
@@ -172,7 +164,7 @@ def shade_point_parts(
     face_emission: wp.array(dtype=wp.vec3),
 ):
     """:func:`shade_point_ao` with the AO rays traced here."""
-    return shade_point_ao(sp, pixel, p, n, albedo, face, lights, area_lights, face_emission, -1.0, 0, 0)
+    return shade_point_ao(sp, pixel, p, n, albedo, face, lights, area_lights, face_emission, -1.0)
 
 
 @wp.func
@@ -185,26 +177,6 @@ def area_light_draws(sp: ShadeParams, area_lights: wp.array(dtype=AreaLightParam
         if wp.length(wp.cross(a.edge_u, a.edge_v)) > 1.0e-30:
             k += 2 * sp.area_samples
     return k
-
-
-@wp.func
-def light_visible(sp: ShadeParams, l: LightParams, p: wp.vec3, n: wp.vec3) -> int:
-    """1 when the point or spot light ``l`` reaches surface point p unblocked, else 0: the shadow ray
-    :func:`shade_point_ao` traces for it, under the same tests on the same values (1 where it traces none: the
-    light behind the surface, outside its cone, or shadows off)."""
-    dl = l.position - p
-    dist2 = wp.dot(dl, dl)
-    r = int(1)
-    if sp.shadows != 0 and dist2 > 1.0e-30:
-        dist = wp.sqrt(dist2)
-        wi = dl / dist
-        cos_i = wp.dot(n, wi)
-        if cos_i > 0.0:
-            att = spot_factor(l, -wi)
-            if att > 0.0:
-                if visible(sp.mesh, p, n, sp.ray_eps, wi, dist) == 0.0:
-                    r = 0
-    return r
 
 
 @wp.func
@@ -240,19 +212,17 @@ def shade_pixel_ao(
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
     ao_unocc: float,
-    vis_known: int,
-    vis_bits: int,
 ):
     """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
-    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``, ``vis_known``,
-    ``vis_bits``: as in :func:`shade_point_ao`."""
+    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``: as in
+    :func:`shade_point_ao`."""
     if hit[y, x] == wp.uint8(0):
         out[y, x] = sp.background
         if sp.split_stochastic != 0:
             out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
     else:
         c, st = shade_point_ao(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                               area_lights, face_emission, ao_unocc, vis_known, vis_bits)
+                               area_lights, face_emission, ao_unocc)
         out[y, x] = c
         if sp.split_stochastic != 0:
             out_stoch[y, x] = st
@@ -274,9 +244,8 @@ def shade_pixel(
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
 ):
-    """:func:`shade_pixel_ao` with every ray traced here."""
-    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, -1.0,
-                   0, 0)
+    """:func:`shade_pixel_ao` with the AO rays traced here."""
+    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, -1.0)
 
 
 def _make_shade_full(mode: str):
@@ -377,74 +346,50 @@ def shade_list_kernel(
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
-# the rays of a list's pixels traced ahead of their shading, several threads per pixel (ShadeStage.list): per
-# pixel ``groups`` AO items, then one shadow-ray item per point or spot light (at most MAX_TRACED_LIGHTS)
-MAX_TRACED_LIGHTS = wp.constant(32)
-
-
 @wp.kernel(enable_backward=False)
-def shade_rays_list_kernel(
+def shade_ao_list_kernel(
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
     hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
-    groups: int,
-    rays: wp.array2d(dtype=wp.uint8),
+    ao_part: wp.array2d(dtype=wp.uint8),
     row0: int,
 ):
-    """The secondary rays of the list's pixels, ``m = rays.shape[1]`` items per pixel, a thread per item (threads
-    below ``count[0] * m``); item j of pixel ``work[i]`` writes its answer to ``rays[i, j]`` (0 on a miss). Items
-    j < ``groups``: AO rays [j S / groups, (j + 1) S / groups) (S = ``sp.ao_samples``), the answer how many were
-    unoccluded; each ray is the one :func:`shade_point_ao` would trace there (the pixel's random stream advanced
-    past the draws before it: the area-light samples', then two per earlier ray). Items j >= ``groups``: the
-    shadow ray of light j - groups (:func:`light_visible`), the answer 1 when it is unblocked.
-
-    Threads take every pixel's AO items first (thread i groups + j), then every pixel's light items: a warp runs
-    one kind of ray (a warp mixing them ran both traversals one after the other: city 1080p 3.40 against 2.31 ms
-    per frame, H100, aeb7420)."""
+    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread k = i G + g (k below
+    ``count[0] * G``) traces rays [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes
+    how many were unoccluded to ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_ao` would
+    trace there: the pixel's random stream is advanced past the draws before it (the area-light samples', then
+    two per earlier ray)."""
     k = wp.tid() + row0  # band offset (foveawarp.parallel)
-    m = rays.shape[1]
-    npx = count[0]
-    if k >= npx * m:
+    groups = ao_part.shape[1]
+    if k >= count[0] * groups:
         return
-    i = int(0)
-    j = int(0)
-    if k < npx * groups:
-        i = k // groups
-        j = k - i * groups
-    else:
-        q = k - npx * groups
-        nl = m - groups
-        i = q // nl
-        j = groups + (q - i * nl)
+    i = k // groups
+    g = k - i * groups
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     c = int(0)
     if hit[y, x] != wp.uint8(0):
-        p = pos[y, x]
-        n = normal[y, x]
-        if j < groups:
-            s0 = (j * sp.ao_samples) // groups
-            s1 = ((j + 1) * sp.ao_samples) // groups
-            if s1 > s0:
-                rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
-                for r in range(area_light_draws(sp, area_lights) + 2 * s0):
-                    wp.randf(rng)
-                for s in range(s0, s1):
-                    d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
-                    if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
-                        c += 1
-        else:
-            c = light_visible(sp, lights[j - groups], p, n)
-    rays[i, j] = wp.uint8(c)
+        s0 = (g * sp.ao_samples) // groups
+        s1 = ((g + 1) * sp.ao_samples) // groups
+        if s1 > s0:
+            rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
+            for j in range(area_light_draws(sp, area_lights) + 2 * s0):
+                wp.randf(rng)
+            p = pos[y, x]
+            n = normal[y, x]
+            for s in range(s0, s1):
+                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+                if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
+                    c += 1
+    ao_part[i, g] = wp.uint8(c)
 
 
 @wp.kernel(enable_backward=False)
-def shade_list_traced_kernel(
+def shade_list_ao_kernel(
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
@@ -456,29 +401,23 @@ def shade_list_traced_kernel(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
-    groups: int,
-    rays: wp.array2d(dtype=wp.uint8),
+    ao_part: wp.array2d(dtype=wp.uint8),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """:func:`shade_list_kernel` with the rays traced by :func:`shade_rays_list_kernel`: the unoccluded AO count
-    is the sum of ``rays[i, :groups]`` (a sum of ones in any order: the same value as tracing them here), light
-    li's visibility is ``rays[i, groups + li]``; the area-light samples are traced here."""
+    """:func:`shade_list_kernel` with the AO rays already traced by :func:`shade_ao_list_kernel`: the unoccluded
+    count is the sum of ``ao_part[i, :]`` (a sum of ones in any order: the same value as tracing them here)."""
     i = wp.tid() + row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     c = int(0)
-    for j in range(groups):
-        c += int(rays[i, j])
-    known = rays.shape[1] - groups
-    bits = int(0)
-    for li in range(known):
-        bits = bits | (int(rays[i, groups + li]) << li)
+    for g in range(ao_part.shape[1]):
+        c += int(ao_part[i, g])
     shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch,
-                   float(c), known, bits)
+                   float(c))
 
 
 def _make_shade_masked(rows: bool):

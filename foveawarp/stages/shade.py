@@ -15,11 +15,10 @@ from ..kernels.shade import (
     set_shade_params_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
-    MAX_TRACED_LIGHTS,
+    shade_ao_list_kernel,
     shade_full_tiles_kernel,
+    shade_list_ao_kernel,
     shade_list_kernel,
-    shade_list_traced_kernel,
-    shade_rays_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
     shade_rows_kernel,
@@ -47,7 +46,7 @@ class ShadeStage:
         self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
         self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
         self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
-        self._rays = None  # (list capacity, lanes + lights) uint8: ``list``'s ray answers per pixel and item
+        self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -143,9 +142,8 @@ class ShadeStage:
 
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
         """The flat pixel indices ``work[0:count[0]]`` (count read on the device). With ``ao_lanes()`` >= 2 the
-        secondary rays are traced first, several threads per pixel: that many for the AO rays
-        (``ShadingConfig.ao_lanes``) and one per point or spot light for its shadow ray; then the pixels are
-        shaded with the answers. The same values as one thread per pixel tracing them all."""
+        AO rays are traced first, that many threads per pixel (``ShadingConfig.ao_lanes``), then the pixels
+        shaded with their counts: the same values."""
         lanes = self.ao_lanes()
         blocks = self._list_blocks()
         if lanes < 2:
@@ -154,17 +152,14 @@ class ShadeStage:
                             device=self.device, count=count, max_blocks=blocks)
             return
         n = int(work.shape[0])
-        lights = min(int(self.dscene.num_lights), int(MAX_TRACED_LIGHTS)) if self.config.shadows else 0
-        m = lanes + lights
-        if self._rays is None or tuple(self._rays.shape) != (n, m):
-            self._rays = wp.zeros((n, m), dtype=wp.uint8, device=self.device)
-        g, ds = gbuffer, self.dscene
-        parallel.launch(shade_rays_list_kernel, dim=n * m,
-                        inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, ds.lights, ds.area_lights,
-                                lanes],
-                        outputs=[self._rays], device=self.device, count=count, per_count=m, max_blocks=blocks)
-        parallel.launch(shade_list_traced_kernel, dim=n,
-                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer), lanes, self._rays],
+        if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
+            self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
+        g = gbuffer
+        parallel.launch(shade_ao_list_kernel, dim=n * lanes,
+                        inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, self.dscene.area_lights],
+                        outputs=[self._ao_part], device=self.device, count=count, per_count=lanes, max_blocks=blocks)
+        parallel.launch(shade_list_ao_kernel, dim=n,
+                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer), self._ao_part],
                         outputs=[out, out_stoch], device=self.device, count=count, max_blocks=blocks)
 
     def _list_blocks(self) -> int:
