@@ -74,7 +74,7 @@ def spot_factor(l: LightParams, to_point: wp.vec3) -> float:
 
 
 @wp.func
-def shade_point_ao(
+def shade_point_parts(
     sp: ShadeParams,
     pixel: int,
     p: wp.vec3,
@@ -84,11 +84,12 @@ def shade_point_ao(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
-    ao_unocc: float,
+    ao_unocc: float = -1.0,
 ):
     """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
-    with AO rays, the occluded ambient term. ``ao_unocc`` < 0: the AO rays are traced here; else it is how many
-    of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the same rays)."""
+    with AO rays, the occluded ambient term. ``ao_unocc`` < 0 (the default): the AO rays are traced here; else it
+    is how many of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the
+    same rays)."""
     v = wp.normalize(sp.eye - p)
     diffuse = albedo / wp.pi
     col = wp.vec3(0.0, 0.0, 0.0)
@@ -152,24 +153,8 @@ def shade_point_ao(
 
 
 @wp.func
-def shade_point_parts(
-    sp: ShadeParams,
-    pixel: int,
-    p: wp.vec3,
-    n: wp.vec3,
-    albedo: wp.vec3,
-    face: int,
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-):
-    """:func:`shade_point_ao` with the AO rays traced here."""
-    return shade_point_ao(sp, pixel, p, n, albedo, face, lights, area_lights, face_emission, -1.0)
-
-
-@wp.func
 def area_light_draws(sp: ShadeParams, area_lights: wp.array(dtype=AreaLightParams)) -> int:
-    """How many random numbers :func:`shade_point_ao` draws from the pixel's stream before its AO rays: two per
+    """How many random numbers :func:`shade_point_parts` draws from the pixel's stream before its AO rays: two per
     sample of each area light of non-zero area (the same test as there, on the same values)."""
     k = int(0)
     for ai in range(sp.num_area_lights):
@@ -197,38 +182,6 @@ def shade_point(
 
 
 @wp.func
-def shade_pixel_ao(
-    sp: ShadeParams,
-    x: int,
-    y: int,
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    ao_unocc: float,
-):
-    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
-    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``: as in
-    :func:`shade_point_ao`."""
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
-    else:
-        c, st = shade_point_ao(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                               area_lights, face_emission, ao_unocc)
-        out[y, x] = c
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = st
-
-
-@wp.func
 def shade_pixel(
     sp: ShadeParams,
     x: int,
@@ -243,9 +196,21 @@ def shade_pixel(
     face_emission: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
+    ao_unocc: float = -1.0,
 ):
-    """:func:`shade_pixel_ao` with the AO rays traced here."""
-    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, -1.0)
+    """Write the shaded radiance of G-buffer pixel (x, y) to out[y, x] (the background on a miss) and, with
+    ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``: as in
+    :func:`shade_point_parts`."""
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+    else:
+        c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
+                                  area_lights, face_emission, ao_unocc)
+        out[y, x] = c
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = st
 
 
 def _make_shade_full(mode: str):
@@ -360,7 +325,7 @@ def shade_ao_list_kernel(
 ):
     """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread k = i G + g (k below
     ``count[0] * G``) traces rays [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes
-    how many were unoccluded to ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_ao` would
+    how many were unoccluded to ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_parts` would
     trace there: the pixel's random stream is advanced past the draws before it (the area-light samples', then
     two per earlier ray)."""
     k = wp.tid() + row0  # band offset (foveawarp.parallel)
@@ -416,8 +381,7 @@ def shade_list_ao_kernel(
     c = int(0)
     for g in range(ao_part.shape[1]):
         c += int(ao_part[i, g])
-    shade_pixel_ao(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch,
-                   float(c))
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, float(c))
 
 
 def _make_shade_masked(rows: bool):
