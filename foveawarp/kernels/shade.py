@@ -297,18 +297,29 @@ def shade_list_kernel(
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
     face_emission: wp.array(dtype=wp.vec3),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    lanes: int,
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y)."""
+    """Shade the flat pixel indices work[0:count[0]]; each result lands at its own (x, y). ``lanes`` > 0: the AO
+    rays were traced by :func:`shade_ao_list_kernel`, and the unoccluded count is the sum of ``ao_part[i, :lanes]``
+    (a sum of ones in any order: the same value as tracing them here); 0: they are traced here (``ao_part`` is
+    not read)."""
     i = wp.tid()
     i += row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+    ao = float(-1.0)
+    if lanes > 0:
+        c = int(0)
+        for g in range(lanes):
+            c += int(ao_part[i, g])
+        ao = float(c)
+    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
 
 
 @wp.kernel(enable_backward=False)
@@ -351,37 +362,6 @@ def shade_ao_list_kernel(
                 if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
                     c += 1
     ao_part[i, g] = wp.uint8(c)
-
-
-@wp.kernel(enable_backward=False)
-def shade_list_ao_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    work: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
-    face: wp.array2d(dtype=wp.int32),
-    hit: wp.array2d(dtype=wp.uint8),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    ao_part: wp.array2d(dtype=wp.uint8),
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """:func:`shade_list_kernel` with the AO rays already traced by :func:`shade_ao_list_kernel`: the unoccluded
-    count is the sum of ``ao_part[i, :]`` (a sum of ones in any order: the same value as tracing them here)."""
-    i = wp.tid() + row0  # band offset (foveawarp.parallel)
-    if i >= count[0]:
-        return
-    sp = spa[0]
-    x, y = list_pixel(work[i], sp.width)
-    c = int(0)
-    for g in range(ao_part.shape[1]):
-        c += int(ao_part[i, g])
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, float(c))
 
 
 def _make_shade_masked(rows: bool):

@@ -17,7 +17,6 @@ from ..kernels.shade import (
     shade_full_rows_kernel,
     shade_ao_list_kernel,
     shade_full_tiles_kernel,
-    shade_list_ao_kernel,
     shade_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
@@ -47,6 +46,7 @@ class ShadeStage:
         self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
         self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
         self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
+        self._no_part = wp.zeros((1, 1), dtype=wp.uint8, device=device)  # ``list`` without AO lanes (not read)
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -146,20 +146,20 @@ class ShadeStage:
         shaded with their counts: the same values."""
         lanes = self.ao_lanes()
         blocks = self._list_blocks()
-        if lanes < 2:
-            parallel.launch(shade_list_kernel, dim=work.shape[0],
-                            inputs=[self.params_dev, work, count, *self.inputs(gbuffer)], outputs=[out, out_stoch],
-                            device=self.device, count=count, max_blocks=blocks)
-            return
         n = int(work.shape[0])
-        if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
-            self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
-        g = gbuffer
-        parallel.launch(shade_ao_list_kernel, dim=n * lanes,
-                        inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, self.dscene.area_lights],
-                        outputs=[self._ao_part], device=self.device, count=count, per_count=lanes, max_blocks=blocks)
-        parallel.launch(shade_list_ao_kernel, dim=n,
-                        inputs=[self.params_dev, work, count, *self.inputs(gbuffer), self._ao_part],
+        if lanes >= 2:
+            if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
+                self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
+            part = self._ao_part
+            g = gbuffer
+            parallel.launch(shade_ao_list_kernel, dim=n * lanes,
+                            inputs=[self.params_dev, work, count, g.position, g.normal, g.hit,
+                                    self.dscene.area_lights],
+                            outputs=[part], device=self.device, count=count, per_count=lanes, max_blocks=blocks)
+        else:
+            lanes, part = 0, self._no_part
+        parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer), part,
+                                                          lanes],
                         outputs=[out, out_stoch], device=self.device, count=count, max_blocks=blocks)
 
     def _list_blocks(self) -> int:
