@@ -41,3 +41,25 @@ def test_every_kernel_module_compiles_for_cuda(tmp_path):
     for name, mod in mods.items():
         out = wp.compile_aot_module(mod, arch=90, module_dir=str(tmp_path), use_ptx=True)
         assert out, name
+
+
+def test_shading_register_caps_reach_the_cubin(tmp_path):
+    """The CUDA register caps of the shading kernels (kernels/shade.py, as measured on the H100) are in the
+    compiled sm_90 code: the AO full-frame twin and the list's AO pass at most 64 registers, the other full-frame
+    shading at most 80; the uncapped list shading above 80 (the cap is what lowers the others)."""
+    from benchmarks.cuda_registers import cubin_kernels
+
+    import foveawarp.kernels.shade as sh
+
+    try:
+        paths = wp.compile_aot_module(sh.shade_list_kernel.module, arch=90, module_dir=str(tmp_path), use_ptx=False)
+    except Exception as e:
+        pytest.skip(f"this Warp build cannot compile CUDA cubins without a GPU: {e}")
+    regs = {}
+    for p in paths:
+        for k, v in cubin_kernels(p).items():
+            regs[k.rsplit("_", 1)[0]] = v["registers"]
+    assert 0 < regs["shade_full_tiles_ao_kernel"] <= 64
+    assert 0 < regs["shade_ao_list_kernel"] <= 64
+    assert 64 < regs["shade_full_tiles_kernel"] <= 80
+    assert regs["shade_list_kernel"] > 80

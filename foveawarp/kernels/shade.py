@@ -213,14 +213,17 @@ def shade_pixel(
             out_stoch[y, x] = st
 
 
-def _make_shade_full(mode: str):
+def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
     """``shade_full_kernel`` (mode "pixels": a thread per pixel), ``shade_full_rows_kernel`` ("rows": a thread per
     image row looping over its pixels, the CPU: ``parallel.launch_rows``) or ``shade_full_tiles_kernel`` ("tiles":
-    a thread per pixel, each warp on a block of pixels, CUDA: ``kernels/order.py``): one signature, one body."""
+    a thread per pixel, each warp on a block of pixels, CUDA: ``kernels/order.py``): one signature, one body.
+    ``max_registers``: the CUDA register cap (``cuda_max_registers``; None: the compiler's choice); ``suffix``
+    goes into the kernel's name (``shade_full_tiles_ao_kernel``: the capped twin for AO shading, see below)."""
     rows = mode == "rows"
     tiles = mode == "tiles"
 
-    @wp.kernel(enable_backward=False, name=f"shade_full_{mode}_kernel" if mode != "pixels" else "shade_full_kernel")
+    @wp.kernel(enable_backward=False, cuda_max_registers=max_registers,
+               name=f"shade_full_{mode}{suffix}_kernel" if mode != "pixels" else "shade_full_kernel")
     def shade_full(
         spa: wp.array(dtype=ShadeParams),
         pos: wp.array2d(dtype=wp.vec3),
@@ -272,9 +275,17 @@ def _make_shade_full(mode: str):
     return shade_full
 
 
+# Register caps of the CUDA full-frame shading (H100, 01a17ff, ``regcaps-e3-01a17ff-cuda.json``: the kernels alone
+# on frames of bunny, spot, city and cornell at 1080p and 4K). Uncapped the compiler gave it 128 registers: two
+# 256-thread blocks per SM, too few warps to hide the BVH traversals' memory latency. With 8 AO rays a 64-register
+# cap (4 blocks) took 20-28% off every scene (bunny 4K 11.65 -> 8.46 ms, city 4K 18.10 -> 13.02, cornell 4K 2.67
+# -> 2.23); with default shading 80 registers (3 blocks) took 5-23% off bunny, spot and city (bunny 4K 0.85 ->
+# 0.74 ms, city 4K 1.52 -> 1.26) and added 3-4% on cornell, while 64 added 20-23% there. So the AO shading
+# launches its own twin, capped at 64, and the other shading the kernel capped at 80.
 shade_full_kernel = _make_shade_full("pixels")
 shade_full_rows_kernel = _make_shade_full("rows")
-shade_full_tiles_kernel = _make_shade_full("tiles")
+shade_full_tiles_kernel = _make_shade_full("tiles", max_registers=80)
+shade_full_tiles_ao_kernel = _make_shade_full("tiles", max_registers=64, suffix="_ao")
 
 
 @wp.func
@@ -322,7 +333,10 @@ def shade_list_kernel(
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
 
 
-@wp.kernel(enable_backward=False)
+# 64 registers (4 blocks per SM) instead of the compiler's 77 (3): 3-12% faster on bunny, spot and city at 1080p
+# and 4K (city 1080p 1.12 -> 0.98 ms), equal on cornell (regcaps-e3-01a17ff-cuda.json). The list shading after it
+# stays uncapped: every cap tried (80, 64, 48) slowed it on bunny, spot and cornell.
+@wp.kernel(enable_backward=False, cuda_max_registers=64)
 def shade_ao_list_kernel(
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),

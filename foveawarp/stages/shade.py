@@ -118,8 +118,9 @@ class ShadeStage:
                     outputs=[out, out_stoch, disp, 0 if wlog2 is None else wlog2], device=self.device)
         if wlog2 is not None and not parallel.use_row_kernels(self.device):
             # CUDA: each warp on a block of pixels (kernels/order.py)
-            parallel.launch(shade_full_tiles_kernel, tile_order_threads(self.height, self.width, self.order_width),
-                            **args)
+            # with AO rays the twin capped at 64 registers (kernels/shade.py: the caps as measured)
+            kernel = shade_full_tiles_ao_kernel if self._ao_samples > 0 else shade_full_tiles_kernel
+            parallel.launch(kernel, tile_order_threads(self.height, self.width, self.order_width), **args)
         else:
             parallel.launch_rows(shade_full_kernel, shade_full_rows_kernel, (self.height, self.width), **args)
 
