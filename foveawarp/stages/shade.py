@@ -16,6 +16,7 @@ from ..kernels.shade import (
     shade_full_kernel,
     shade_full_rows_kernel,
     shade_ao_list_kernel,
+    shade_full_tiles_ao_kernel,
     shade_full_tiles_kernel,
     shade_list_kernel,
     shade_masked_kernel,
