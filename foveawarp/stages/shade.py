@@ -13,9 +13,9 @@ from .._util import check_order_width, tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
+    shade_ao_list_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
-    shade_ao_list_kernel,
     shade_full_tiles_ao_kernel,
     shade_full_tiles_kernel,
     shade_list_kernel,
