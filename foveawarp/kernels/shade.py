@@ -278,8 +278,8 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
 # Register caps of the CUDA full-frame shading (H100, 01a17ff, ``regcaps-e3-01a17ff-cuda.json``: the kernels alone
 # on frames of bunny, spot, city and cornell at 1080p and 4K). Uncapped the compiler gave it 128 registers: two
 # 256-thread blocks per SM, too few warps to hide the BVH traversals' memory latency. With 8 AO rays a 64-register
-# cap (4 blocks) took 20-28% off every scene (bunny 4K 11.65 -> 8.46 ms, city 4K 18.10 -> 13.02, cornell 4K 2.67
-# -> 2.23); with default shading 80 registers (3 blocks) took 5-23% off bunny, spot and city (bunny 4K 0.85 ->
+# cap (4 blocks) took 15-28% off every scene (bunny 4K 11.65 -> 8.46 ms, city 4K 18.10 -> 13.02, cornell 4K 2.67
+# -> 2.23); with default shading 80 registers (3 blocks) took 5-18% off bunny, spot and city (bunny 4K 0.85 ->
 # 0.74 ms, city 4K 1.52 -> 1.26) and added 3-4% on cornell, while 64 added 20-23% there. So the AO shading
 # launches its own twin, capped at 64, and the other shading the kernel capped at 80.
 shade_full_kernel = _make_shade_full("pixels")
@@ -334,8 +334,9 @@ def shade_list_kernel(
 
 
 # 64 registers (4 blocks per SM) instead of the compiler's 77 (3): 3-12% faster on bunny, spot and city at 1080p
-# and 4K (city 1080p 1.12 -> 0.98 ms), equal on cornell (regcaps-e3-01a17ff-cuda.json). The list shading after it
-# stays uncapped: every cap tried (80, 64, 48) slowed it on bunny, spot and cornell.
+# and 4K (city 1080p 1.12 -> 0.98 ms), equal on cornell (regcaps-e3-01a17ff-cuda.json); on the eyechart, earth and
+# teapot -9% to +1% (regcaps-e5-c06862d-cuda.json). The list shading after it stays uncapped: every cap tried (80,
+# 64, 48) slowed it on bunny, spot and cornell.
 @wp.kernel(enable_backward=False, cuda_max_registers=64)
 def shade_ao_list_kernel(
     spa: wp.array(dtype=ShadeParams),
