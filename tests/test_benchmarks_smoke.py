@@ -267,3 +267,25 @@ def test_frame_quick(tmp_path):
                               "--scenes", "cornell", "--out", str(tmp_path / "bad"), *bad_args],
                              capture_output=True, text=True, cwd=REPO, timeout=120)
         assert bad.returncode != 0 and name in bad.stderr, bad.stderr
+
+
+def test_list_shading_quick(tmp_path):
+    """benchmarks/list_shading.py: the list study (thinned, uniform and all-surface lists next to the foveated one)
+    and the register-cap study (every variant's output checked equal to the uncapped kernel's, in the script)."""
+    _run([str(REPO / "benchmarks" / "list_shading.py"), "--quick", "--device", "cpu", "--scenes", "cornell"],
+         tmp_path)
+    res = json.loads((tmp_path / "list-shading-cpu.json").read_text())
+    assert res["benchmark"] == "list-shading" and res["commit"]
+    kinds = [r["kind"] for r in res["records"]]
+    assert kinds == ["lists", "caps", "caps"]
+    lists, ao, default = res["records"]
+    assert 0 < lists["n_list"] < lists["n_px"] and lists["n_hit"] <= lists["n_px"] and lists["lanes"] == 4
+    assert all(lists[k] > 0 for k in ("fov_list_ms", "fov_every2_ms", "fov_every4_ms", "uniform_list_ms",
+                                      "all_hits_list_ms", "full_ms"))
+    assert (ao["shading"], default["shading"]) == ("ao8", "default")
+    assert sum(k.startswith("shade_ao_list_kernel_") for k in ao) == 4
+    assert not any(k.startswith("shade_ao_list_kernel_") for k in default)
+    assert sum(k.startswith("shade_full_tiles_kernel_") for k in default) == 4
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "list_shading.py"), "--quick", "--device", "cpu",
+                        "--parts", "bogus"], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode != 0 and "--parts items must be in [lists, caps], got 'bogus'" in r.stderr
