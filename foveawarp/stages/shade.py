@@ -149,6 +149,8 @@ class ShadeStage:
         lanes = self.ao_lanes()
         blocks = self._list_blocks()
         n = int(work.shape[0])
+        if n * lanes > 2**31 - 1:
+            lanes = 1  # the lane launch's thread index is a 32-bit int: one thread per pixel (same values)
         if lanes >= 2:
             if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
                 self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
