@@ -23,7 +23,6 @@ work between the launches of one timed call.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
+from benchmarks._common import base_parser, git_commit, md_table, time_ms, write_results  # noqa: E402
 from benchmarks.frame import gaze_path  # noqa: E402
 
 CAPS = {"shade_ao_list_kernel": ("nocap", 64, 56, 48), "shade_list_kernel": ("nocap", 80, 64, 48),
@@ -40,18 +39,14 @@ CAPS = {"shade_ao_list_kernel": ("nocap", 64, 56, 48), "shade_list_kernel": ("no
 
 
 def _timer(dev, repeats: int, inner: int, warmup: int):
+    """ms per launch: ``time_ms`` (synchronized, median of ``repeats``) over calls of ``inner`` launches each."""
+
     def t_ms(fn) -> float:
-        for _ in range(warmup):
-            fn()
-        wp.synchronize_device(dev)
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
+        def many():
             for _ in range(inner):
                 fn()
-            wp.synchronize_device(dev)
-            ts.append((time.perf_counter() - t0) * 1e3 / inner)
-        return float(np.median(ts))
+
+        return time_ms(many, dev, repeats, warmup)["median_ms"] / inner
 
     return t_ms
 
