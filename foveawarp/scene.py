@@ -390,6 +390,10 @@ class DeviceScene:
         self.face_emission = wp.array(scene.face_emission, dtype=wp.vec3, device=dev)
         vn = scene.vertex_normals if scene.vertex_normals is not None else np.zeros_like(scene.vertices)
         self.vertex_normals = wp.array(vn, dtype=wp.vec3, device=dev)
+        # rest positions and normals of the animated scene: set_time moves them on the device (kernels/motion.py)
+        self._rest_points = wp.array(scene.vertices, dtype=wp.vec3, device=dev) if self.animated else None
+        self._rest_normals = (wp.array(vn, dtype=wp.vec3, device=dev)
+                              if self.animated and scene.vertex_normals is not None else None)
         self.face_smooth = wp.array(scene.face_smooth, dtype=wp.uint8, device=dev)
         lights = [light_params(l) for l in scene.lights]
         self.num_lights = len(lights)
@@ -427,15 +431,11 @@ class DeviceScene:
             if self.time is None:
                 self.time = t
             return False
-        wp.copy(self.points_prev, self.points)
         if self.time is not None and t == self.time:
+            wp.copy(self.points_prev, self.points)
             self.moved_last_update = False
             return False
-        v = self.scene.vertices_at(t)
-        self.points.assign(v)
-        n = self.scene.normals_at(t)
-        if n is not None:
-            self.vertex_normals.assign(n)
+        self._move_objects(t)  # points_prev = the positions before
         self.mesh.refit()
         first = self.time is None
         self.time = t
@@ -443,6 +443,26 @@ class DeviceScene:
             wp.copy(self.points_prev, self.points)
         self.moved_last_update = not first
         return self.moved_last_update
+
+    def _move_objects(self, t: float) -> None:
+        """The current positions to ``points_prev``, then each moving object's vertices (and vertex normals) to
+        time ``t`` on the device: the values of ``Scene.vertices_at`` / ``normals_at`` (float64 arithmetic
+        rounded to float32; tests compare), with one 4x4 matrix per moving object as the only data from the host.
+        Every motion is evaluated (and checked) before anything is written; objects are moved in their order, so
+        a vertex in two moving objects' ranges takes the later one's motion, as on the host."""
+        import warp as wp
+
+        from .kernels.motion import rigid_motion_kernel
+        from .parallel import launch
+
+        moves = [(o.vertex_range, wp.mat44d(*np.asarray(o.transform_at(t), dtype=np.float64).reshape(-1)))
+                 for o in self.scene.objects if o.motion is not None]
+        wp.copy(self.points_prev, self.points)
+        normals = self._rest_normals is not None
+        for (a, b), m in moves:
+            launch(rigid_motion_kernel, b - a,
+                   inputs=[m, a, self._rest_points, self._rest_normals if normals else self._rest_points,
+                           int(normals), self.points, self.vertex_normals], device=self.device)
 
     def reset_history(self) -> None:
         """Make the previous positions equal to the current ones (after a cut)."""

@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import foveawarp as fw
 
@@ -107,3 +109,97 @@ def test_bad_config_fields():
         fw.FrameLoop("cornell", 8, 8, config={"block": 4}, device="cpu")
     cfg = fw.Config().with_(foveation={"block": 8})
     assert cfg.foveation.block == 8 and cfg.foveation.effective_min_probability >= 1 / 64
+
+
+# -- rigid motion on the device (DeviceScene.set_time, kernels/motion.py) ----------------------------------------
+
+def _f32_ulps(a, b):
+    """Per-element distance in float32 units in the last place (a, b float32 arrays of one shape)."""
+    ia = np.asarray(a, np.float32).view(np.int32).astype(np.int64)
+    ib = np.asarray(b, np.float32).view(np.int32).astype(np.int64)
+    ia = np.where(ia < 0, np.int64(-(2 ** 31)) - ia, ia)  # sign-magnitude to a monotonic integer line
+    ib = np.where(ib < 0, np.int64(-(2 ** 31)) - ib, ib)
+    return np.abs(ia - ib)
+
+
+def _check_device_motion(scene, times):
+    """DeviceScene.set_time against the host's Scene.vertices_at / normals_at (NumPy float64, rounded): every
+    position and normal within one float32 ulp, previous positions = the positions of the time before."""
+    ds = fw.DeviceScene(scene, device="cpu")
+    prev = None
+    exact = total = 0
+    for t in times:
+        ds.set_time(t)
+        p = ds.points.numpy().copy()  # on the CPU device numpy() is a view of the live array
+        want = scene.vertices_at(t)
+        assert _f32_ulps(p, want).max() <= 1, t
+        exact += int((p == want).sum())
+        total += p.size
+        if scene.vertex_normals is not None:
+            assert _f32_ulps(ds.vertex_normals.numpy(), scene.normals_at(t)).max() <= 1, t
+        np.testing.assert_array_equal(ds.points_prev.numpy(), p if prev is None else prev)
+        prev = p
+    return exact / total
+
+
+@pytest.mark.parametrize("name, kw", [("earth", {}), ("cornell", {"motion": True})])
+def test_device_motion_matches_host(name, kw):
+    """earth spins (rotation, smooth normals), cornell's short block slides (translation)."""
+    scene = fw.load_scene(name, **kw)
+    assert scene.is_animated
+    frac = _check_device_motion(scene, [0.0, 0.25, 0.25, 1.7, -3.0, 40.0])
+    assert frac > 0.999  # rounding the same float64 values: all but a rare tie-breaking ulp are equal
+
+
+def test_device_motion_overlap_order_and_errors():
+    """Two moving objects over one vertex: the later one's motion wins, as on the host; static vertices stay at
+    rest. A motion that fails leaves the device state untouched (all motions are evaluated first)."""
+    from foveawarp.scene import SceneObject
+
+    rng = np.random.default_rng(3)
+    v = rng.uniform(-5.0, 5.0, (12, 3)).astype(np.float32)
+    f = np.arange(12, dtype=np.int32).reshape(4, 3)
+    calls = {"bad": False}
+
+    def rot(t):
+        c, s = np.cos(t), np.sin(t)
+        return np.array([[c, -s, 0, 1.5 * t], [s, c, 0, 0], [0, 0, 1, -t], [0, 0, 0, 1]])
+
+    def shift(t):
+        if calls["bad"]:
+            return np.full((4, 4), np.nan)
+        return np.array([[1, 0, 0, 0], [0, 1, 0, t], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+    objs = [SceneObject("a", (0, 6), rot), SceneObject("b", (4, 9), shift), SceneObject("still", (9, 12))]
+    scene = fw.Scene(v, f, (0.5, 0.5, 0.5), objects=objs)
+    _check_device_motion(scene, [0.0, 0.3, 1.1])
+    ds = fw.DeviceScene(scene, device="cpu")
+    ds.set_time(0.5)
+    np.testing.assert_array_equal(ds.points.numpy()[9:], v[9:])
+    before = ds.points.numpy().copy(), ds.points_prev.numpy().copy()
+    calls["bad"] = True
+    with pytest.raises(ValueError, match="motion"):
+        ds.set_time(0.9)
+    np.testing.assert_array_equal(ds.points.numpy(), before[0])
+    np.testing.assert_array_equal(ds.points_prev.numpy(), before[1])
+
+
+@settings(max_examples=25, deadline=None)
+@given(angles=st.tuples(*[st.floats(-10.0, 10.0)] * 3), trans=st.tuples(*[st.floats(-1e4, 1e4)] * 3),
+       scale=st.sampled_from([1e-6, 1.0, 1e5]), seed=st.integers(0, 2 ** 16))
+def test_device_motion_any_rigid_transform(angles, trans, scale, seed):
+    """Any rotation and translation, vertices from tiny to huge: within one float32 ulp of the host's values."""
+    from foveawarp.scene import SceneObject
+
+    a, b, c = angles
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    m = np.eye(4)
+    m[:3, :3] = rz @ ry @ rx
+    m[:3, 3] = trans
+    v = (np.random.default_rng(seed).standard_normal((9, 3)) * scale).astype(np.float32)
+    n = np.random.default_rng(seed + 1).standard_normal((9, 3)).astype(np.float32)
+    scene = fw.Scene(v, np.arange(9, dtype=np.int32).reshape(3, 3), (0.5, 0.5, 0.5), vertex_normals=n,
+                     objects=[SceneObject("o", (0, 9), lambda t: m if t else np.eye(4))])
+    _check_device_motion(scene, [0.0, 1.0])
