@@ -122,10 +122,10 @@ def _f32_ulps(a, b):
     return np.abs(ia - ib)
 
 
-def _check_device_motion(scene, times):
+def _check_device_motion(scene, times, device="cpu"):
     """DeviceScene.set_time against the host's Scene.vertices_at / normals_at (NumPy float64, rounded): every
     position and normal within one float32 ulp, previous positions = the positions of the time before."""
-    ds = fw.DeviceScene(scene, device="cpu")
+    ds = fw.DeviceScene(scene, device=device)
     prev = None
     exact = total = 0
     for t in times:
@@ -143,11 +143,12 @@ def _check_device_motion(scene, times):
 
 
 @pytest.mark.parametrize("name, kw", [("earth", {}), ("cornell", {"motion": True})])
-def test_device_motion_matches_host(name, kw):
-    """earth spins (rotation, smooth normals), cornell's short block slides (translation)."""
+def test_device_motion_matches_host(name, kw, device):
+    """earth spins (rotation, smooth normals), cornell's short block slides (translation); on every test device
+    (CUDA's float64 arithmetic too)."""
     scene = fw.load_scene(name, **kw)
     assert scene.is_animated
-    frac = _check_device_motion(scene, [0.0, 0.25, 0.25, 1.7, -3.0, 40.0])
+    frac = _check_device_motion(scene, [0.0, 0.25, 0.25, 1.7, -3.0, 40.0], device)
     assert frac > 0.999  # rounding the same float64 values: all but a rare tie-breaking ulp are equal
 
 
