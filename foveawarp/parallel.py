@@ -305,7 +305,7 @@ def _check_kernel(kernel) -> None:
 
 def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
            threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None, per_count: int = 1,
-           max_blocks: int = 0) -> None:
+           max_blocks: int = 0, stream=None) -> None:
     """Launch ``kernel`` (last argument ``row0: int``) over ``dim``; on the CPU split ``dim[0]`` into bands
     run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
 
@@ -315,11 +315,15 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     is launched. ``per_count``: launch rows per live entry (a list launch with that many threads per entry: the
     CPU splits the first ``count[0] * per_count`` rows). ``max_blocks`` (CUDA; 0: no limit): at most this many
     thread blocks, each thread stepping over the ``dim`` indices a grid apart (``wp.launch(max_blocks=...)``): a
-    capacity-sized list launch then costs its threads past the count a few instructions each, not a block each."""
+    capacity-sized list launch then costs its threads past the count a few instructions each, not a block each.
+    ``stream`` (CUDA; None: the device's current stream): the ``wp.Stream`` to launch on; the CPU has none, and
+    ValueError names it if one is given there."""
     _check_kernel(kernel)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
     inputs, outputs = list(inputs), list(outputs)
+    if stream is not None and not dev.is_cuda:
+        raise ValueError(f"stream must be None on the CPU device (CPU launches have no streams), got {stream!r}")
     if dims[0] <= 0 or any(d <= 0 for d in dims):
         return
     n = 1
@@ -341,7 +345,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     fast = dev.is_cpu and _invoke is not None and FAST_BANDS
     if len(parts) == 1 and not fast:
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev,
-                  max_blocks=int(max_blocks) if dev.is_cuda else 0)
+                  max_blocks=int(max_blocks) if dev.is_cuda else 0, stream=stream)
         return
     kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
     packed = None

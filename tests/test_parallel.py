@@ -77,6 +77,15 @@ def test_launch_without_row0_is_refused():
         parallel.launch(set_shade_params_kernel, 1, [], [], DEV)
 
 
+def test_launch_on_a_stream_is_cuda_only():
+    """``stream=`` (the CUDA stream of a launch) on the CPU device: ValueError naming it, nothing launched."""
+    a = wp.zeros((4, 4), dtype=wp.vec3, device="cpu")
+    out = wp.full((4, 4), wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
+    with pytest.raises(ValueError, match="stream must be None on the CPU"):
+        parallel.launch(lab_kernel, (4, 4), [a], [out], "cpu", stream="not-a-stream")
+    assert np.all(out.numpy() == 7.0)
+
+
 def test_work_list_count(every_band):
     """A work list launched with ``count``: only the live entries are split, the rest stay untouched."""
     loops = {n: fw.FrameLoop("cornell", 24, 16, device=DEV, cpu_threads=n, timing=False, policy="foveated")

@@ -226,7 +226,8 @@ def test_ao_lanes_trace_the_same_rays(device, ao, lanes):
     """``ShadingConfig.ao_lanes``: a work list's AO rays traced ``min(lanes, ao)`` threads per pixel, then the
     pixels shaded with their counts, give the values of one thread per pixel tracing them all, bit for bit, and
     those of the full-frame shading at the listed pixels; with an area light whose samples come first in each
-    pixel's random stream, lanes left without a ray (5 rays on 8 lanes), misses in the list, two frames."""
+    pixel's random stream, lanes left without a ray (5 rays on 8 lanes), misses in the list, two frames; with
+    the light sources' part shaded apart from the AO pass too (``ShadeStage.split_direct``)."""
     scene = fw.load_scene("cornell", area_light=True)
     cfg = fw.Config().with_(shading={"ao_samples": ao, "ao_lanes": lanes})
     loop = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full")
@@ -247,14 +248,18 @@ def test_ao_lanes_trace_the_same_rays(device, ao, lanes):
                         dtype=wp.int32, device=device)
         count = wp.array([len(pick)], dtype=wp.int32, device=device)
         res = {}
-        for name, lp in (("lanes", loop), ("one", one)):
+        # lanes, then the pixels shaded with the counts; the light sources' part apart from the AO pass
+        # (ShadeStage.split_direct: on CUDA on a second stream); one thread per pixel
+        for name, lp, split in (("lanes", loop, False), ("split", loop, True), ("one", one, False)):
+            lp.shade.split_direct = split
             out = wp.array(np.full((H, W, 3), -3.0, np.float32), dtype=wp.vec3, device=device)
             lp.radiance_stoch.assign(np.full((H, W, 3), -3.0, np.float32))
             lp.shade_list(cam, work, count, out)
-            res[name] = (out.numpy(), lp.radiance_stoch.numpy())
+            res[name] = (out.numpy().copy(), lp.radiance_stoch.numpy().copy())
         assert loop.shade.ao_lanes() == min(lanes, ao) and one.shade.ao_lanes() == 1
-        for a, b in zip(res["lanes"], res["one"]):
-            np.testing.assert_array_equal(a, b)
+        for other in ("split", "one"):
+            for a, b in zip(res["lanes"], res[other]):
+                np.testing.assert_array_equal(a, b)
         out, st = res["lanes"]
         flat = lambda a: a.reshape(-1, 3)  # noqa: E731
         np.testing.assert_array_equal(flat(out)[pick], flat(full)[pick])
@@ -282,7 +287,8 @@ def _lights_scene(n_lights):
 
 @pytest.mark.parametrize("n_lights, shadows", [(3, True), (3, False), (34, True)])
 def test_ao_lanes_with_many_lights_equal_one_thread(device, n_lights, shadows):
-    """The list shading with its AO rays traced ahead in lanes equals one thread per pixel tracing every ray,
+    """The list shading with its AO rays traced ahead in lanes, its light sources' part shaded apart or not
+    (``ShadeStage.split_direct``), equals one thread per pixel tracing every ray,
     bit for bit, and the full-frame shading at the listed pixels, with 3 and 34 point and spot lights whose
     shadows matter (checked against the same frame without shadows), shadows on and off."""
     scene = _lights_scene(n_lights)
@@ -300,10 +306,35 @@ def test_ao_lanes_with_many_lights_equal_one_thread(device, n_lights, shadows):
     work = wp.array(pick, dtype=wp.int32, device=device)
     count = wp.array([len(pick)], dtype=wp.int32, device=device)
     res = []
-    for lp in (loop, one):
+    for lp, split in ((loop, False), (loop, True), (one, False)):
         lp.frame_index = 0
+        lp.shade.split_direct = split
         out = wp.zeros((H, W), dtype=wp.vec3, device=device)
         lp.shade_list(scene.camera, work, count, out)
-        res.append(out.numpy().reshape(-1, 3))
+        res.append(out.numpy().reshape(-1, 3).copy())
     np.testing.assert_array_equal(res[0], res[1])
+    np.testing.assert_array_equal(res[0], res[2])
     np.testing.assert_array_equal(res[0][pick], full.reshape(-1, 3)[pick])
+
+
+@pytest.mark.needs_cuda
+def test_split_direct_in_captured_frames_cuda():
+    """On CUDA the list's light sources' part runs on a second stream beside its AO pass (fork and join inside
+    the captured frame graph): frames along a moving path, replayed from the graph, equal those of a loop that
+    shades the list in one stream (``split_direct=False``), bit for bit."""
+    scene = fw.load_scene("cornell", motion=True, area_light=True)
+    cfg = fw.Config().with_(shading={"ao_samples": 8}, reorder={"strategy": "tile"})
+    on = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
+    off = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
+    off.shade.split_direct = False
+    assert on.shade.split_direct is None and on.shade.ao_lanes() >= 2
+    states = []
+    for i in range(12):
+        cam, t, gaze = scene.camera_at(i / 40.0), i / 30.0, (20.0 + 3 * i, 30.0 - i)
+        a = on.render(cam, gaze_px=gaze, time=t)
+        b = off.render(cam, gaze_px=gaze, time=t)
+        states.append(a.stats["graph"])
+        np.testing.assert_array_equal(a.numpy(), b.numpy(), err_msg=str(i))
+        np.testing.assert_array_equal(on.temporal.color.numpy(), off.temporal.color.numpy(), err_msg=str(i))
+    assert on.shade._side is not None and off.shade._side is None  # the second stream was used, and only there
+    assert states.count("replayed") >= 8, states

@@ -74,22 +74,17 @@ def spot_factor(l: LightParams, to_point: wp.vec3) -> float:
 
 
 @wp.func
-def shade_point_parts(
+def shade_direct_parts(
     sp: ShadeParams,
     pixel: int,
     p: wp.vec3,
     n: wp.vec3,
     albedo: wp.vec3,
-    face: int,
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
-    face_emission: wp.array(dtype=wp.vec3),
-    ao_unocc: float = -1.0,
 ):
-    """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
-    with AO rays, the occluded ambient term. ``ao_unocc`` < 0 (the default): the AO rays are traced here; else it
-    is how many of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the
-    same rays)."""
+    """The light sources' part at surface point p: (point/spot lights, area-light estimate, the pixel's random
+    stream after the area-light draws). :func:`shade_finish` adds the ambient term (AO'd or plain) and emission."""
     v = wp.normalize(sp.eye - p)
     diffuse = albedo / wp.pi
     col = wp.vec3(0.0, 0.0, 0.0)
@@ -137,6 +132,26 @@ def shade_point_parts(
                             vis = visible(sp.mesh, p, n, sp.ray_eps, wi, dist)
                         acc += a.radiance * (vis * cos_i * cos_l / dist2)
             stoch += wp.cw_mul(diffuse, acc * (area / float(sp.area_samples)))
+    return col, stoch, rng
+
+
+@wp.func
+def shade_finish(
+    sp: ShadeParams,
+    rng: wp.uint32,
+    p: wp.vec3,
+    n: wp.vec3,
+    albedo: wp.vec3,
+    face: int,
+    face_emission: wp.array(dtype=wp.vec3),
+    col: wp.vec3,
+    stoch: wp.vec3,
+    ao_unocc: float,
+):
+    """(radiance, stochastic part) from the light sources' part ``col`` / ``stoch`` (:func:`shade_direct_parts`):
+    the ambient term, occluded by ``sp.ao_samples`` AO rays when there are any (traced here from ``rng`` when
+    ``ao_unocc`` < 0, else ``ao_unocc`` of them were unoccluded: p, n and rng are then not read), and the face's
+    emission."""
     amb = wp.cw_mul(albedo, sp.ambient)
     if sp.ao_samples > 0:
         unocc = float(0.0)
@@ -150,6 +165,27 @@ def shade_point_parts(
     else:
         col += amb
     return col + stoch + face_emission[face], stoch
+
+
+@wp.func
+def shade_point_parts(
+    sp: ShadeParams,
+    pixel: int,
+    p: wp.vec3,
+    n: wp.vec3,
+    albedo: wp.vec3,
+    face: int,
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    ao_unocc: float = -1.0,
+):
+    """(radiance, stochastic part) at surface point p: the stochastic part holds the area-light estimate and,
+    with AO rays, the occluded ambient term. ``ao_unocc`` < 0 (the default): the AO rays are traced here; else it
+    is how many of the ``sp.ao_samples`` rays were unoccluded, traced beforehand (``shade_ao_list_kernel``: the
+    same rays)."""
+    col, stoch, rng = shade_direct_parts(sp, pixel, p, n, albedo, lights, area_lights)
+    return shade_finish(sp, rng, p, n, albedo, face, face_emission, col, stoch, ao_unocc)
 
 
 @wp.func
@@ -377,6 +413,75 @@ def shade_ao_list_kernel(
                 if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
                     c += 1
     ao_part[i, g] = wp.uint8(c)
+
+
+@wp.kernel(enable_backward=False)
+def shade_list_direct_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    albedo: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """The light sources' part (:func:`shade_direct_parts`) of the list's pixels ``work[0:count[0]]``, written to
+    ``out`` / ``out_stoch`` for :func:`shade_list_finish_kernel` to complete with the AO counts of
+    :func:`shade_ao_list_kernel`, which needs none of it (the two may run at once: ``ShadeStage.list``). A miss
+    gets its final values (the background, stochastic part 0). Needs ``sp.split_stochastic`` = 1."""
+    i = wp.tid() + row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    sp = spa[0]
+    x, y = list_pixel(work[i], sp.width)
+    if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        return
+    col, st, rng = shade_direct_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], lights,
+                                      area_lights)
+    out[y, x] = col
+    out_stoch[y, x] = st
+
+
+@wp.kernel(enable_backward=False)
+def shade_list_finish_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    albedo: wp.array2d(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    hit: wp.array2d(dtype=wp.uint8),
+    face_emission: wp.array(dtype=wp.vec3),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    lanes: int,
+    out: wp.array2d(dtype=wp.vec3),
+    out_stoch: wp.array2d(dtype=wp.vec3),
+    row0: int,
+):
+    """Complete the list's surface pixels from their light sources' part (``out`` / ``out_stoch``, written by
+    :func:`shade_list_direct_kernel`) and their unoccluded AO count, the sum of ``ao_part[i, :lanes]``
+    (:func:`shade_finish`): the values :func:`shade_list_kernel` writes, operation for operation."""
+    i = wp.tid() + row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    sp = spa[0]
+    x, y = list_pixel(work[i], sp.width)
+    if hit[y, x] == wp.uint8(0):
+        return
+    c = int(0)
+    for g in range(lanes):
+        c += int(ao_part[i, g])
+    zero = wp.vec3(0.0, 0.0, 0.0)
+    col, st = shade_finish(sp, wp.uint32(0), zero, zero, albedo[y, x], face[y, x], face_emission, out[y, x],
+                           out_stoch[y, x], float(c))
+    out[y, x] = col
+    out_stoch[y, x] = st
 
 
 def _make_shade_masked(rows: bool):

@@ -18,6 +18,8 @@ from ..kernels.shade import (
     shade_full_rows_kernel,
     shade_full_tiles_ao_kernel,
     shade_full_tiles_kernel,
+    shade_list_direct_kernel,
+    shade_list_finish_kernel,
     shade_list_kernel,
     shade_masked_kernel,
     shade_masked_rows_kernel,
@@ -40,6 +42,13 @@ class ShadeStage:
     # ...); 0: the (H, W) launch, 32 pixels of a row. The same values in every order
     order_width = 8
 
+    # ``list`` with AO lanes: shade the light sources' part of the list apart from the AO pass and complete the
+    # pixels after both (three launches instead of two; the same values). None (default): on CUDA, where the
+    # light-source shading runs on a second stream beside the AO pass, each filling the other's idle SM time
+    # (H100, 923bc24, ``overlap-e10-923bc24-cuda.json``: the two passes 0.46 -> 0.37 ms on bunny and 0.55 -> 0.37
+    # ms on nefertiti at 1920x1080); True: also on the CPU (one after the other: a test of the split); False: never.
+    split_direct = None
+
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
@@ -48,6 +57,8 @@ class ShadeStage:
         self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
         self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
         self._no_part = wp.zeros((1, 1), dtype=wp.uint8, device=device)  # ``list`` without AO lanes (not read)
+        self._split_stochastic = 1  # the last uploaded parameters' ``split_stochastic``
+        self._side = None  # CUDA: the second stream of ``list``'s split (made on its first use)
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -100,6 +111,7 @@ class ShadeStage:
         """Write ``sp`` to the device array the launches read; returns that array."""
         self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)
         self._ao_samples = int(sp.ao_samples)
+        self._split_stochastic = int(sp.split_stochastic)
         return self.params_dev
 
     def inputs(self, gbuffer) -> list:
@@ -145,26 +157,49 @@ class ShadeStage:
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
         """The flat pixel indices ``work[0:count[0]]`` (count read on the device). With ``ao_lanes()`` >= 2 the
         AO rays are traced first, that many threads per pixel (``ShadingConfig.ao_lanes``), then the pixels
-        shaded with their counts: the same values."""
+        shaded with their counts; with ``split_direct`` (on CUDA by default) the light sources' part is shaded
+        beside the AO pass, on a second stream, and the pixels completed after both. The same values every way."""
         lanes = self.ao_lanes()
         blocks = self._list_blocks()
         n = int(work.shape[0])
+        dev = self.device
         if n * lanes > 2**31 - 1:
             lanes = 1  # the lane launch's thread index is a 32-bit int: one thread per pixel (same values)
-        if lanes >= 2:
-            if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
-                self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=self.device)
-            part = self._ao_part
-            g = gbuffer
-            parallel.launch(shade_ao_list_kernel, dim=n * lanes,
-                            inputs=[self.params_dev, work, count, g.position, g.normal, g.hit,
-                                    self.dscene.area_lights],
-                            outputs=[part], device=self.device, count=count, per_count=lanes, max_blocks=blocks)
+        if lanes < 2:
+            parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer),
+                                                              self._no_part, 0],
+                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
+            return
+        if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
+            self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=dev)
+        part, g, ds = self._ao_part, gbuffer, self.dscene
+        split = self.split_direct if self.split_direct is not None else dev.is_cuda
+        split = bool(split) and self._split_stochastic != 0  # the split keeps the light part in out_stoch
+        side = None
+        if split:
+            if dev.is_cuda:
+                if self._side is None:
+                    self._side = wp.Stream(dev)
+                side = self._side
+                side.wait_stream(dev.stream)  # fork: the list and G-buffer are ready
+            parallel.launch(shade_list_direct_kernel, dim=n,
+                            inputs=[self.params_dev, work, count, g.position, g.normal, g.albedo, g.hit, ds.lights,
+                                    ds.area_lights],
+                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks, stream=side)
+        parallel.launch(shade_ao_list_kernel, dim=n * lanes,
+                        inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, ds.area_lights],
+                        outputs=[part], device=dev, count=count, per_count=lanes, max_blocks=blocks)
+        if split:
+            if side is not None:
+                dev.stream.wait_stream(side)  # join
+            parallel.launch(shade_list_finish_kernel, dim=n,
+                            inputs=[self.params_dev, work, count, g.albedo, g.face, g.hit, ds.face_emission, part,
+                                    lanes],
+                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
         else:
-            lanes, part = 0, self._no_part
-        parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer), part,
-                                                          lanes],
-                        outputs=[out, out_stoch], device=self.device, count=count, max_blocks=blocks)
+            parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer),
+                                                              part, lanes],
+                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
 
     def _list_blocks(self) -> int:
         """CUDA thread blocks of the list launches (``parallel.launch(max_blocks=...)``): 32 per SM, 1.08M threads
