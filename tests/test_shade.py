@@ -327,7 +327,7 @@ def test_split_direct_in_captured_frames_cuda():
     on = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
     off = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
     off.shade.split_direct = False
-    assert on.shade.split_direct is None and on.shade.ao_lanes() >= 2
+    assert on.shade.split_direct is None and on.shade.splits() and on.shade.ao_lanes() >= 2
     states = []
     for i in range(12):
         cam, t, gaze = scene.camera_at(i / 40.0), i / 30.0, (20.0 + 3 * i, 30.0 - i)
@@ -337,4 +337,34 @@ def test_split_direct_in_captured_frames_cuda():
         np.testing.assert_array_equal(a.numpy(), b.numpy(), err_msg=str(i))
         np.testing.assert_array_equal(on.temporal.color.numpy(), off.temporal.color.numpy(), err_msg=str(i))
     assert on.shade._side is not None and off.shade._side is None  # the second stream was used, and only there
-    assert states.count("replayed") >= 8, states
+    assert states.count("replayed") >= 6, states
+
+
+def test_split_direct_default_rule():
+    """``ShadeStage.splits()``: by default only on CUDA up to SPLIT_MAX_PIXELS pixels; forced either way by
+    ``split_direct``; never when the parameters keep no stochastic part (the split holds the light part there)."""
+    from foveawarp.stages.shade import ShadeStage
+
+    loop = fw.FrameLoop(fw.load_scene("cornell"), W, H, config=fw.Config().with_(shading={"ao_samples": 4}),
+                        device="cpu", policy="full")
+    st = loop.shade
+    assert st.split_direct is None and not st.splits()  # the CPU: one pass after the other gains nothing
+    st.split_direct = True
+    assert st.splits()
+    sp = st.params(loop.scene.camera, 0)
+    sp.split_stochastic = 0
+    st.upload(sp)
+    assert not st.splits()
+    st.upload(st.params(loop.scene.camera, 0))
+    assert st.splits()
+    st.split_direct = False
+    assert not st.splits()
+
+    class _Cuda:  # the rule's only use of the device
+        is_cuda = True
+
+    probe = ShadeStage.__new__(ShadeStage)
+    probe.device, probe._split_stochastic, probe.split_direct = _Cuda(), 1, None
+    for (w, h), want in (((1920, 1080), True), ((2560, 1440), False), ((3840, 2160), False), ((64, 48), True)):
+        probe.width, probe.height = w, h
+        assert probe.splits() is want, (w, h)

@@ -43,11 +43,15 @@ class ShadeStage:
     order_width = 8
 
     # ``list`` with AO lanes: shade the light sources' part of the list apart from the AO pass and complete the
-    # pixels after both (three launches instead of two; the same values). None (default): on CUDA, where the
-    # light-source shading runs on a second stream beside the AO pass, each filling the other's idle SM time
-    # (H100, 923bc24, ``overlap-e10-923bc24-cuda.json``: the two passes 0.46 -> 0.37 ms on bunny and 0.55 -> 0.37
-    # ms on nefertiti at 1920x1080); True: also on the CPU (one after the other: a test of the split); False: never.
+    # pixels after both (three launches instead of two; the same values). On CUDA the light-source shading then
+    # runs on a second stream beside the AO pass, each filling the other's idle SM time. None (default): on CUDA
+    # at up to SPLIT_MAX_PIXELS pixels; True: always (on the CPU one pass after the other: a test of the split);
+    # False: never. Measured on the H100 (04c077a, whole frames with 8 AO rays, the two forms interleaved, three
+    # rounds, ``split-ab-e11-04c077a-cuda.json``): at 1920x1080 nefertiti 1.46 -> 1.31 ms, bunny 1.23 -> 1.21,
+    # spot and city within 1%, cornell 0.71 -> 0.73; at 3840x2160 nefertiti 1.3% faster, and bunny, city, spot
+    # and cornell 1.5-4% slower (the extra pass over a long list costs more than the overlap saves there).
     split_direct = None
+    SPLIT_MAX_PIXELS = 1920 * 1080
 
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
@@ -157,8 +161,9 @@ class ShadeStage:
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
         """The flat pixel indices ``work[0:count[0]]`` (count read on the device). With ``ao_lanes()`` >= 2 the
         AO rays are traced first, that many threads per pixel (``ShadingConfig.ao_lanes``), then the pixels
-        shaded with their counts; with ``split_direct`` (on CUDA by default) the light sources' part is shaded
-        beside the AO pass, on a second stream, and the pixels completed after both. The same values every way."""
+        shaded with their counts; where ``splits()`` (``split_direct``) the light sources' part is shaded apart
+        (on CUDA beside the AO pass, on a second stream) and the pixels completed after both. The same values
+        every way."""
         lanes = self.ao_lanes()
         blocks = self._list_blocks()
         n = int(work.shape[0])
@@ -173,8 +178,7 @@ class ShadeStage:
         if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
             self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=dev)
         part, g, ds = self._ao_part, gbuffer, self.dscene
-        split = self.split_direct if self.split_direct is not None else dev.is_cuda
-        split = bool(split) and self._split_stochastic != 0  # the split keeps the light part in out_stoch
+        split = self.splits()
         side = None
         if split:
             if dev.is_cuda:
@@ -200,6 +204,14 @@ class ShadeStage:
             parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer),
                                                               part, lanes],
                             outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
+
+    def splits(self) -> bool:
+        """Whether ``list`` shades the light sources' part apart from the AO pass (``split_direct``; never when the
+        parameters keep no stochastic part: the split holds the light part in ``out_stoch`` meanwhile)."""
+        s = self.split_direct
+        if s is None:
+            s = self.device.is_cuda and self.width * self.height <= self.SPLIT_MAX_PIXELS
+        return bool(s) and self._split_stochastic != 0
 
     def _list_blocks(self) -> int:
         """CUDA thread blocks of the list launches (``parallel.launch(max_blocks=...)``): 32 per SM, 1.08M threads
