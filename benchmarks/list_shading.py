@@ -5,7 +5,8 @@ list thinned to every 2nd and 4th entry; a uniform random choice of as many surf
 order); the list of every surface pixel; and the full-frame shading. A list whose time barely falls when it is
 thinned is bound by one thread's chain of rays, not by the rays' throughput (what ``ShadingConfig.ao_lanes``
 answers). ``--lanes`` sets the AO lanes of the list launches (1: one thread per pixel, the form the study first
-measured).
+measured); ``--split`` whether the list's light sources are shaded apart from its AO pass (``ShadeStage.split_direct``:
+"auto" the package's rule, "on", "off"; each record says what ran in ``split``).
 
 Part ``caps``: CUDA register caps (``cuda_max_registers``) of the shading kernels: each variant is the package's
 kernel function compiled again with another cap ("nocap": none) and timed alone on the same frame, its output
@@ -67,14 +68,15 @@ def _list_array(idx, dev):
     return work, wp.array([len(idx)], dtype=wp.int32, device=dev)
 
 
-def part_lists(fw, scene, w, h, dev, t_ms, lanes: int, frames: int) -> dict:
+def part_lists(fw, scene, w, h, dev, t_ms, lanes: int, frames: int, split=None) -> dict:
     loop = _frame_loop(fw, scene, w, h, dev, 8, lanes, frames)
     st, g = loop.shade, loop.gbuffer
+    st.split_direct = split
     rad, rs = loop.radiance, loop.radiance_stoch
     hit = g.hit.numpy() != 0
     n = int(loop.reorder.count.numpy()[0])
     fov = loop.reorder.work.numpy()[:n]
-    res = {"n_list": n, "n_hit": int(hit.sum()), "n_px": w * h, "lanes": st.ao_lanes()}
+    res = {"n_list": n, "n_hit": int(hit.sum()), "n_px": w * h, "lanes": st.ao_lanes(), "split": st.splits()}
 
     def list_ms(idx):
         work, count = _list_array(idx, dev)
@@ -167,6 +169,8 @@ def main(argv=None):
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--parts", default="lists,caps", help="lists,caps")
     p.add_argument("--lanes", type=int, default=None, help="AO lanes of the lists part (default: the config's)")
+    p.add_argument("--split", choices=["auto", "on", "off"], default="auto",
+                   help="the lists part's ShadeStage.split_direct (auto: the package's rule)")
     p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
     p.add_argument("--inner", type=int, default=10, help="launches per timed call")
     p.add_argument("--name", default="list-shading")
@@ -192,9 +196,10 @@ def main(argv=None):
         for w, h in sizes:
             base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit()}
             if "lists" in parts:
-                r = {**base, "kind": "lists", **part_lists(fw, scene, w, h, dev, t_ms, lanes, args.frames)}
+                r = {**base, "kind": "lists", **part_lists(fw, scene, w, h, dev, t_ms, lanes, args.frames,
+                                                                    {"auto": None, "on": True, "off": False}[args.split])}
                 records.append(r)
-                rows.append({"scene": name, "size": f"{w}x{h}", "part": "lists", "lanes": r["lanes"],
+                rows.append({"scene": name, "size": f"{w}x{h}", "part": "lists", "lanes": r["lanes"], "split": r["split"],
                              "list": r["n_list"], "fov": r["fov_list_ms"], "every2": r["fov_every2_ms"],
                              "every4": r["fov_every4_ms"], "uniform": r["uniform_list_ms"],
                              "all_hits": r["all_hits_list_ms"], "full": r["full_ms"]})

@@ -280,6 +280,7 @@ def test_list_shading_quick(tmp_path):
     assert kinds == ["lists", "caps", "caps"]
     lists, ao, default = res["records"]
     assert 0 < lists["n_list"] < lists["n_px"] and lists["n_hit"] <= lists["n_px"] and lists["lanes"] == 4
+    assert lists["split"] is False  # the CPU's default: no list split
     assert all(lists[k] > 0 for k in ("fov_list_ms", "fov_every2_ms", "fov_every4_ms", "uniform_list_ms",
                                       "all_hits_list_ms", "full_ms"))
     assert (ao["shading"], default["shading"]) == ("ao8", "default")
@@ -289,3 +290,8 @@ def test_list_shading_quick(tmp_path):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "list_shading.py"), "--quick", "--device", "cpu",
                         "--parts", "bogus"], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode != 0 and "--parts items must be in [lists, caps], got 'bogus'" in r.stderr
+    # the split forced on: the lists part runs the light sources' pass, the AO pass and the completing pass
+    _run([str(REPO / "benchmarks" / "list_shading.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
+          "--parts", "lists", "--split", "on", "--name", "split-on"], tmp_path)
+    on = json.loads((tmp_path / "split-on-cpu.json").read_text())["records"][0]
+    assert on["split"] is True and on["n_list"] == lists["n_list"] and on["fov_list_ms"] > 0
