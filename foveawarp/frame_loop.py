@@ -494,7 +494,8 @@ class FrameLoop:
         if sparse:  # no history: one graph per strategy and field of view
             key = (strategy, "sparse", float(camera.fov_y_deg))
         else:
-            key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg))
+            key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg),
+                   self.shade.splits())  # the list's launches differ with the split (ShadeStage.split_direct)
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong

@@ -446,8 +446,10 @@ class DeviceScene:
 
     def _move_objects(self, t: float) -> None:
         """The current positions to ``points_prev``, then each moving object's vertices (and vertex normals) to
-        time ``t`` on the device: the values of ``Scene.vertices_at`` / ``normals_at`` (float64 arithmetic
-        rounded to float32; tests compare), with one 4x4 matrix per moving object as the only data from the host.
+        time ``t`` on the device: the values of ``Scene.vertices_at`` / ``normals_at`` (the same float64 products
+        rounded to float32, summed in the kernel's order: within one float32 ulp of the host's, or, where a
+        coordinate cancels to near zero, within 1e-14 of its terms; tests compare), with one 4x4 matrix per moving
+        object as the only data from the host.
         Every motion is evaluated (and checked) before anything is written; objects are moved in their order, so
         a vertex in two moving objects' ranges takes the later one's motion, as on the host."""
         import warp as wp

@@ -122,9 +122,28 @@ def _f32_ulps(a, b):
     return np.abs(ia - ib)
 
 
+def _motion_tolerance(scene, t, rest, translate):
+    """Per-coordinate bound on |device - host| for vertices (``translate``) or normals at time t: one float32
+    ulp of the host's value, or, where a coordinate cancels to near zero, 1e-14 of its terms' magnitude (both
+    sides sum the same float64 products, in orders that can differ by an ulp of float64 before the float32
+    rounding). Static vertices: 0 (not moved)."""
+    tol = np.zeros(rest.shape, np.float64)
+    for o in scene.objects:
+        if o.motion is None:
+            continue
+        m = o.transform_at(t)
+        a, b = o.vertex_range
+        terms = np.abs(rest[a:b].astype(np.float64)) @ np.abs(m[:3, :3]).T
+        if translate:
+            terms = terms + np.abs(m[:3, 3])
+        tol[a:b] = np.maximum(1e-14 * terms, 0.0)
+    return tol
+
+
 def _check_device_motion(scene, times, device="cpu"):
     """DeviceScene.set_time against the host's Scene.vertices_at / normals_at (NumPy float64, rounded): every
-    position and normal within one float32 ulp, previous positions = the positions of the time before."""
+    position and normal within one float32 ulp or the cancellation bound of ``_motion_tolerance``; previous
+    positions = the positions of the time before. Returns the fraction of coordinates equal to the host's."""
     ds = fw.DeviceScene(scene, device=device)
     prev = None
     exact = total = 0
@@ -132,14 +151,35 @@ def _check_device_motion(scene, times, device="cpu"):
         ds.set_time(t)
         p = ds.points.numpy().copy()  # on the CPU device numpy() is a view of the live array
         want = scene.vertices_at(t)
-        assert _f32_ulps(p, want).max() <= 1, t
+        ok = (_f32_ulps(p, want) <= 1) | (np.abs(p.astype(np.float64) - want) <= _motion_tolerance(
+            scene, t, scene.vertices, True))
+        assert ok.all(), (t, np.argwhere(~ok)[:5])
         exact += int((p == want).sum())
         total += p.size
         if scene.vertex_normals is not None:
-            assert _f32_ulps(ds.vertex_normals.numpy(), scene.normals_at(t)).max() <= 1, t
+            n, wn = ds.vertex_normals.numpy(), scene.normals_at(t)
+            ok = (_f32_ulps(n, wn) <= 1) | (np.abs(n.astype(np.float64) - wn) <= _motion_tolerance(
+                scene, t, scene.vertex_normals, False))
+            assert ok.all(), t
         np.testing.assert_array_equal(ds.points_prev.numpy(), p if prev is None else prev)
         prev = p
     return exact / total
+
+
+def test_device_motion_near_zero_coordinates():
+    """Vertices that a rotation sends onto an axis (a coordinate that cancels to ~0): host and device sum the same
+    float64 products in their own orders, so they may differ there by far more float32 ulps than elsewhere, but
+    by no more than 1e-14 of the terms' size."""
+    from foveawarp.scene import SceneObject
+
+    c, s_ = 0.8, 0.6  # a rotation that sends (3k, 4k, z) onto the y axis: x' = 0.8 * 3k - 0.6 * 4k = 0
+    m = np.array([[c, -s_, 0, 0], [s_, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    k = np.arange(1, 61, dtype=np.float64)
+    v = np.stack([3 * k, 4 * k, k], axis=1).astype(np.float32)
+    scene = fw.Scene(v, np.arange(60, dtype=np.int32).reshape(20, 3), (0.5, 0.5, 0.5),
+                     objects=[SceneObject("o", (0, 60), lambda t: m if t else np.eye(4))])
+    _check_device_motion(scene, [0.0, 1.0])
+    assert np.abs(scene.vertices_at(1.0)[:, 0]).max() < 1e-12  # the case is the one named: x' ~ 1e-14
 
 
 @pytest.mark.parametrize("name, kw", [("earth", {}), ("cornell", {"motion": True})])
@@ -149,7 +189,7 @@ def test_device_motion_matches_host(name, kw, device):
     scene = fw.load_scene(name, **kw)
     assert scene.is_animated
     frac = _check_device_motion(scene, [0.0, 0.25, 0.25, 1.7, -3.0, 40.0], device)
-    assert frac > 0.999  # rounding the same float64 values: all but a rare tie-breaking ulp are equal
+    assert frac > 0.99  # the same float64 values rounded: all but rare ties and near-zero sums are equal
 
 
 def test_device_motion_overlap_order_and_errors():
@@ -175,7 +215,9 @@ def test_device_motion_overlap_order_and_errors():
     scene = fw.Scene(v, f, (0.5, 0.5, 0.5), objects=objs)
     _check_device_motion(scene, [0.0, 0.3, 1.1])
     ds = fw.DeviceScene(scene, device="cpu")
-    ds.set_time(0.5)
+    ds.set_time(0.2)
+    ds.set_time(0.5)  # points_prev (t = 0.2) now differs from points (t = 0.5)
+    assert not np.array_equal(ds.points_prev.numpy(), ds.points.numpy())
     np.testing.assert_array_equal(ds.points.numpy()[9:], v[9:])
     before = ds.points.numpy().copy(), ds.points_prev.numpy().copy()
     calls["bad"] = True

@@ -328,6 +328,7 @@ def test_split_direct_in_captured_frames_cuda():
     off = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
     off.shade.split_direct = False
     assert on.shade.split_direct is None and on.shade.splits() and on.shade.ao_lanes() >= 2
+    assert on.shade._side is not None  # made with the stage, before any capture
     states = []
     for i in range(12):
         cam, t, gaze = scene.camera_at(i / 40.0), i / 30.0, (20.0 + 3 * i, 30.0 - i)
@@ -336,13 +337,13 @@ def test_split_direct_in_captured_frames_cuda():
         states.append(a.stats["graph"])
         np.testing.assert_array_equal(a.numpy(), b.numpy(), err_msg=str(i))
         np.testing.assert_array_equal(on.temporal.color.numpy(), off.temporal.color.numpy(), err_msg=str(i))
-    assert on.shade._side is not None and off.shade._side is None  # the second stream was used, and only there
+    assert on.shade._light is not None and off.shade._light is None  # only the first loop split its lists
     assert states.count("replayed") >= 6, states
 
 
 def test_split_direct_default_rule():
     """``ShadeStage.splits()``: by default only on CUDA up to SPLIT_MAX_PIXELS pixels; forced either way by
-    ``split_direct``; never when the parameters keep no stochastic part (the split holds the light part there)."""
+    ``split_direct``; never without AO lanes (fewer than 2: the list has no AO pass to run beside)."""
     from foveawarp.stages.shade import ShadeStage
 
     loop = fw.FrameLoop(fw.load_scene("cornell"), W, H, config=fw.Config().with_(shading={"ao_samples": 4}),
@@ -351,10 +352,8 @@ def test_split_direct_default_rule():
     assert st.split_direct is None and not st.splits()  # the CPU: one pass after the other gains nothing
     st.split_direct = True
     assert st.splits()
-    sp = st.params(loop.scene.camera, 0)
-    sp.split_stochastic = 0
-    st.upload(sp)
-    assert not st.splits()
+    st.upload(st.params(loop.scene.camera, 0, ao_samples=1))  # one AO ray: no lanes
+    assert st.ao_lanes() == 1 and not st.splits()
     st.upload(st.params(loop.scene.camera, 0))
     assert st.splits()
     st.split_direct = False
@@ -364,7 +363,46 @@ def test_split_direct_default_rule():
         is_cuda = True
 
     probe = ShadeStage.__new__(ShadeStage)
-    probe.device, probe._split_stochastic, probe.split_direct = _Cuda(), 1, None
+    probe.device, probe.config, probe._ao_samples, probe.split_direct = _Cuda(), st.config, 8, None
     for (w, h), want in (((1920, 1080), True), ((2560, 1440), False), ((3840, 2160), False), ((64, 48), True)):
         probe.width, probe.height = w, h
         assert probe.splits() is want, (w, h)
+
+
+@pytest.mark.parametrize("split_stochastic", [1, 0])
+def test_split_direct_repeated_pixels_and_no_stochastic_part(device, split_stochastic):
+    """The split keeps each list entry's light part apart (per entry, not in the output), so a list that names
+    pixels more than once gets the unsplit list's values; parameters without a stochastic part leave
+    ``out_stoch`` untouched, as the unsplit list does."""
+    scene = fw.load_scene("cornell", area_light=True)
+    loop = fw.FrameLoop(scene, W, H, config=fw.Config().with_(shading={"ao_samples": 6}), device=device,
+                        policy="full")
+    loop.render_reference(scene.camera)
+    st = loop.shade
+    rng = np.random.default_rng(9)
+    pick = rng.choice(W * H, size=300, replace=False)
+    work_np = np.concatenate([pick, pick[:80], pick[:40]]).astype(np.int32)  # 120 pixels listed again
+    rng.shuffle(work_np)
+    work = wp.array(work_np, dtype=wp.int32, device=device)
+    count = wp.array([len(work_np)], dtype=wp.int32, device=device)
+    sp = st.params(scene.camera, 3)
+    sp.split_stochastic = split_stochastic
+    res = []
+    for split in (False, True):
+        st.split_direct = split
+        st.upload(sp)
+        out = wp.array(np.full((H, W, 3), -3.0, np.float32), dtype=wp.vec3, device=device)
+        ost = wp.array(np.full((H, W, 3), -5.0, np.float32), dtype=wp.vec3, device=device)
+        st.list(loop.gbuffer, work, count, out, ost)
+        res.append((out.numpy().copy(), ost.numpy().copy()))
+    assert st.splits()
+    np.testing.assert_array_equal(res[0][0], res[1][0])
+    np.testing.assert_array_equal(res[0][1], res[1][1])
+    listed = np.zeros(W * H, bool)
+    listed[pick] = True
+    out, ost = res[1][0].reshape(-1, 3), res[1][1].reshape(-1, 3)
+    assert np.all(out[~listed] == -3.0) and np.all(out[listed] != -3.0)
+    if split_stochastic:
+        assert np.all(ost[~listed] == -5.0) and np.all(ost[listed] != -5.0)
+    else:
+        assert np.all(ost == -5.0)

@@ -426,27 +426,25 @@ def shade_list_direct_kernel(
     hit: wp.array2d(dtype=wp.uint8),
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
-    out: wp.array2d(dtype=wp.vec3),
-    out_stoch: wp.array2d(dtype=wp.vec3),
+    light_col: wp.array(dtype=wp.vec3),
+    light_stoch: wp.array(dtype=wp.vec3),
     row0: int,
 ):
-    """The light sources' part (:func:`shade_direct_parts`) of the list's pixels ``work[0:count[0]]``, written to
-    ``out`` / ``out_stoch`` for :func:`shade_list_finish_kernel` to complete with the AO counts of
-    :func:`shade_ao_list_kernel`, which needs none of it (the two may run at once: ``ShadeStage.list``). A miss
-    gets its final values (the background, stochastic part 0). Needs ``sp.split_stochastic`` = 1."""
+    """The light sources' part (:func:`shade_direct_parts`) of list entry i (pixel ``work[i]``, i < ``count[0]``),
+    written to ``light_col[i]`` / ``light_stoch[i]`` for :func:`shade_list_finish_kernel` to complete with the AO
+    counts of :func:`shade_ao_list_kernel`, which reads none of it (the two may run at once: ``ShadeStage.list``).
+    Misses are left to the finish. Per entry, so a pixel listed twice gets the same values twice."""
     i = wp.tid() + row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
         return
     col, st, rng = shade_direct_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], lights,
                                       area_lights)
-    out[y, x] = col
-    out_stoch[y, x] = st
+    light_col[i] = col
+    light_stoch[i] = st
 
 
 @wp.kernel(enable_backward=False)
@@ -460,28 +458,35 @@ def shade_list_finish_kernel(
     face_emission: wp.array(dtype=wp.vec3),
     ao_part: wp.array2d(dtype=wp.uint8),
     lanes: int,
+    light_col: wp.array(dtype=wp.vec3),
+    light_stoch: wp.array(dtype=wp.vec3),
     out: wp.array2d(dtype=wp.vec3),
     out_stoch: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """Complete the list's surface pixels from their light sources' part (``out`` / ``out_stoch``, written by
-    :func:`shade_list_direct_kernel`) and their unoccluded AO count, the sum of ``ao_part[i, :lanes]``
-    (:func:`shade_finish`): the values :func:`shade_list_kernel` writes, operation for operation."""
+    """Complete list entry i from its light sources' part (``light_col[i]`` / ``light_stoch[i]``, written by
+    :func:`shade_list_direct_kernel`) and its unoccluded AO count, the sum of ``ao_part[i, :lanes]``
+    (:func:`shade_finish`), into ``out`` / ``out_stoch`` at its pixel: the values :func:`shade_list_kernel`
+    writes, operation for operation (a miss: the background, stochastic part 0 with ``sp.split_stochastic``)."""
     i = wp.tid() + row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     if hit[y, x] == wp.uint8(0):
+        out[y, x] = sp.background
+        if sp.split_stochastic != 0:
+            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
         return
     c = int(0)
     for g in range(lanes):
         c += int(ao_part[i, g])
     zero = wp.vec3(0.0, 0.0, 0.0)
-    col, st = shade_finish(sp, wp.uint32(0), zero, zero, albedo[y, x], face[y, x], face_emission, out[y, x],
-                           out_stoch[y, x], float(c))
+    col, st = shade_finish(sp, wp.uint32(0), zero, zero, albedo[y, x], face[y, x], face_emission, light_col[i],
+                           light_stoch[i], float(c))
     out[y, x] = col
-    out_stoch[y, x] = st
+    if sp.split_stochastic != 0:
+        out_stoch[y, x] = st
 
 
 def _make_shade_masked(rows: bool):

@@ -42,14 +42,16 @@ class ShadeStage:
     # ...); 0: the (H, W) launch, 32 pixels of a row. The same values in every order
     order_width = 8
 
-    # ``list`` with AO lanes: shade the light sources' part of the list apart from the AO pass and complete the
-    # pixels after both (three launches instead of two; the same values). On CUDA the light-source shading then
-    # runs on a second stream beside the AO pass, each filling the other's idle SM time. None (default): on CUDA
-    # at up to SPLIT_MAX_PIXELS pixels; True: always (on the CPU one pass after the other: a test of the split);
-    # False: never. Measured on the H100 (04c077a, whole frames with 8 AO rays, the two forms interleaved, three
-    # rounds, ``split-ab-e11-04c077a-cuda.json``): at 1920x1080 nefertiti 1.46 -> 1.31 ms, bunny 1.23 -> 1.21,
-    # spot and city within 1%, cornell 0.71 -> 0.73; at 3840x2160 nefertiti 1.3% faster, and bunny, city, spot
-    # and cornell 1.5-4% slower (the extra pass over a long list costs more than the overlap saves there).
+    # ``list`` with AO lanes: shade the light sources' part of the list apart from the AO pass (into two vec3 per
+    # list entry, 24 bytes a pixel of the capacity, allocated on first use) and complete the pixels after both
+    # (three launches instead of two; the same values). On CUDA the light-source shading then runs on a second
+    # stream beside the AO pass, each filling the other's idle SM time. None (default): on CUDA at up to
+    # SPLIT_MAX_PIXELS pixels; True: always (on the CPU one pass after the other: a test of the split); False:
+    # never. FrameLoop keys its captured graphs by ``splits()``, so a change takes effect at the next frame.
+    # Measured on the H100 (04c077a, whole frames with 8 AO rays, the two forms interleaved, three rounds,
+    # ``split-ab-e11-04c077a-cuda.json``): at 1920x1080 nefertiti 1.46 -> 1.31 ms, bunny 1.23 -> 1.21, spot and city
+    # within 1%, cornell 0.71 -> 0.73; at 3840x2160 nefertiti 1.3% faster, and bunny, city, spot and cornell 1.5-4%
+    # slower (the extra pass over a long list costs more than the overlap saves there).
     split_direct = None
     SPLIT_MAX_PIXELS = 1920 * 1080
 
@@ -61,8 +63,9 @@ class ShadeStage:
         self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
         self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
         self._no_part = wp.zeros((1, 1), dtype=wp.uint8, device=device)  # ``list`` without AO lanes (not read)
-        self._split_stochastic = 1  # the last uploaded parameters' ``split_stochastic``
-        self._side = None  # CUDA: the second stream of ``list``'s split (made on its first use)
+        # CUDA: the second stream of ``list``'s split, made here, before any graph capture can begin
+        self._side = wp.Stream(device) if wp.get_device(device).is_cuda else None
+        self._light = None  # ``list``'s split: (capacity,) vec3 light part and its stochastic part per entry
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -115,7 +118,6 @@ class ShadeStage:
         """Write ``sp`` to the device array the launches read; returns that array."""
         self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)
         self._ao_samples = int(sp.ao_samples)
-        self._split_stochastic = int(sp.split_stochastic)
         return self.params_dev
 
     def inputs(self, gbuffer) -> list:
@@ -178,18 +180,18 @@ class ShadeStage:
         if self._ao_part is None or tuple(self._ao_part.shape) != (n, lanes):
             self._ao_part = wp.zeros((n, lanes), dtype=wp.uint8, device=dev)
         part, g, ds = self._ao_part, gbuffer, self.dscene
-        split = self.splits()
+        split = self.splits()  # lanes >= 2 here
         side = None
         if split:
+            if self._light is None or self._light[0].shape[0] != n:
+                self._light = (wp.zeros(n, dtype=wp.vec3, device=dev), wp.zeros(n, dtype=wp.vec3, device=dev))
             if dev.is_cuda:
-                if self._side is None:
-                    self._side = wp.Stream(dev)
                 side = self._side
                 side.wait_stream(dev.stream)  # fork: the list and G-buffer are ready
             parallel.launch(shade_list_direct_kernel, dim=n,
                             inputs=[self.params_dev, work, count, g.position, g.normal, g.albedo, g.hit, ds.lights,
                                     ds.area_lights],
-                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks, stream=side)
+                            outputs=[*self._light], device=dev, count=count, max_blocks=blocks, stream=side)
         parallel.launch(shade_ao_list_kernel, dim=n * lanes,
                         inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, ds.area_lights],
                         outputs=[part], device=dev, count=count, per_count=lanes, max_blocks=blocks)
@@ -198,7 +200,7 @@ class ShadeStage:
                 dev.stream.wait_stream(side)  # join
             parallel.launch(shade_list_finish_kernel, dim=n,
                             inputs=[self.params_dev, work, count, g.albedo, g.face, g.hit, ds.face_emission, part,
-                                    lanes],
+                                    lanes, *self._light],
                             outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
         else:
             parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer),
@@ -206,12 +208,13 @@ class ShadeStage:
                             outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
 
     def splits(self) -> bool:
-        """Whether ``list`` shades the light sources' part apart from the AO pass (``split_direct``; never when the
-        parameters keep no stochastic part: the split holds the light part in ``out_stoch`` meanwhile)."""
+        """Whether ``list`` shades the light sources' part apart from the AO pass with the last uploaded
+        parameters: ``split_direct`` (None: CUDA at up to ``SPLIT_MAX_PIXELS`` pixels), and only with AO lanes
+        (``ao_lanes()`` >= 2; a list so long that its lanes would pass 2^31 threads runs unsplit too)."""
         s = self.split_direct
         if s is None:
             s = self.device.is_cuda and self.width * self.height <= self.SPLIT_MAX_PIXELS
-        return bool(s) and self._split_stochastic != 0
+        return bool(s) and self.ao_lanes() >= 2
 
     def _list_blocks(self) -> int:
         """CUDA thread blocks of the list launches (``parallel.launch(max_blocks=...)``): 32 per SM, 1.08M threads
