@@ -49,9 +49,11 @@ class ShadeStage:
     # SPLIT_MAX_PIXELS pixels; True: always (on the CPU one pass after the other: a test of the split); False:
     # never. FrameLoop keys its captured graphs by ``splits()``, so a change takes effect at the next frame.
     # Measured on the H100 (04c077a, whole frames with 8 AO rays, the two forms interleaved, three rounds,
-    # ``split-ab-e11-04c077a-cuda.json``): at 1920x1080 nefertiti 1.46 -> 1.31 ms, bunny 1.23 -> 1.21, spot and city
-    # within 1%, cornell 0.71 -> 0.73; at 3840x2160 nefertiti 1.3% faster, and bunny, city, spot and cornell 1.5-4%
-    # slower (the extra pass over a long list costs more than the overlap saves there).
+    # ``split-ab-e11-04c077a-cuda.json``, the light part then kept in the output): at 1920x1080 nefertiti 1.46 ->
+    # 1.31 ms, bunny 1.23 -> 1.21, spot and city within 1%, cornell 0.71 -> 0.73; at 3840x2160 nefertiti 1.3% faster,
+    # and bunny, city, spot and cornell 1.5-4% slower (the extra pass over a long list costs more than the overlap
+    # saves there). Again at 1920x1080 with the per-entry scratch (9045e11, ``split-ab-e11-9045e11-cuda.json``, two
+    # rounds): nefertiti -9.8 / -10.7%, bunny +2.2 / +2.7%, spot -0.2 / +0.5%, city +0.7 / +0.8%, cornell +1.5 / +1.8%.
     split_direct = None
     SPLIT_MAX_PIXELS = 1920 * 1080
 
