@@ -358,6 +358,10 @@ def test_split_direct_default_rule():
     assert st.splits()
     st.split_direct = False
     assert not st.splits()
+    st.split_direct = "yes"  # not a bool: refused, naming the attribute and the allowed values
+    with pytest.raises(ValueError, match=r"split_direct must be None \(the default rule\), True or False, got 'yes'"):
+        st.splits()
+    st.split_direct = None
 
     class _Cuda:  # the rule's only use of the device
         is_cuda = True

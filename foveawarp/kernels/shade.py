@@ -218,6 +218,25 @@ def shade_point(
 
 
 @wp.func
+def shade_miss(sp: ShadeParams, x: int, y: int, out: wp.array2d(dtype=wp.vec3), out_stoch: wp.array2d(dtype=wp.vec3)):
+    """A primary-ray miss at (x, y): the background to ``out`` and, with ``sp.split_stochastic``, 0 to
+    ``out_stoch``."""
+    out[y, x] = sp.background
+    if sp.split_stochastic != 0:
+        out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.func
+def ao_lanes_count(ao_part: wp.array2d(dtype=wp.uint8), i: int, lanes: int) -> float:
+    """The unoccluded AO rays of list entry i: the sum of its ``lanes`` counts from :func:`shade_ao_list_kernel`
+    (a sum of ones in any order: the count one thread tracing every ray would reach)."""
+    c = int(0)
+    for g in range(lanes):
+        c += int(ao_part[i, g])
+    return float(c)
+
+
+@wp.func
 def shade_pixel(
     sp: ShadeParams,
     x: int,
@@ -238,9 +257,7 @@ def shade_pixel(
     ``sp.split_stochastic``, its stochastic part to out_stoch[y, x] (0 on a miss). ``ao_unocc``: as in
     :func:`shade_point_parts`."""
     if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        shade_miss(sp, x, y, out, out_stoch)
     else:
         c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
                                   area_lights, face_emission, ao_unocc)
@@ -362,10 +379,7 @@ def shade_list_kernel(
     x, y = list_pixel(work[i], sp.width)
     ao = float(-1.0)
     if lanes > 0:
-        c = int(0)
-        for g in range(lanes):
-            c += int(ao_part[i, g])
-        ao = float(c)
+        ao = ao_lanes_count(ao_part, i, lanes)
     shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
 
 
@@ -474,16 +488,11 @@ def shade_list_finish_kernel(
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     if hit[y, x] == wp.uint8(0):
-        out[y, x] = sp.background
-        if sp.split_stochastic != 0:
-            out_stoch[y, x] = wp.vec3(0.0, 0.0, 0.0)
+        shade_miss(sp, x, y, out, out_stoch)
         return
-    c = int(0)
-    for g in range(lanes):
-        c += int(ao_part[i, g])
     zero = wp.vec3(0.0, 0.0, 0.0)
     col, st = shade_finish(sp, wp.uint32(0), zero, zero, albedo[y, x], face[y, x], face_emission, light_col[i],
-                           light_stoch[i], float(c))
+                           light_stoch[i], ao_lanes_count(ao_part, i, lanes))
     out[y, x] = col
     if sp.split_stochastic != 0:
         out_stoch[y, x] = st

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Optional
 
+import numpy as np
 import warp as wp
 
 from .. import parallel
@@ -214,6 +215,8 @@ class ShadeStage:
         parameters: ``split_direct`` (None: CUDA at up to ``SPLIT_MAX_PIXELS`` pixels), and only with AO lanes
         (``ao_lanes()`` >= 2; a list so long that its lanes would pass 2^31 threads runs unsplit too)."""
         s = self.split_direct
+        if s is not None and not isinstance(s, (bool, np.bool_)):
+            raise ValueError(f"ShadeStage.split_direct must be None (the default rule), True or False, got {s!r}")
         if s is None:
             s = self.device.is_cuda and self.width * self.height <= self.SPLIT_MAX_PIXELS
         return bool(s) and self.ao_lanes() >= 2
