@@ -1,7 +1,7 @@
 """Bit-identity check of the foveated frame path across a code change: render a short sequence of a moving
 camera and gaze (deterministic shading, and 2 AO rays) and save, or compare against a saved run, every
 per-frame output: image, temporal sparse colour and filled mask, sampling map, cache hits, previous-pixel
-index, reconstruction input counts.
+index, reconstruction input counts, the G-buffer's velocity and albedo.
 
     # on the old code (its checkout as the working directory, this file copied anywhere):
     python identity_frames.py --device cpu --save old.npz
@@ -63,6 +63,8 @@ def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> d
                 out[key + ".prev_index"] = loop.sampling.prev_index.numpy().copy()
                 out[key + ".rates"] = np.array([f.stats["sampling_rate"], f.stats["cache_hit_rate"]])
                 out[key + ".hit"] = f.gbuffer.hit.numpy().copy()
+                for name in ("velocity", "albedo"):  # derived on read (session 22), stored before
+                    out[key + ".gbuffer_" + name] = getattr(f.gbuffer, name).numpy().copy()
                 out[key + ".skipped"] = np.array(sorted(f.stats["skipped"]))
     return out
 

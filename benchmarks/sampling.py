@@ -54,7 +54,7 @@ def bench_size(w: int, h: int, dev, repeats: int, warmup: int) -> list:
                                                   outputs=[stage._lab_array()], device=dev),
         "fused pass": lambda: fw.parallel.launch(
             sampling_map_kernel, dim=(h, w),
-            inputs=[stage.params, stage.frame_params, stage.ranks, stage.lab, g.normal, g.depth, g.hit, g.velocity,
+            inputs=[stage.params, stage.frame_params, stage.ranks, stage.lab, g.normal, g.depth, g.hit,
                     g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
                     stage._no_face_lab, 0],
             outputs=[stage._dummy_map, stage._dummy_map, stage.sample_map, stage.cache_hit, stage.prev_index,

@@ -19,27 +19,71 @@ class GBuffer:
     transforms, metres: what the previous frame's depth at ``reproj_uv`` must be when the point was visible
     there; 0 on misses), moved (uint8, 1 where the surface point moved in world space since the previous
     frame: object motion).
+
+    The G-buffer pass stores neither ``velocity`` nor ``albedo`` (20 of its 66 bytes a pixel): the kernels that
+    need them compute them from ``reproj_uv`` and ``face``, and reading these attributes computes them on the
+    device, with the same values (``kernels.gbuffer.reproj_velocity``, ``surface_albedo``). ``velocity`` is
+    that of a ray through the centre of the entry's pixel, or with ``cell`` > 1 (the sparse mode's coarse
+    G-buffer, one entry per ``cell`` x ``cell`` cell of an ``image_size`` image) through its cell's middle
+    pixel. ``albedo`` looks the face up in the table given to :meth:`bind_albedo` (a :class:`FrameLoop` binds
+    its scene's); unbound, it is a plain array that the caller fills (hand-made G-buffers for the stages).
+    Each read of either attribute launches its kernel into the one array it returns.
     """
 
     FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist", "moved")
 
-    def __init__(self, width: int, height: int, device):
+    def __init__(self, width: int, height: int, device, *, cell: int = 1, image_size=None):
         from ._util import check_image_size, get_device
+        from .config import check_int_range
 
         width, height = check_image_size(width, height)
         device = get_device(device)
+        cell = check_int_range("cell", cell, 1, 64)
+        if image_size is None:
+            image_size = (width * cell, height * cell)
+        iw, ih = check_image_size(*image_size)
         shape = (height, width)
-        self.width, self.height = width, height
+        self.width, self.height, self.cell, self.image_size = width, height, cell, (iw, ih)
+        self.device = device
         self.position = wp.zeros(shape, dtype=wp.vec3, device=device)
         self.normal = wp.zeros(shape, dtype=wp.vec3, device=device)
         self.depth = wp.zeros(shape, dtype=float, device=device)
-        self.albedo = wp.zeros(shape, dtype=wp.vec3, device=device)
         self.face = wp.zeros(shape, dtype=wp.int32, device=device)
         self.hit = wp.zeros(shape, dtype=wp.uint8, device=device)
-        self.velocity = wp.zeros(shape, dtype=wp.vec2, device=device)
         self.reproj_uv = wp.zeros(shape, dtype=wp.vec2, device=device)
         self.prev_dist = wp.zeros(shape, dtype=float, device=device)
         self.moved = wp.zeros(shape, dtype=wp.uint8, device=device)
+        self._albedo = wp.zeros(shape, dtype=wp.vec3, device=device)
+        self._velocity = wp.zeros(shape, dtype=wp.vec2, device=device)
+        self._face_albedo = None
+
+    def bind_albedo(self, face_albedo) -> None:
+        """Make ``albedo`` the per-face table ``face_albedo`` ((F,) vec3 on this device) looked up by ``face``."""
+        if not isinstance(face_albedo, wp.array) or face_albedo.dtype != wp.vec3 or face_albedo.ndim != 1:
+            raise ValueError(f"face_albedo must be a 1-D wp.array of vec3, got {type(face_albedo).__name__}"
+                             + (f" of {face_albedo.dtype} with {face_albedo.ndim} dims"
+                                if isinstance(face_albedo, wp.array) else ""))
+        if face_albedo.device != self.device:
+            raise ValueError(f"face_albedo must be on {self.device}, got {face_albedo.device}")
+        self._face_albedo = face_albedo
+
+    @property
+    def velocity(self) -> wp.array:
+        from .kernels.gbuffer import derive_velocity_kernel
+
+        wp.launch(derive_velocity_kernel, dim=(self.height, self.width),
+                  inputs=[self.reproj_uv, self.cell, self.image_size[0], self.image_size[1]],
+                  outputs=[self._velocity], device=self.device)
+        return self._velocity
+
+    @property
+    def albedo(self) -> wp.array:
+        if self._face_albedo is not None:
+            from .kernels.gbuffer import derive_albedo_kernel
+
+            wp.launch(derive_albedo_kernel, dim=(self.height, self.width), inputs=[self.face, self._face_albedo],
+                      outputs=[self._albedo], device=self.device)
+        return self._albedo
 
     def numpy(self) -> dict:
         return {k: getattr(self, k).numpy() for k in self.FIELDS}

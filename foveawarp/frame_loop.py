@@ -133,6 +133,7 @@ class FrameLoop:
         self.dscene = DeviceScene(self.scene, self.device)
         w, h, dev = self.width, self.height, self.device
         self.gbuffer = GBuffer(w, h, dev)
+        self.gbuffer.bind_albedo(self.dscene.face_albedo)  # GBuffer.albedo: the face looked up (none stored)
         self.radiance = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         # the stochastic part of ``radiance`` (AO, area-light samples), written when the shading has one
         self.radiance_stoch = wp.zeros((h, w), dtype=wp.vec3, device=dev)

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import warp as wp
 
 import foveawarp as fw
@@ -239,3 +241,77 @@ def test_sampling_launch_face_lab_is_checked(device):
                 np.zeros((4, 3))):
         with pytest.raises(ValueError, match="face_lab must be"):
             loop.sampling.launch(loop.gbuffer, face_lab=bad)
+
+
+# -- the attributes the G-buffer pass does not store: velocity from reproj_uv, albedo from face ---------------------
+
+
+def _velocity_reference(uv, cell=1, image_size=None):
+    """GBuffer.velocity in NumPy: the centre of the pixel each entry's ray went through (a cell's middle pixel,
+    clamped, with cell > 1) minus reproj_uv, in float32; 0 where reproj_uv is (-1e4, -1e4) (no previous position)."""
+    h, w = uv.shape[:2]
+    iw, ih = image_size if image_size is not None else (w * cell, h * cell)
+    px = (np.minimum(np.arange(w) * cell + cell // 2, iw - 1) + 0.5).astype(np.float32)
+    py = (np.minimum(np.arange(h) * cell + cell // 2, ih - 1) + 0.5).astype(np.float32)
+    centre = np.stack(np.broadcast_arrays(px[None, :], py[:, None]), -1)
+    none = (uv == np.float32(-1e4)).all(-1)
+    return np.where(none[..., None], np.float32(0.0), centre - uv)
+
+
+@pytest.mark.parametrize("scene", ["cornell", "earth"])
+def test_derived_velocity_and_albedo_equal_what_the_pass_stored(device, scene):
+    """The G-buffer pass stores neither the velocity nor the albedo; reading them gives what it stored before
+    (pixel centre minus the previous position, the face's albedo; bit for bit against NumPy), in motion (the
+    earth turns), with misses (velocity 0, albedo 0)."""
+    sc = fw.load_scene(scene)
+    loop = fw.FrameLoop(sc, W, H, device=device, policy="foveated")
+    for i in range(3):
+        f = loop.render(sc.camera_at(0.2 * i), time=0.2 * i)
+    g = f.gbuffer.numpy()
+    uv, face, hit = g["reproj_uv"], g["face"], g["hit"].astype(bool)
+    np.testing.assert_array_equal(g["velocity"], _velocity_reference(uv))
+    albedo = np.where(face[..., None] >= 0, sc.face_albedo.astype(np.float32)[np.maximum(face, 0)], np.float32(0))
+    np.testing.assert_array_equal(g["albedo"], albedo)
+    assert (~hit).any() and np.abs(g["velocity"][hit]).max() > 0.0
+    assert (g["velocity"][~hit] == 0).all() and (g["albedo"][~hit] == 0).all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(data=st.data(), cell=st.integers(1, 6), w=st.integers(1, 9), h=st.integers(1, 7))
+def test_derived_velocity_against_numpy(data, cell, w, h):
+    """``GBuffer.velocity`` of hand-set reprojections: any finite values (far off screen, huge, the exact
+    no-reprojection marker), full resolution and coarse cells with partial edge cells; finite everywhere."""
+    from foveawarp.buffers import GBuffer
+
+    vals = st.one_of(st.floats(-1e30, 1e30, allow_subnormal=False).map(np.float32), st.sampled_from([-1e4, 0.0, 0.5, -5e3, 1e4]))
+    uv = np.array(data.draw(st.lists(vals, min_size=h * w * 2, max_size=h * w * 2)), np.float32).reshape(h, w, 2)
+    uv[data.draw(st.integers(0, h - 1)), data.draw(st.integers(0, w - 1))] = -1e4  # one entry without
+    iw = data.draw(st.integers(max(1, (w - 1) * cell + 1), w * cell))  # partial cells at the right / bottom
+    ih = data.draw(st.integers(max(1, (h - 1) * cell + 1), h * cell))
+    g = GBuffer(w, h, "cpu", cell=cell, image_size=(iw, ih))
+    g.reproj_uv.assign(uv)
+    got = g.velocity.numpy()
+    np.testing.assert_array_equal(got, _velocity_reference(uv, cell, (iw, ih)))
+    assert np.isfinite(got).all()
+
+
+def test_gbuffer_albedo_binding_and_its_errors():
+    """Unbound, ``albedo`` is a plain array the caller fills (hand-made G-buffers); bound, it is the table looked
+    up by face on every read; a table that is not a 1-D vec3 array on the G-buffer's device is refused by name."""
+    from foveawarp.buffers import GBuffer
+
+    g = GBuffer(3, 2, "cpu")
+    g.albedo.fill_(wp.vec3(0.25, 0.5, 0.75))
+    assert np.allclose(g.albedo.numpy(), [0.25, 0.5, 0.75])
+    table = wp.array(np.array([[0.1, 0.2, 0.3], [0.9, 0.8, 0.7]], np.float32), dtype=wp.vec3, device="cpu")
+    g.bind_albedo(table)
+    g.face.assign(np.array([[0, 1, -1], [1, 1, 0]], np.int32))
+    np.testing.assert_array_equal(g.albedo.numpy(), np.array([[[0.1, 0.2, 0.3], [0.9, 0.8, 0.7], [0, 0, 0]],
+                                                              [[0.9, 0.8, 0.7], [0.9, 0.8, 0.7], [0.1, 0.2, 0.3]]],
+                                                             np.float32))
+    for bad in (np.zeros((2, 3), np.float32), wp.zeros((2, 2), dtype=wp.vec3, device="cpu"),
+                wp.zeros(2, dtype=wp.vec2, device="cpu")):
+        with pytest.raises(ValueError, match="face_albedo must be a 1-D wp.array of vec3"):
+            g.bind_albedo(bad)
+    with pytest.raises(ValueError, match="cell must be"):
+        GBuffer(3, 2, "cpu", cell=0)

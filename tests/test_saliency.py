@@ -128,15 +128,35 @@ def _scene_like_gbuffer(w, h, rng):
     hit[: h // 5, -w // 4:] = 0  # background corner
     miss = hit == 0
     albedo[miss], n[miss], depth[miss], vel[miss] = 0.0, 0.0, 100.0, 0.0
-    return {"albedo": albedo, "normal": n.astype(np.float32), "depth": depth, "velocity": vel, "hit": hit,
-            "position": np.zeros((h, w, 3), np.float32), "reproj_uv": np.full((h, w, 2), -1e4, np.float32)}
+    uv = _centres(h, w) - vel  # the G-buffer keeps the reprojection; its velocity is the centre minus that
+    uv[miss] = -1e4
+    return {"albedo": albedo, "normal": n.astype(np.float32), "depth": depth, "velocity": _velocity_of(uv),
+            "hit": hit, "position": np.zeros((h, w, 3), np.float32), "reproj_uv": uv}
+
+
+def _centres(h, w):
+    ys, xs = np.mgrid[0:h, 0:w]
+    return np.stack([xs + 0.5, ys + 0.5], -1).astype(np.float32)
+
+
+def _velocity_of(uv):
+    """GBuffer.velocity from reproj_uv (float32, as kernels.gbuffer.reproj_velocity): the pixel centre minus the
+    previous position, 0 where there is none (-1e4)."""
+    uv = np.asarray(uv, np.float32)
+    none = (uv[..., 0] == np.float32(-1e4)) & (uv[..., 1] == np.float32(-1e4))
+    return np.where(none[..., None], np.float32(0.0), _centres(*uv.shape[:2]) - uv).astype(np.float32)
 
 
 def _gbuffer(arrs, device):
+    """A GBuffer holding ``arrs`` (its velocity, not stored, must be the one its ``reproj_uv`` gives)."""
     h, w = arrs["depth"].shape
     g = GBuffer(w, h, device)
     for k, v in arrs.items():
-        getattr(g, k).assign(v)
+        if k != "velocity":
+            getattr(g, k).assign(v)
+    if "velocity" in arrs:
+        np.testing.assert_array_equal(arrs["velocity"], _velocity_of(arrs["reproj_uv"]))
+        np.testing.assert_array_equal(g.velocity.numpy(), arrs["velocity"])  # the derivation, bit for bit
     return g
 
 
@@ -213,6 +233,7 @@ def test_object_velocity_removes_camera_motion(device, rng):
     arrs["reproj_uv"][0, :5] = -1e4  # no previous position: no velocity
     hit = arrs["hit"] != 0
     arrs["reproj_uv"][~hit] = -1e4
+    arrs["velocity"] = _velocity_of(arrs["reproj_uv"])
     g = _gbuffer(arrs, device)
     stage = SamplingStage(w, h, CFG.with_(dof={"aperture_m": 0.0}), device=device)
     stage.run(g, cam, (24.0, 18.0), 0, moving=True, first_frame=True, camera_prev=cam_prev)
@@ -237,10 +258,10 @@ def test_stage_outputs_finite_and_in_range(data, depth, vscale, gx, gy, zero_nor
         "albedo": r.random((h, w, 3)).astype(np.float32) * data.draw(st.sampled_from([0.0, 1.0, 1e3])),
         "normal": np.zeros((h, w, 3), np.float32) if zero_normals else r.normal(size=(h, w, 3)).astype(np.float32),
         "depth": np.full((h, w), depth, np.float32),
-        "velocity": (r.normal(size=(h, w, 2)) * vscale).astype(np.float32),
         "hit": (r.random((h, w)) < 0.7).astype(np.uint8),
         "position": (r.normal(size=(h, w, 3)) * data.draw(st.sampled_from([0.0, 1e30]))).astype(np.float32),
-        "reproj_uv": (r.random((h, w, 2)) * 40 - 10).astype(np.float32),
+        # previous positions up to vscale pixels away (the velocities, up to 1e37 pixels)
+        "reproj_uv": (_centres(h, w) - r.normal(size=(h, w, 2)) * vscale).astype(np.float32),
     }
     g = _gbuffer(arrs, "cpu")
     cfg = CFG.with_(foveation={"block": block}, dof={"aperture_m": data.draw(st.sampled_from([0.0, 0.01]))})

@@ -627,8 +627,8 @@ def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads):
     nc = wp.zeros(1, dtype=wp.int32, device="cpu")
     dummy = wp.zeros((1, 1), dtype=float, device="cpu")
     wp.launch(sampling_map_kernel, dim=(h, w),
-              inputs=[stage.params, stage.frame_params, stage.ranks, lab, g.normal, g.depth, g.hit, g.velocity,
-                      g.position, g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
+              inputs=[stage.params, stage.frame_params, stage.ranks, lab, g.normal, g.depth, g.hit, g.position,
+                      g.reproj_uv, g.prev_dist, stage.depth_prev, stage.valid_prev, 0, g.face,
                       stage._no_face_lab, 0],
               outputs=[dummy, dummy, sm, ch, pi, stage.tile_counts, 0], device="cpu")
     with parallel.cpu_threads(1):

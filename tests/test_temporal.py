@@ -100,7 +100,9 @@ def _setup(rng, h, w, device, stochastic, min_samples=4):
     st.set_history(color=prev["color"], stoch=prev["stoch"], normal=prev["normal"], age=prev["age"],
                    stale=prev["stale"], depth=prev["depth"], filled=prev["valid"])
     ys, xs = np.mgrid[0:h, 0:w]
-    uv = np.stack([xs + 0.5 + rng.uniform(-1.5, 1.5, (h, w)), ys + 0.5 + rng.uniform(-1.5, 1.5, (h, w))], -1)
+    # previous positions up to a few pixels away, a fifth of them within half a pixel (a still pixel)
+    motion = rng.uniform(-3.0, 3.0, (h, w, 2)) * np.where(rng.random((h, w, 1)) < 0.2, 0.1, 1.0)
+    uv = np.stack([xs + 0.5, ys + 0.5], -1) - motion
     uv[rng.random((h, w)) < 0.05] = -1e4
     uv[0, :3, 0] = xs[0, :3] + 0.5 + 1e-4  # snapped to the own pixel
     uv[0, :3, 1] = 0.5
@@ -112,17 +114,23 @@ def _setup(rng, h, w, device, stochastic, min_samples=4):
                          rng.uniform(2.0, 3.0, (h, w)))
     inp = {"smap": (rng.random((h, w)) < 0.4).astype(np.uint8), "hit": (rng.random((h, w)) < 0.9).astype(np.uint8),
            "normal": normal, "depth": depth_cur, "uv": uv, "prev_dist": prev_dist,
-           "vel": rng.normal(size=(h, w, 2)) * 3, "moved": (rng.random((h, w)) < 0.1).astype(np.uint8),
+           "moved": (rng.random((h, w)) < 0.1).astype(np.uint8),
            "fresh": rng.random((h, w, 3)).astype(np.float32)}
     inp["stoch"] = (inp["fresh"] * rng.uniform(0, 0.5, (h, w, 1))).astype(np.float32) if stochastic else \
         np.zeros((h, w, 3), np.float32)
     g = GBuffer(w, h, device)
     for k, a in (("hit", inp["hit"]), ("normal", normal), ("depth", depth_cur), ("reproj_uv", uv),
-                 ("prev_dist", prev_dist), ("velocity", inp["vel"]), ("moved", inp["moved"])):
+                 ("prev_dist", prev_dist), ("moved", inp["moved"])):
         getattr(g, k).assign(np.asarray(a, dtype=getattr(g, k).numpy().dtype if k in ("hit", "moved") else np.float32))
     arrs = {k: wp.array(inp[k], dtype=wp.vec3, device=device) for k in ("fresh", "stoch")}
     smap = wp.array(inp["smap"], dtype=wp.uint8, device=device)
     # the reference sees the float32 values the kernel sees
+    # the velocity the kernel computes (GBuffer.velocity): the pixel centre minus the reprojection, 0 without one
+    inp["vel"] = g.velocity.numpy()
+    uv32 = np.asarray(uv, np.float32)
+    none = (uv32 == np.float32(-1e4)).all(-1)
+    np.testing.assert_array_equal(inp["vel"], np.where(none[..., None], np.float32(0),
+                                                       np.stack([xs + 0.5, ys + 0.5], -1).astype(np.float32) - uv32))
     for k in ("depth", "prev_dist", "uv", "normal", "vel"):
         inp[k] = np.asarray(inp[k], np.float32).astype(np.float64)
     for k in ("color", "stoch", "normal", "depth"):

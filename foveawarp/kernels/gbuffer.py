@@ -29,13 +29,41 @@ def shading_normal(mesh: wp.uint64, face: int, u: float, v: float, face_n: wp.ve
 
 
 @wp.func
+def cell_pixel(c: int, cell: int, n: int) -> int:
+    """The pixel (column or row) whose centre the primary ray of G-buffer entry ``c`` passes through: the entry's
+    own pixel at full resolution (``cell`` 1); in the sparse mode's coarse G-buffer the cell's middle pixel,
+    clamped to the image for the partial cells at the right/bottom edges."""
+    return wp.min(c * cell + cell / 2, n - 1)
+
+
+@wp.func
+def reproj_velocity(uv: wp.vec2, px: float, py: float) -> wp.vec2:
+    """The screen velocity (pixels moved since the previous frame: current - previous position) of the primary
+    hit traced through (px, py) whose reprojection is ``uv``: (px, py) - uv, or 0 where it has none
+    (``NO_REPROJ``: a miss, or a point behind the previous eye). The same operations on the same float32 values
+    as when the G-buffer stored the velocity, so the same bits, but for a point whose previous position is
+    exactly (-1e4, -1e4) pixels, which reads as none."""
+    if uv[0] == NO_REPROJ and uv[1] == NO_REPROJ:
+        return wp.vec2(0.0, 0.0)
+    return wp.vec2(px - uv[0], py - uv[1])
+
+
+@wp.func
+def surface_albedo(face_albedo: wp.array(dtype=wp.vec3), f: int) -> wp.vec3:
+    """The albedo of the primary hit on face ``f`` (``GBuffer.face``): the scene's per-face albedo, 0 on a miss
+    (f < 0)."""
+    if f < 0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    return face_albedo[f]
+
+
+@wp.func
 def trace_primary(
     mesh: wp.uint64,
     indices: wp.array(dtype=wp.int32),
     points_prev: wp.array(dtype=wp.vec3),
     vnormals: wp.array(dtype=wp.vec3),
     smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
     cam: CameraParams,
     cam_prev: CameraParams,
     max_t: float,
@@ -46,17 +74,16 @@ def trace_primary(
     out_pos: wp.array2d(dtype=wp.vec3),
     out_normal: wp.array2d(dtype=wp.vec3),
     out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
     out_face: wp.array2d(dtype=wp.int32),
     out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
 ):
     """Trace the primary ray through the continuous pixel position (px, py) and write its G-buffer entry at
     [y, x] of the output arrays (the full-resolution G-buffer writes pixel (x, y) through its own centre; the
-    coarse one of the sparse mode writes one entry per cell)."""
+    coarse one of the sparse mode writes one entry per cell). The albedo and the screen velocity are not stored:
+    they follow from the face (:func:`surface_albedo`) and the reprojection (:func:`reproj_velocity`), exactly."""
     d = camera_ray_dir(cam, px, py)
     q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
     if q.result:
@@ -78,26 +105,20 @@ def trace_primary(
             moved = wp.uint8(1)
         out_moved[y, x] = moved
         uv = wp.vec2(NO_REPROJ, NO_REPROJ)
-        vel = wp.vec2(0.0, 0.0)
         if pr[2] > 0.0:
             uv = wp.vec2(pr[0], pr[1])
-            vel = wp.vec2(px - pr[0], py - pr[1])
         out_pos[y, x] = p
         out_normal[y, x] = n
         out_depth[y, x] = q.t
-        out_albedo[y, x] = face_albedo[q.face]
         out_face[y, x] = q.face
         out_hit[y, x] = wp.uint8(1)
-        out_velocity[y, x] = vel
         out_reproj[y, x] = uv
     else:
         out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
         out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
         out_depth[y, x] = max_t
-        out_albedo[y, x] = wp.vec3(0.0, 0.0, 0.0)
         out_face[y, x] = -1
         out_hit[y, x] = wp.uint8(0)
-        out_velocity[y, x] = wp.vec2(0.0, 0.0)
         out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
         out_prev_dist[y, x] = 0.0
         out_moved[y, x] = wp.uint8(0)
@@ -117,17 +138,14 @@ def _make_gbuffer(mode: str):
         points_prev: wp.array(dtype=wp.vec3),
         vnormals: wp.array(dtype=wp.vec3),
         smooth: wp.array(dtype=wp.uint8),
-        face_albedo: wp.array(dtype=wp.vec3),
         cam: CameraParams,
         cam_prev: CameraParams,
         max_t: float,
         out_pos: wp.array2d(dtype=wp.vec3),
         out_normal: wp.array2d(dtype=wp.vec3),
         out_depth: wp.array2d(dtype=float),
-        out_albedo: wp.array2d(dtype=wp.vec3),
         out_face: wp.array2d(dtype=wp.int32),
         out_hit: wp.array2d(dtype=wp.uint8),
-        out_velocity: wp.array2d(dtype=wp.vec2),
         out_reproj: wp.array2d(dtype=wp.vec2),
         out_prev_dist: wp.array2d(dtype=float),
         out_moved: wp.array2d(dtype=wp.uint8),
@@ -138,23 +156,23 @@ def _make_gbuffer(mode: str):
         if wp.static(rows):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(out_depth.shape[1]):
-                trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
-                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
-                              out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+                trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t,
+                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth,
+                              out_face, out_hit, out_reproj, out_prev_dist, out_moved)
         elif wp.static(tiles):
             p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
             x = p[0]
             y = p[1]
             if x < out_depth.shape[1] and y < out_depth.shape[0]:
-                trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
-                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo,
-                              out_face, out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+                trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t,
+                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth,
+                              out_face, out_hit, out_reproj, out_prev_dist, out_moved)
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
-            trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t,
-                          float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_albedo, out_face,
-                          out_hit, out_velocity, out_reproj, out_prev_dist, out_moved)
+            trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t,
+                          float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth, out_face,
+                          out_hit, out_reproj, out_prev_dist, out_moved)
 
     return gbuffer
 
@@ -162,3 +180,21 @@ def _make_gbuffer(mode: str):
 gbuffer_kernel = _make_gbuffer("pixels")
 gbuffer_rows_kernel = _make_gbuffer("rows")
 gbuffer_tiles_kernel = _make_gbuffer("tiles")
+
+
+@wp.kernel(enable_backward=False)
+def derive_velocity_kernel(reproj_uv: wp.array2d(dtype=wp.vec2), cell: int, width: int, height: int,
+                           out: wp.array2d(dtype=wp.vec2)):
+    """``GBuffer.velocity``: :func:`reproj_velocity` of each entry, traced through the centre of pixel
+    (``cell_pixel(x, cell, width)``, ``cell_pixel(y, cell, height)``)."""
+    y, x = wp.tid()
+    out[y, x] = reproj_velocity(reproj_uv[y, x], float(cell_pixel(x, cell, width)) + 0.5,
+                                float(cell_pixel(y, cell, height)) + 0.5)
+
+
+@wp.kernel(enable_backward=False)
+def derive_albedo_kernel(face: wp.array2d(dtype=wp.int32), face_albedo: wp.array(dtype=wp.vec3),
+                         out: wp.array2d(dtype=wp.vec3)):
+    """``GBuffer.albedo``: :func:`surface_albedo` of each entry."""
+    y, x = wp.tid()
+    out[y, x] = surface_albedo(face_albedo, face[y, x])

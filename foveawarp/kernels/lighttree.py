@@ -53,7 +53,7 @@ splits is spent (``wants_split``).
 
 import warp as wp
 
-from .gbuffer import shading_normal
+from .gbuffer import shading_normal, surface_albedo
 from .rng import onb_from
 from .shade import LightParams, list_pixel, spot_factor
 
@@ -730,17 +730,19 @@ def indirect_full_kernel(
     ip: IndirectParams,
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     radiance: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """radiance[y, x] += indirect radiance at every hit pixel."""
+    """radiance[y, x] += indirect radiance at every hit pixel (albedo: the scene's per-face table by ``face``)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     if hit[y, x] == wp.uint8(0):
         return
-    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])
+    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
+                                                        surface_albedo(face_albedo, face[y, x]))
 
 
 @wp.kernel(enable_backward=False)
@@ -751,7 +753,8 @@ def indirect_list_kernel(
     width: int,
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     radiance: wp.array2d(dtype=wp.vec3),
     row0: int,
@@ -764,4 +767,5 @@ def indirect_list_kernel(
     x, y = list_pixel(work[i], width)
     if hit[y, x] == wp.uint8(0):
         return
-    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x], albedo[y, x])
+    radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
+                                                        surface_albedo(face_albedo, face[y, x]))

@@ -19,7 +19,7 @@ import warp as wp
 
 from .camera import CameraParams, camera_project
 from .fpbits import nan_f32
-from .gbuffer import NO_REPROJ
+from .gbuffer import NO_REPROJ, reproj_velocity
 from .load import load_f32, load_i32, load_u8, load_vec2, load_vec3, store_i32, store_u8
 from .reproject import cache_lookup
 from .saliency import dof_factor, sobel_lab_by_face, sobel_vec3
@@ -195,14 +195,14 @@ def pixel_probability(x: int, y: int, w: int, h: int, sp: SamplingParams, fp: Fr
 
 
 @wp.func
-def saliency_velocity(fp: FrameParams, velocity: wp.array2d(dtype=wp.vec2), position: wp.array2d(dtype=wp.vec3),
-                      y: int, x: int, uv: wp.vec2) -> wp.vec2:
-    """The screen velocity of the V term at G-buffer entry [y, x]: the G-buffer's, or with
-    ``fp.object_velocity`` the object's own motion (where the point would be in the previous frame had it not
-    moved, minus where it was; camera motion removed). Each array is read only on the branch that uses it
-    (the position, 12 bytes a pixel, only with object motion)."""
+def saliency_velocity(fp: FrameParams, position: wp.array2d(dtype=wp.vec3), y: int, x: int, uv: wp.vec2,
+                      px: float, py: float) -> wp.vec2:
+    """The screen velocity of the V term at G-buffer entry [y, x], whose primary ray passed through (px, py) and
+    reprojects to ``uv``: the G-buffer's (``reproj_velocity``), or with ``fp.object_velocity`` the object's own
+    motion (where the point would be in the previous frame had it not moved, minus where it was; camera motion
+    removed). The position (12 bytes a pixel) is read only with object motion."""
     if fp.object_velocity == 0:
-        return load_vec2(velocity, y, x)  # a pixel: the unchecked loads (kernels/load.py)
+        return reproj_velocity(uv, px, py)
     v = wp.vec2(0.0, 0.0)
     pr = camera_project(fp.cam_prev, load_vec3(position, y, x))
     if pr[2] > 0.0 and uv[0] > 0.5 * NO_REPROJ:
@@ -498,7 +498,6 @@ def sampling_map_pixel(
     normal: wp.array2d(dtype=wp.vec3),
     depth: wp.array2d(dtype=float),
     hit: wp.array2d(dtype=wp.uint8),
-    velocity: wp.array2d(dtype=wp.vec2),
     position: wp.array2d(dtype=wp.vec3),
     reproj_uv: wp.array2d(dtype=wp.vec2),
     prev_dist: wp.array2d(dtype=float),
@@ -541,7 +540,7 @@ def sampling_map_pixel(
             if sp.use_normal != 0:
                 gn = sobel_vec3(normal, x, y)
             if hit_px != wp.uint8(0) and fp.use_velocity != 0:
-                v = saliency_velocity(fp, velocity, position, y, x, uv)
+                v = saliency_velocity(fp, position, y, x, uv, float(x) + 0.5, float(y) + 0.5)
         if sp.use_albedo != 0 and s < 1.0:
             s = wp.max(s, wp.min(sp.albedo_gain * ga, 1.0))
         if sp.use_normal != 0 and s < 1.0:
@@ -586,7 +585,6 @@ def _make_sampling_map(rows: bool):
         normal: wp.array2d(dtype=wp.vec3),
         depth: wp.array2d(dtype=float),
         hit: wp.array2d(dtype=wp.uint8),
-        velocity: wp.array2d(dtype=wp.vec2),
         position: wp.array2d(dtype=wp.vec3),
         reproj_uv: wp.array2d(dtype=wp.vec2),
         prev_dist: wp.array2d(dtype=float),
@@ -624,7 +622,7 @@ def _make_sampling_map(rows: bool):
             y1 = wp.min(ty * k + k, depth.shape[0])
             for y in range(ty * k, y1):
                 for x in range(depth.shape[1]):
-                    sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
+                    sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv,
                                        prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
                                        out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
             if maps_only == 0:
@@ -635,7 +633,7 @@ def _make_sampling_map(rows: bool):
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
-            sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, velocity, position, reproj_uv,
+            sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, position, reproj_uv,
                                prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
                                out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
 

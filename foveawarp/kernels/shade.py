@@ -8,6 +8,7 @@ ambient, emission). The temporal resolve accumulates only the stochastic part ov
 
 import warp as wp
 
+from .gbuffer import surface_albedo
 from .order import tile_order_pixel
 from .rng import cosine_hemisphere, pixel_rng
 from .tonemap import tonemap_rgb
@@ -243,7 +244,7 @@ def shade_pixel(
     y: int,
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     lights: wp.array(dtype=LightParams),
@@ -259,8 +260,9 @@ def shade_pixel(
     if hit[y, x] == wp.uint8(0):
         shade_miss(sp, x, y, out, out_stoch)
     else:
-        c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], face[y, x], lights,
-                                  area_lights, face_emission, ao_unocc)
+        f = face[y, x]
+        c, st = shade_point_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], surface_albedo(face_albedo, f), f,
+                                  lights, area_lights, face_emission, ao_unocc)
         out[y, x] = c
         if sp.split_stochastic != 0:
             out_stoch[y, x] = st
@@ -281,7 +283,7 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
         spa: wp.array(dtype=ShadeParams),
         pos: wp.array2d(dtype=wp.vec3),
         normal: wp.array2d(dtype=wp.vec3),
-        albedo: wp.array2d(dtype=wp.vec3),
+        face_albedo: wp.array(dtype=wp.vec3),
         face: wp.array2d(dtype=wp.int32),
         hit: wp.array2d(dtype=wp.uint8),
         lights: wp.array(dtype=LightParams),
@@ -303,7 +305,7 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             sp = spa[0]
             for x in range(out.shape[1]):
-                shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
                             out_stoch)
                 if to_display != 0:
                     display[y, x] = tonemap_rgb(out[y, x], exposure, white)
@@ -313,7 +315,7 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
             y = p[1]
             if x < out.shape[1] and y < out.shape[0]:
                 sp = spa[0]
-                shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
                             out_stoch)
                 if to_display != 0:
                     display[y, x] = tonemap_rgb(out[y, x], exposure, white)
@@ -321,7 +323,8 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
             sp = spa[0]
-            shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+            shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
+                        out_stoch)
             if to_display != 0:
                 display[y, x] = tonemap_rgb(out[y, x], exposure, white)
 
@@ -355,7 +358,7 @@ def shade_list_kernel(
     count: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     lights: wp.array(dtype=LightParams),
@@ -380,7 +383,7 @@ def shade_list_kernel(
     ao = float(-1.0)
     if lanes > 0:
         ao = ao_lanes_count(ao_part, i, lanes)
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
+    shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
 
 
 # 64 registers (4 blocks per SM) instead of the compiler's 77 (3): 3-12% faster on bunny, spot and city at 1080p
@@ -436,7 +439,8 @@ def shade_list_direct_kernel(
     count: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     lights: wp.array(dtype=LightParams),
     area_lights: wp.array(dtype=AreaLightParams),
@@ -455,8 +459,8 @@ def shade_list_direct_kernel(
     x, y = list_pixel(work[i], sp.width)
     if hit[y, x] == wp.uint8(0):
         return
-    col, st, rng = shade_direct_parts(sp, y * sp.width + x, pos[y, x], normal[y, x], albedo[y, x], lights,
-                                      area_lights)
+    col, st, rng = shade_direct_parts(sp, y * sp.width + x, pos[y, x], normal[y, x],
+                                      surface_albedo(face_albedo, face[y, x]), lights, area_lights)
     light_col[i] = col
     light_stoch[i] = st
 
@@ -466,7 +470,7 @@ def shade_list_finish_kernel(
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     face_emission: wp.array(dtype=wp.vec3),
@@ -491,8 +495,9 @@ def shade_list_finish_kernel(
         shade_miss(sp, x, y, out, out_stoch)
         return
     zero = wp.vec3(0.0, 0.0, 0.0)
-    col, st = shade_finish(sp, wp.uint32(0), zero, zero, albedo[y, x], face[y, x], face_emission, light_col[i],
-                           light_stoch[i], ao_lanes_count(ao_part, i, lanes))
+    f = face[y, x]
+    col, st = shade_finish(sp, wp.uint32(0), zero, zero, surface_albedo(face_albedo, f), f, face_emission,
+                           light_col[i], light_stoch[i], ao_lanes_count(ao_part, i, lanes))
     out[y, x] = col
     if sp.split_stochastic != 0:
         out_stoch[y, x] = st
@@ -507,7 +512,7 @@ def _make_shade_masked(rows: bool):
         mask: wp.array2d(dtype=wp.uint8),
         pos: wp.array2d(dtype=wp.vec3),
         normal: wp.array2d(dtype=wp.vec3),
-        albedo: wp.array2d(dtype=wp.vec3),
+        face_albedo: wp.array(dtype=wp.vec3),
         face: wp.array2d(dtype=wp.int32),
         hit: wp.array2d(dtype=wp.uint8),
         lights: wp.array(dtype=LightParams),
@@ -523,7 +528,7 @@ def _make_shade_masked(rows: bool):
             sp = spa[0]
             for x in range(mask.shape[1]):
                 if mask[y, x] != wp.uint8(0):
-                    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out,
+                    shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
                                 out_stoch)
         else:
             y, x = wp.tid()
@@ -531,7 +536,8 @@ def _make_shade_masked(rows: bool):
             if mask[y, x] == wp.uint8(0):
                 return
             sp = spa[0]
-            shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+            shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
+                        out_stoch)
 
     return shade_masked
 
@@ -547,7 +553,7 @@ def shade_rows_kernel(
     counts: wp.array(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
-    albedo: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
     lights: wp.array(dtype=LightParams),
@@ -566,7 +572,7 @@ def shade_rows_kernel(
     c = coords[v, u]
     x = c[0]
     y = c[1]
-    shade_pixel(sp, x, y, pos, normal, albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
+    shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out, out_stoch)
 
 
 @wp.kernel(enable_backward=False)

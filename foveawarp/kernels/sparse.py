@@ -16,7 +16,7 @@ import warp as wp
 
 from .camera import CameraParams
 from .fpbits import nan_f32
-from .gbuffer import trace_primary
+from .gbuffer import cell_pixel, trace_primary
 from .saliency import sobel_lab_by_face, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
@@ -32,13 +32,6 @@ class PrimaryParams:
     max_t: float
 
 
-@wp.func
-def cell_pixel(c: int, cell: int, n: int) -> int:
-    """The pixel (column or row) whose centre the primary ray of cell ``c`` passes through: the cell's middle
-    pixel, clamped to the image for the partial cells at the right/bottom edges."""
-    return wp.min(c * cell + cell / 2, n - 1)
-
-
 @wp.kernel(enable_backward=False)
 def set_primary_params_kernel(pp: PrimaryParams, out: wp.array(dtype=PrimaryParams)):
     out[0] = pp
@@ -51,7 +44,6 @@ def coarse_gbuffer_kernel(
     points_prev: wp.array(dtype=wp.vec3),
     vnormals: wp.array(dtype=wp.vec3),
     smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
     cam: CameraParams,
     cam_prev: CameraParams,
     max_t: float,
@@ -59,10 +51,8 @@ def coarse_gbuffer_kernel(
     out_pos: wp.array2d(dtype=wp.vec3),
     out_normal: wp.array2d(dtype=wp.vec3),
     out_depth: wp.array2d(dtype=float),
-    out_albedo: wp.array2d(dtype=wp.vec3),
     out_face: wp.array2d(dtype=wp.int32),
     out_hit: wp.array2d(dtype=wp.uint8),
-    out_velocity: wp.array2d(dtype=wp.vec2),
     out_reproj: wp.array2d(dtype=wp.vec2),
     out_prev_dist: wp.array2d(dtype=float),
     out_moved: wp.array2d(dtype=wp.uint8),
@@ -73,9 +63,8 @@ def coarse_gbuffer_kernel(
     cy += row0  # band offset (foveawarp.parallel)
     px = float(cell_pixel(cx, cell, cam.width)) + 0.5
     py = float(cell_pixel(cy, cell, cam.height)) + 0.5
-    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, cam, cam_prev, max_t, px, py, cy, cx,
-                  out_pos, out_normal, out_depth, out_albedo, out_face, out_hit, out_velocity, out_reproj,
-                  out_prev_dist, out_moved)
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t, px, py, cy, cx,
+                  out_pos, out_normal, out_depth, out_face, out_hit, out_reproj, out_prev_dist, out_moved)
 
 
 @wp.kernel(enable_backward=False)
@@ -86,13 +75,17 @@ def coarse_saliency_kernel(
     face_lab: wp.array(dtype=wp.vec3),
     normal: wp.array2d(dtype=wp.vec3),
     hit: wp.array2d(dtype=wp.uint8),
-    velocity: wp.array2d(dtype=wp.vec2),
     position: wp.array2d(dtype=wp.vec3),
     reproj_uv: wp.array2d(dtype=wp.vec2),
+    cell: int,
+    width: int,
+    height: int,
     out: wp.array2d(dtype=float),
     row0: int,
 ):
-    """max(dA, dN, V) of thesis eq. 3 per cell (each term clipped to [0, 1]; 0 when all are off)."""
+    """max(dA, dN, V) of thesis eq. 3 per cell (each term clipped to [0, 1]; 0 when all are off); ``cell``,
+    ``width``, ``height``: the cell edge and the image size (the V term's ray passed through the cell's middle
+    pixel, ``cell_pixel``)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     fp = frame[0]
@@ -102,7 +95,8 @@ def coarse_saliency_kernel(
     if sp.use_normal != 0 and s < 1.0:
         s = wp.max(s, wp.min(sp.normal_gain * sobel_vec3(normal, x, y), 1.0))
     if hit[y, x] != wp.uint8(0) and fp.use_velocity != 0 and s < 1.0:
-        v = saliency_velocity(fp, velocity, position, y, x, reproj_uv[y, x])
+        v = saliency_velocity(fp, position, y, x, reproj_uv[y, x], float(cell_pixel(x, cell, width)) + 0.5,
+                              float(cell_pixel(y, cell, height)) + 0.5)
         s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
     out[y, x] = s
 
@@ -161,10 +155,8 @@ def trace_shade_list_kernel(
     g_pos: wp.array2d(dtype=wp.vec3),
     g_normal: wp.array2d(dtype=wp.vec3),
     g_depth: wp.array2d(dtype=float),
-    g_albedo: wp.array2d(dtype=wp.vec3),
     g_face: wp.array2d(dtype=wp.int32),
     g_hit: wp.array2d(dtype=wp.uint8),
-    g_velocity: wp.array2d(dtype=wp.vec2),
     g_reproj: wp.array2d(dtype=wp.vec2),
     g_prev_dist: wp.array2d(dtype=float),
     g_moved: wp.array2d(dtype=wp.uint8),
@@ -181,8 +173,8 @@ def trace_shade_list_kernel(
     pp = ppa[0]
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
-    trace_primary(mesh, indices, points_prev, vnormals, smooth, face_albedo, pp.cam, pp.cam_prev, pp.max_t,
-                  float(x) + 0.5, float(y) + 0.5, y, x, g_pos, g_normal, g_depth, g_albedo, g_face, g_hit,
-                  g_velocity, g_reproj, g_prev_dist, g_moved)
-    shade_pixel(sp, x, y, g_pos, g_normal, g_albedo, g_face, g_hit, lights, area_lights, face_emission, out,
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, pp.cam, pp.cam_prev, pp.max_t,
+                  float(x) + 0.5, float(y) + 0.5, y, x, g_pos, g_normal, g_depth, g_face, g_hit, g_reproj,
+                  g_prev_dist, g_moved)
+    shade_pixel(sp, x, y, g_pos, g_normal, face_albedo, g_face, g_hit, lights, area_lights, face_emission, out,
                 out_stoch)

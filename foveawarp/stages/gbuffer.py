@@ -49,15 +49,17 @@ class GBufferStage:
         return float(min(max(2.0 * far, 1.0), 1.0e30))
 
     def run(self, gbuffer, camera: Camera, prev_camera: Camera) -> None:
-        """Fill every field of ``gbuffer`` for ``camera``; reprojection fields refer to ``prev_camera`` and the
-        scene's previous vertex positions."""
+        """Fill every stored field of ``gbuffer`` for ``camera`` (``GBuffer``: albedo and velocity follow from
+        them; its albedo is bound to the scene's per-face table); reprojection fields refer to ``prev_camera``
+        and the scene's previous vertex positions."""
         self._set_order()
         g, ds = gbuffer, self.dscene
+        if g._face_albedo is not ds.face_albedo:
+            g.bind_albedo(ds.face_albedo)
         w, h = self.width, self.height
-        inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+        inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth,
                   camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
-        outputs = [g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                   g.moved, self._wlog2]
+        outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, self._wlog2]
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:

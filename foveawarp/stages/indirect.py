@@ -439,15 +439,15 @@ class IndirectStage:
         return gbuffer
 
     def run_full(self, gbuffer, radiance) -> None:
-        """``radiance[y, x] += indirect`` at every hit pixel of ``gbuffer`` (reads position, normal, albedo,
-        hit)."""
+        """``radiance[y, x] += indirect`` at every hit pixel of ``gbuffer`` (reads position, normal, face, hit;
+        the albedo is the scene's per face)."""
         g = self._check_gbuffer(gbuffer)
         self._check("radiance", radiance, wp.vec3, shape=tuple(g.position.shape))
         if not self.enabled:
             return
         parallel.launch(indirect_full_kernel, dim=(g.position.shape[0], g.position.shape[1]),
-                        inputs=[self.params, g.position, g.normal, g.albedo, g.hit], outputs=[radiance],
-                        device=self.device)
+                        inputs=[self.params, g.position, g.normal, self.dscene.face_albedo, g.face, g.hit],
+                        outputs=[radiance], device=self.device)
 
     def run_list(self, gbuffer, work, count, radiance, width: int) -> None:
         """``radiance += indirect`` at the flat pixel indices ``work[0:count[0]]`` (y * width + x; count stays
@@ -462,7 +462,8 @@ class IndirectStage:
         if not self.enabled:
             return
         parallel.launch(indirect_list_kernel, dim=work.shape[0],
-                        inputs=[self.params, work, count, int(width), g.position, g.normal, g.albedo, g.hit],
+                        inputs=[self.params, work, count, int(width), g.position, g.normal, self.dscene.face_albedo,
+                                g.face, g.hit],
                         outputs=[radiance], device=self.device, count=count)
 
     def run_points(self, pos=None, normal=None, albedo=None, out=None) -> None:

@@ -364,7 +364,7 @@ class SamplingStage:
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
-        args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.velocity, g.position,
+        args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.position,
                 g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
         outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index]
         if rows:
@@ -417,7 +417,7 @@ class SamplingStage:
                 parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
             parallel.launch(sampling_map_kernel, dim=(h, w),
                             inputs=[self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit,
-                                    g.velocity, g.position, g.reproj_uv, g.prev_dist, self.depth_prev,
+                                    g.position, g.reproj_uv, g.prev_dist, self.depth_prev,
                                     self.valid_prev, 1, g.face, self._no_face_lab, 0],
                             outputs=[self._probability, self._saliency, self.sample_map, self.cache_hit,
                                      self.prev_index, self.tile_counts],

@@ -125,9 +125,10 @@ class ShadeStage:
 
     def inputs(self, gbuffer) -> list:
         """The scene and G-buffer arrays every shading launch reads, in kernel argument order: position, normal,
-        albedo, face, hit, lights, area lights, face emission."""
+        the scene's per-face albedo (looked up by face: the G-buffer stores none), face, hit, lights, area
+        lights, face emission."""
         g, ds = gbuffer, self.dscene
-        return [g.position, g.normal, g.albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
+        return [g.position, g.normal, ds.face_albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
     def full(self, gbuffer, out, out_stoch, display=None) -> None:
         """Shade every pixel into ``out`` (and ``out_stoch``); ``display`` (an (H, W) vec3 array, or None): also
@@ -192,8 +193,8 @@ class ShadeStage:
                 side = self._side
                 side.wait_stream(dev.stream)  # fork: the list and G-buffer are ready
             parallel.launch(shade_list_direct_kernel, dim=n,
-                            inputs=[self.params_dev, work, count, g.position, g.normal, g.albedo, g.hit, ds.lights,
-                                    ds.area_lights],
+                            inputs=[self.params_dev, work, count, g.position, g.normal, ds.face_albedo, g.face, g.hit,
+                                    ds.lights, ds.area_lights],
                             outputs=[*self._light], device=dev, count=count, max_blocks=blocks, stream=side)
         parallel.launch(shade_ao_list_kernel, dim=n * lanes,
                         inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, ds.area_lights],
@@ -202,7 +203,7 @@ class ShadeStage:
             if side is not None:
                 dev.stream.wait_stream(side)  # join
             parallel.launch(shade_list_finish_kernel, dim=n,
-                            inputs=[self.params_dev, work, count, g.albedo, g.face, g.hit, ds.face_emission, part,
+                            inputs=[self.params_dev, work, count, ds.face_albedo, g.face, g.hit, ds.face_emission, part,
                                     lanes, *self._light],
                             outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
         else:

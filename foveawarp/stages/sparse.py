@@ -44,7 +44,8 @@ class SparseGBufferStage:
         self.cell = check_int_range("cell", cell, 1, 64)
         self.coarse_width = (width + self.cell - 1) // self.cell
         self.coarse_height = (height + self.cell - 1) // self.cell
-        self.coarse = GBuffer(self.coarse_width, self.coarse_height, device)
+        self.coarse = GBuffer(self.coarse_width, self.coarse_height, device, cell=self.cell, image_size=(width, height))
+        self.coarse.bind_albedo(dscene.face_albedo)
         self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
         self.primary = wp.zeros(1, dtype=PrimaryParams, device=device)
 
@@ -61,10 +62,9 @@ class SparseGBufferStage:
         parallel.launch(
             coarse_gbuffer_kernel,
             dim=(self.coarse_height, self.coarse_width),
-            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ds.face_albedo, cam,
-                    cam_prev, float(max_t), self.cell],
-            outputs=[c.position, c.normal, c.depth, c.albedo, c.face, c.hit, c.velocity, c.reproj_uv, c.prev_dist,
-                     c.moved],
+            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam, cam_prev,
+                    float(max_t), self.cell],
+            outputs=[c.position, c.normal, c.depth, c.face, c.hit, c.reproj_uv, c.prev_dist, c.moved],
             device=self.device,
         )
         pp = PrimaryParams()
@@ -79,7 +79,7 @@ class SparseGBufferStage:
         sampling.num_cache_hits.zero_()
         parallel.launch(coarse_saliency_kernel, dim=(self.coarse_height, self.coarse_width),
                         inputs=[sampling.params, sampling.frame_params, c.face, self.dscene.face_lab, c.normal, c.hit,
-                                c.velocity, c.position, c.reproj_uv],
+                                c.position, c.reproj_uv, self.cell, self.width, self.height],
                         outputs=[self.coarse_saliency], device=dev)
         parallel.launch(sparse_sampling_kernel, dim=(self.height, self.width),
                         inputs=[sampling.params, sampling.frame_params, sampling.ranks, self.coarse_saliency,
@@ -98,8 +98,7 @@ class SparseGBufferStage:
             dim=work.shape[0],
             inputs=[self.primary, shade.params_dev, work, count, ds.mesh.id, ds.indices, ds.points_prev,
                     ds.vertex_normals, ds.face_smooth, ds.face_albedo, ds.lights, ds.area_lights, ds.face_emission],
-            outputs=[g.position, g.normal, g.depth, g.albedo, g.face, g.hit, g.velocity, g.reproj_uv, g.prev_dist,
-                     g.moved, out, out_stoch],
+            outputs=[g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, out, out_stoch],
             device=self.device,
             count=count,
         )

@@ -195,7 +195,7 @@ class TemporalStage:
 
         Args:
             sample_map: (H, W) uint8, 1 where ``fresh`` was traced this frame.
-            gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, velocity, moved).
+            gbuffer: this frame's :class:`GBuffer` (hit, normal, depth, reproj_uv, prev_dist, moved).
             fresh: (H, W) vec3 radiance at the traced pixels.
             fresh_stoch: (H, W) vec3, the stochastic part of ``fresh`` (read only when ``stochastic``).
             use_history: False on the first frame and after a cut.
@@ -228,12 +228,12 @@ class TemporalStage:
             raise ValueError(f"work and count must be given together (ReorderStage.work and .count), got "
                              f"{type(work).__name__} and {type(count).__name__}")
         if shade is not None:
-            pos, _, albedo, face, _, lights, area_lights, face_emission = shade.inputs(gbuffer)
+            pos, _, face_albedo, face, _, lights, area_lights, face_emission = shade.inputs(gbuffer)
             parallel.launch(
                 shade_resolve_rows_kernel, self.height,
-                inputs=[shade.params_dev, pos, albedo, face, lights, area_lights, face_emission,
+                inputs=[shade.params_dev, pos, face_albedo, face, lights, area_lights, face_emission,
                         self.params(use_history=use_history, stochastic=False, background=background), sample_map,
-                        g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh, fresh_stoch,
+                        g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved, fresh, fresh_stoch,
                         self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
                         self._stoch[prev]],
                 outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur],
@@ -243,7 +243,7 @@ class TemporalStage:
             self.swap()
             return
         tp = self.params(use_history=use_history, stochastic=stochastic, background=background, samples=samples)
-        inputs = [tp, sample_map, g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.velocity, g.moved, fresh,
+        inputs = [tp, sample_map, g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved, fresh,
                   fresh_stoch, self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
                   self._stoch[prev]]
         outputs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
