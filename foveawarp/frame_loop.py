@@ -399,19 +399,10 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
-        self._harvest_watch()
         mode, pol_timed, pol_watch = self._policy_mode()
         seeded = False
-        if mode == "full" and cfg.foveation.enabled:
-            est = self._pol_est
-            if self.policy == "full":
-                skipped["foveation"] = "policy 'full': every pixel traced"
-            elif est and self._pol_choice == "full":
-                skipped["foveation"] = (f"policy 'auto': full resolution is cheaper here (measured "
-                                        f"{est['full_ms']:.3f} ms full vs {est['foveated_ms']:.3f} ms foveated)")
-            else:
-                skipped["foveation"] = "policy 'auto': timing the full-resolution path"
-        elif self._last_full and not (first or cut):
+        # (a full-resolution frame's skipped["foveation"] is written after the launches: host work they need not wait for)
+        if not (mode == "full" and cfg.foveation.enabled) and self._last_full and not (first or cut):
             if cfg.foveation.enabled:
                 # a foveated frame after one that traced every pixel: that frame becomes its history (no cut)
                 with self._stage("temporal"):
@@ -502,6 +493,18 @@ class FrameLoop:
             self.temporal.swap()  # the body's only host-side state: the history ping-pong
         if ev is not None:
             self.device.stream.record_event(ev[1])
+        # the policy's host work that this frame's launches do not depend on, after them: the last watched frame's
+        # GPU span (read when done), and why foveation was skipped
+        self._harvest_watch()
+        if mode == "full" and cfg.foveation.enabled:
+            est = self._pol_est
+            if self.policy == "full":
+                skipped["foveation"] = "policy 'full': every pixel traced"
+            elif est and self._pol_choice == "full":
+                skipped["foveation"] = (f"policy 'auto': full resolution is cheaper here (measured "
+                                        f"{est['full_ms']:.3f} ms full vs {est['foveated_ms']:.3f} ms foveated)")
+            else:
+                skipped["foveation"] = "policy 'auto': timing the full-resolution path"
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
         stats["skipped"] = skipped
