@@ -24,7 +24,8 @@ def _affine64(m: wp.mat44d, v: wp.vec3, translate: int) -> wp.vec3:
 
 @wp.kernel(enable_backward=False)
 def rigid_motion_kernel(
-    m: wp.mat44d,
+    mats: wp.array(dtype=wp.mat44d),
+    k: int,
     start: int,
     rest: wp.array(dtype=wp.vec3),
     rest_normals: wp.array(dtype=wp.vec3),
@@ -34,9 +35,12 @@ def rigid_motion_kernel(
     row0: int,
 ):
     """Vertex ``start + i`` of one object: position (and, with ``move_normals``, vertex normal, rotated without
-    the translation and not renormalized, as on the host) = ``m`` applied to its rest value. A thread per vertex
-    of the object, in bands on the CPU (``foveawarp.parallel``: each thread writes only its own vertex)."""
+    the translation and not renormalized, as on the host) = ``mats[k]``, the object's transform, applied to its rest
+    value (the transforms are read from the device, so that a captured CUDA graph of the update takes each frame's
+    from one copy). A thread per vertex of the object, in bands on the CPU (``foveawarp.parallel``: each thread
+    writes only its own vertex)."""
     i = wp.tid() + row0 + start
+    m = mats[k]
     points[i] = _affine64(m, rest[i], 1)
     if move_normals != 0:
         normals[i] = _affine64(m, rest_normals[i], 0)
