@@ -95,10 +95,11 @@ def test_cpu_benchmark_quick(tmp_path):
 
 
 def test_policy_cost_quick(tmp_path):
-    """benchmarks/policy_cost.py: render(policy="full") against render_reference, frame by frame (no speed
-    assertion); the two loops draw the same image, so both are timed on the same work."""
+    """benchmarks/policy_cost.py: render(policy="full") and, with --auto, render with the default policy against
+    render_reference, frame by frame (no speed assertion); the loops draw the same image, so all are timed on the
+    same work."""
     _run([str(REPO / "benchmarks" / "policy_cost.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
-          "--shadings", "default"], tmp_path)
+          "--shadings", "default", "--auto"], tmp_path)
     res = json.loads((tmp_path / "policy-cost-cpu.json").read_text())
     assert res["benchmark"] == "policy-cost" and res["commit"]
     (row,) = res["rows"]
@@ -106,6 +107,8 @@ def test_policy_cost_quick(tmp_path):
                                                                                           54, 6)
     assert row["reference_ms"] > 0 and row["render_full_ms"] > 0
     assert row["ratio"] == row["render_full_ms"] / row["reference_ms"]
+    assert row["auto_ms"] > 0 and row["auto_path"] in ("full", "foveated")
+    assert row["auto_ratio"] == row["auto_ms"] / row["reference_ms"]
 
 
 def test_cpu_dispatch_quick(tmp_path):
