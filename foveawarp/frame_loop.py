@@ -571,6 +571,9 @@ class FrameLoop:
             return ("full" if self.policy == "full" else "foveated"), False, False
         f = self._pol_frame
         self._pol_frame = (f + 1) % self.POLICY_PERIOD
+        if f > 2 * sum(self._pol_len) and len(self._pol_watch_ms) < self.POLICY_WATCH:
+            # the steady state between measurements with no check due (most frames): the choice, as below
+            return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
         if f == 0:
             self._pol_ms = {"foveated": [], "full": []}
             self._pol_span = {"foveated": [], "full": []}
