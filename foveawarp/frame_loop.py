@@ -401,7 +401,8 @@ class FrameLoop:
             cut = True
         mode, pol_timed, pol_watch = self._policy_mode()
         seeded = False
-        # (a full-resolution frame's skipped["foveation"] is written after the launches: host work they need not wait for)
+        # (a full-resolution frame's skipped["foveation"] is written after the launches: host work they need not
+        # wait for)
         if not (mode == "full" and cfg.foveation.enabled) and self._last_full and not (first or cut):
             if cfg.foveation.enabled:
                 # a foveated frame after one that traced every pixel: that frame becomes its history (no cut)

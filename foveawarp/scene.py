@@ -396,7 +396,7 @@ class DeviceScene:
                               if self.animated and scene.vertex_normals is not None else None)
         # the moving objects' 4x4 transforms of the frame, written on the host and copied to the device in one copy
         # (on the CPU device the same array); on CUDA the rest of the update (previous positions, motion kernels,
-        # BVH refit) is captured once as a CUDA graph and replayed (``update_graph``)
+        # BVH refit) is captured once as a CUDA graph and replayed (see ``_move_objects``)
         self._mats = self._mats_host = None
         self._update_graphs: dict = {}  # vertex ranges of the moving objects -> captured graph
         self._update_warm: set = set()

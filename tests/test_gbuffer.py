@@ -283,7 +283,8 @@ def test_derived_velocity_against_numpy(data, cell, w, h):
     no-reprojection marker), full resolution and coarse cells with partial edge cells; finite everywhere."""
     from foveawarp.buffers import GBuffer
 
-    vals = st.one_of(st.floats(-1e30, 1e30, allow_subnormal=False).map(np.float32), st.sampled_from([-1e4, 0.0, 0.5, -5e3, 1e4]))
+    vals = st.one_of(st.floats(-1e30, 1e30, allow_subnormal=False).map(np.float32),
+                     st.sampled_from([-1e4, 0.0, 0.5, -5e3, 1e4]))
     uv = np.array(data.draw(st.lists(vals, min_size=h * w * 2, max_size=h * w * 2)), np.float32).reshape(h, w, 2)
     uv[data.draw(st.integers(0, h - 1)), data.draw(st.integers(0, w - 1))] = -1e4  # one entry without
     iw = data.draw(st.integers(max(1, (w - 1) * cell + 1), w * cell))  # partial cells at the right / bottom
