@@ -41,7 +41,10 @@ class GBuffer:
         cell = check_int_range("cell", cell, 1, 64)
         if image_size is None:
             image_size = (width * cell, height * cell)
-        iw, ih = check_image_size(*image_size)
+        if not (isinstance(image_size, (tuple, list)) and len(image_size) == 2):
+            raise ValueError(f"image_size must be a (width, height) pair, got {image_size!r}")
+        iw = check_int_range("image_size[0]", image_size[0], 1, 16384)
+        ih = check_int_range("image_size[1]", image_size[1], 1, 16384)
         shape = (height, width)
         self.width, self.height, self.cell, self.image_size = width, height, cell, (iw, ih)
         self.device = device

@@ -316,3 +316,6 @@ def test_gbuffer_albedo_binding_and_its_errors():
             g.bind_albedo(bad)
     with pytest.raises(ValueError, match="cell must be"):
         GBuffer(3, 2, "cpu", cell=0)
+    for size, name in (((0, 5), r"image_size\[0\]"), ((4, 1e9), r"image_size\[1\]"), (7, "image_size must be")):
+        with pytest.raises(ValueError, match=name):
+            GBuffer(3, 2, "cpu", image_size=size)
