@@ -5,7 +5,7 @@ Times ``SamplingStage.run`` (Lab prepass, fused per-pixel pass, tile pass) on co
 repeats, plus the per-kernel split. Then prints the sampling rate of the built-in scenes at default settings.
 
     python benchmarks/sampling.py --device cuda:0
-    python benchmarks/sampling.py --device cpu --quick --out /tmp/bench
+    python benchmarks/sampling.py --device cpu --quick --out bench-out
 """
 
 from __future__ import annotations
