@@ -370,12 +370,16 @@ def jfa_last_pass_bands_kernel(
     row0: int,
 ):
     """``jfa_last_pass_kernel`` for the CPU's band-parallel launches (``foveawarp.parallel``): no tiles, no
-    atomics. Thread (ty, tx) runs the same per-pixel step over screen tile (ty, tx) and writes the same
-    ``nearest``, ``r2_out``, ``color_out`` and ``tile_r2``, plus its count of pixels without a seed to
-    ``tile_miss``; ``jfa_tile_stats_kernel`` then reduces ``tile_r2`` / ``tile_miss`` into the statistics
-    (equal to the tiled kernel's atomics: integer max and sum, and sqrt of the max r2)."""
-    ty, tx = wp.tid()
-    ty += row0  # band offset (foveawarp.parallel)
+    atomics. A 1-D launch over the screen tiles in row-major order (bands of tiles, not of tile rows: 640x360 has
+    only 23 tile rows, too few to spread over 16 threads): thread i runs the same per-pixel step over screen tile
+    (i // tiles across, i % tiles across) and writes the same ``nearest``, ``r2_out``, ``color_out`` and
+    ``tile_r2``, plus its count of pixels without a seed to ``tile_miss``; ``jfa_tile_stats_kernel`` then
+    reduces ``tile_r2`` / ``tile_miss`` into the statistics (equal to the tiled kernel's atomics: integer max
+    and sum, and sqrt of the max r2)."""
+    i = wp.tid() + row0  # band offset (foveawarp.parallel)
+    ntx = tile_r2.shape[1]
+    ty = i // ntx
+    tx = i - ty * ntx
     h = mask.shape[0]
     w = mask.shape[1]
     r2max = int(0)

@@ -297,7 +297,7 @@ class ReconstructStage:
         last = [seed_mask, src, step_last, 1 if n <= 1 else 0, settled[-1] if n else 1, cin, mode,
                 self._disc_offsets]
         if self._tile_miss is not None and self.cpu_bands:
-            parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.shape, inputs=last,
+            parallel.launch(jfa_last_pass_bands_kernel, dim=self.tile_radius_sq.size, inputs=last,
                             outputs=[self.nearest, self.radius_sq, self.tile_radius_sq, cout, self._tile_miss],
                             device=dev, min_band_items=8)
             self._stats_launch(1, inputs=[self.tile_radius_sq, self._tile_miss], outputs=self._stats_args(),
