@@ -51,6 +51,12 @@ MAX_THREADS = 1024
 MIN_ITEMS_PER_BAND = int(os.environ.get("FOVEAWARP_CPU_MIN_BAND_ITEMS", "2048") or 2048)  # 0: split every launch
 # pack a launch's arguments once and run the bands through Warp's CPU entry point (False: one wp.launch per band)
 FAST_BANDS = True
+# run the bands on the native team (kernels/team.py: workers that wait in native code, no lock, wake-up or GIL
+# per launch) when the launch's threads fit the usable cores; False, or FOVEAWARP_CPU_NATIVE_TEAM=0: the Python
+# team (_Team). Set to False by the first launch if the native team cannot be built.
+NATIVE_TEAM = os.environ.get("FOVEAWARP_CPU_NATIVE_TEAM", "1").strip() != "0"
+# spin iterations (a pause instruction each) a native worker waits after a job before it naps in 50 us sleeps
+NATIVE_SPIN = 50000
 # bands per thread: the threads take bands from a shared queue, so rows of unequal cost (sky above, geometry
 # below) even out; each band costs a few microseconds of Python under the GIL. None: 4 (16 cores, cornell
 # 640x360 at 3264d20: 8.23 ms a frame with 4 bands per thread, 8.96 ms with 2)
@@ -179,6 +185,74 @@ def _team(n: int) -> _Team:
         return t
 
 
+class _NativeTeam:
+    """``size`` worker threads that each made one call into native code (``kernels/team.py``) and wait there
+    for jobs; :meth:`run` posts one from the calling thread, which runs bands too. One team serves launches of
+    any thread count up to ``size + 1``; ``busy`` keeps concurrent launches from different Python threads
+    apart, as with :class:`_Team`."""
+
+    def __init__(self, size: int, dev):
+        from .kernels.team import team_run_kernel, team_worker_kernel
+
+        self.busy = _thread.allocate_lock()
+        self.size = int(size)
+        self.ctl = (ctypes.c_int64 * 64)()
+        libc = ctypes.CDLL(None)
+        self.ctl[32] = ctypes.cast(libc.usleep, ctypes.c_void_p).value
+        self.ctl[40] = int(NATIVE_SPIN)
+        addr = ctypes.addressof(self.ctl)
+        for k in (team_run_kernel, team_worker_kernel):
+            k.module.load(dev, 1)
+        fwd, _, args, kdim = _record(team_run_kernel, (1,), [addr, 0, 0, 0, 0, 0], [], dev)
+        self._run = (fwd, ctypes.byref(_bounds_of((1,), kdim)), args)
+        self._keep = [self._run]
+        self.threads = []
+        for slot in range(self.size):
+            wf, _, wargs, wdim = _record(team_worker_kernel, (1,), [addr, slot], [], dev)
+            bounds = _bounds_of((1,), wdim)
+            self._keep.append((bounds, wargs))
+            t = threading.Thread(target=wf, args=(ctypes.byref(bounds), ctypes.byref(wargs)), daemon=True,
+                                 name=f"foveawarp-native-{slot}")
+            t.start()
+            self.threads.append(t)
+
+    def run(self, tables, workers: int) -> None:
+        """Run the bands of ``tables`` (``_Bands.tables``) on this thread and ``workers`` team workers."""
+        fwd, bounds, args = self._run
+        args.fn, args.bounds, args.args, args.count = tables[2], tables[3], tables[4], tables[5]
+        args.workers = int(workers)
+        fwd(bounds, ctypes.byref(args))
+
+    def shutdown(self, timeout: float = 2.0) -> None:
+        """Ask the workers to return and wait for them (at exit, before Warp unloads its modules)."""
+        self.ctl[16] = 1
+        for t in self.threads:
+            t.join(timeout)
+
+
+_native = None
+
+
+def _native_team(dev) -> Optional[_NativeTeam]:
+    """The process's native team (``usable_cores() - 1`` workers), built by the first call; None when it
+    cannot be built (then ``NATIVE_TEAM`` is turned off and the Python team runs the bands)."""
+    global _native, NATIVE_TEAM
+    if _native is not None:
+        return _native
+    with _team_lock:
+        if _native is None and NATIVE_TEAM:
+            try:
+                team = _NativeTeam(usable_cores() - 1, dev)
+            except Exception:  # noqa: BLE001 - no native team on this platform: the Python team stays
+                NATIVE_TEAM = False
+                return None
+            import atexit
+
+            atexit.register(team.shutdown)  # registered after Warp's own exit handlers, so it runs before them
+            _native = team
+    return _native
+
+
 def bands(n_rows: int, n_threads: int, row_items: int = 1, min_items: int = 0) -> list:
     """Split ``n_rows`` into at most ``n_threads`` contiguous (start, stop) bands of near-equal size, fewer when
     a band would hold under ``min_items`` work items (``row_items`` per row); never an empty band."""
@@ -266,7 +340,7 @@ _band_cache: dict = {}
 class _Bands:
     """The kept per-band launch state of one packed launch split one way."""
 
-    __slots__ = ("master", "last", "structs", "bounds", "calls")
+    __slots__ = ("master", "last", "structs", "bounds", "calls", "tables")
 
 
 def _band_calls(packed, parts, dims):
@@ -281,6 +355,7 @@ def _band_calls(packed, parts, dims):
         st.bounds = {r1 - r0: _bounds_of((r1 - r0, *dims[1:]), kdim) for r0, r1 in parts}  # at most two sizes
         st.calls = [(forward, ctypes.byref(st.bounds[r1 - r0]), ctypes.byref(a))
                     for a, (r0, r1) in zip(st.structs, parts)]
+        st.tables = None  # the native team's pointer tables (_tables), made on first use
         if len(_band_cache) >= _PACK_CACHE_MAX:
             _band_cache.clear()
         _band_cache[key] = st
@@ -291,7 +366,19 @@ def _band_calls(packed, parts, dims):
             ctypes.memmove(ctypes.addressof(a), src, size)
             a.row0 = r0
         st.last = cur
-    return iter(st.calls)
+    return st
+
+
+def _tables(st):
+    """The native team's view of the bands of ``st``: arrays of the band bounds' and argument structs'
+    addresses, kept with ``st`` (whose structs they point to), and (entry point, tables' addresses, count)."""
+    if st.tables is None:
+        n = len(st.calls)
+        bptr = (ctypes.c_uint64 * n)(*[ctypes.addressof(b._obj) for _, b, _ in st.calls])
+        aptr = (ctypes.c_uint64 * n)(*[ctypes.addressof(a) for a in st.structs])
+        fn = ctypes.cast(st.calls[0][0], ctypes.c_void_p).value
+        st.tables = (bptr, aptr, fn, ctypes.addressof(bptr), ctypes.addressof(aptr), n)
+    return st.tables
 
 
 def _check_kernel(kernel) -> None:
@@ -360,7 +447,8 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # every band's launch bounds and argument struct (a copy of the packed one with its row0) are kept with
         # the packed arguments and copied again only when those changed: a band is then one ctypes call, the
         # least Python a member thread runs under the GIL
-        calls = _band_calls(packed, parts, dims)
+        st = _band_calls(packed, parts, dims)
+        calls = iter(st.calls)
         if len(parts) == 1:  # one band: this thread, with the kept arguments (no packing)
             for f, b, a in calls:
                 f(b, a)
@@ -379,6 +467,17 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
 
     # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
     workers = min(n, len(parts))
+    if packed is not None and NATIVE_TEAM and n <= usable_cores():
+        native = _native_team(dev)
+        if native is not None:
+            if not native.busy.acquire(blocking=False):  # another Python thread's launch holds it: run here
+                worker()
+                return
+            try:
+                native.run(_tables(st), workers - 1)
+            finally:
+                native.busy.release()
+            return
     team = _team(n)
     if not team.busy.acquire(blocking=False):  # another Python thread's launch holds the team: run here
         worker()

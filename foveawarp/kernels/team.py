@@ -1,0 +1,133 @@
+"""The native thread team of ``foveawarp.parallel`` (the CPU device): workers that wait for bands in native code.
+
+A band-parallel CPU launch is a list of bands, each a call of the kernel's CPU entry point with its own launch
+bounds and argument struct. With Python threads, every launch wakes the team's threads through locks, and every
+band takes the GIL: at 16 threads a launch that does nothing costs 0.2-0.45 ms (session 18), several times a
+light kernel's own work. Here each worker thread of the team makes one call into native code when it starts
+(``team_worker_kernel``) and stays there: it watches a control block for jobs, spinning for a while after its
+last job and then napping in short sleeps, so a launch reaches it without a lock, a wake-up or the GIL. The
+launching thread posts a job and runs bands itself (``team_run_kernel``), then waits until every band is done.
+
+The control block is 64 int64 words (the caller keeps it alive as long as the workers run):
+
+* word 0: ``generation << 32 | next band``. Posting a job stores a new generation with band 0 (release);
+  a thread claims band k of generation g by a compare-and-swap from ``g << 32 | k`` to ``g << 32 | k + 1``, so a
+  thread that still holds an older generation can never claim a band of a newer job.
+* word 8: bands finished in the current job (the poster resets it before posting and waits until it reaches
+  the band count).
+* word 16: non-zero asks the workers to return (the team's shutdown).
+* words 24-28: the job: entry point, addresses of the arrays of n band bounds and n argument-struct pointers,
+  n, and how many workers take part (worker ``slot`` takes part when ``slot`` < that count: one team serves
+  launches of any thread count up to its size).
+* word 32: the address of a ``usleep``-like function (``int(unsigned int microseconds)``) the workers nap with.
+* word 40: how many spin iterations a worker waits after a job before it starts napping.
+
+The code is for the CPU only: compiled for CUDA (every kernel module is, in the tests) the functions are empty.
+
+Which thread runs a band does not change what the band writes, so the output is the same for every thread
+count and schedule (tests/test_parallel.py).
+"""
+
+import warp as wp
+
+_PAUSE = """
+#if defined(__x86_64__) || defined(__i386__)
+        __builtin_ia32_pause();
+#elif defined(__aarch64__) || defined(__arm__)
+        __asm__ __volatile__("yield");
+#endif
+"""
+
+_CLAIM = """
+        for (;;) {
+            long long v = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE);
+            if ((v >> 32) != g) break;
+            long long k = v & 0xffffffffLL;
+            if (k >= n) break;
+            if (__atomic_compare_exchange_n(&c[0], &v, v + 1, false, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE)) {
+                f((void*)b[k], (void*)a[k]);
+                __atomic_fetch_add(&c[8], 1LL, __ATOMIC_RELEASE);
+            }
+        }
+"""
+
+
+@wp.func_native("""
+#if !defined(__CUDACC__)
+    typedef void (*entry_t)(void*, void*);
+    typedef void (*nap_t)(unsigned);  // usleep (its int result unused; Warp defines "int" as a macro)
+    long long* c = (long long*)ctl;
+    nap_t nap = (nap_t)__atomic_load_n(&c[32], __ATOMIC_RELAXED);
+    const long long spin = __atomic_load_n(&c[40], __ATOMIC_RELAXED);
+    long long seen = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE) >> 32;
+    long long idle = 0;
+    for (;;) {
+        if (__atomic_load_n(&c[16], __ATOMIC_ACQUIRE) != 0) break;
+        const long long g = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE) >> 32;
+        if (g == seen) {
+            if (idle < spin) {
+                ++idle;
+""" + _PAUSE + """
+            } else {
+                nap(50u);
+            }
+            continue;
+        }
+        seen = g;
+        idle = 0;
+        if ((long long)slot >= __atomic_load_n(&c[28], __ATOMIC_RELAXED)) continue;
+        entry_t f = (entry_t)__atomic_load_n(&c[24], __ATOMIC_RELAXED);
+        const unsigned long long* b = (const unsigned long long*)__atomic_load_n(&c[25], __ATOMIC_RELAXED);
+        const unsigned long long* a = (const unsigned long long*)__atomic_load_n(&c[26], __ATOMIC_RELAXED);
+        const long long n = __atomic_load_n(&c[27], __ATOMIC_RELAXED);
+""" + _CLAIM + """
+    }
+#endif
+""")
+def team_wait(ctl: wp.uint64, slot: int):
+    """Worker ``slot``'s loop: run the bands it claims of every job posted to the control block at ``ctl`` until
+    the shutdown word is set (see the module docstring)."""
+    ...
+
+
+@wp.func_native("""
+#if !defined(__CUDACC__)
+    typedef void (*entry_t)(void*, void*);
+    long long* c = (long long*)ctl;
+    entry_t f = (entry_t)fn;
+    const unsigned long long* b = (const unsigned long long*)bounds;
+    const unsigned long long* a = (const unsigned long long*)args;
+    const long long n = (long long)count;
+    __atomic_store_n(&c[24], (long long)fn, __ATOMIC_RELAXED);
+    __atomic_store_n(&c[25], (long long)bounds, __ATOMIC_RELAXED);
+    __atomic_store_n(&c[26], (long long)args, __ATOMIC_RELAXED);
+    __atomic_store_n(&c[27], n, __ATOMIC_RELAXED);
+    __atomic_store_n(&c[28], (long long)workers, __ATOMIC_RELAXED);
+    __atomic_store_n(&c[8], 0LL, __ATOMIC_RELAXED);
+    const long long g = (__atomic_load_n(&c[0], __ATOMIC_RELAXED) >> 32) + 1;
+    __atomic_store_n(&c[0], g << 32, __ATOMIC_RELEASE);
+""" + _CLAIM + """
+    while (__atomic_load_n(&c[8], __ATOMIC_ACQUIRE) < n) {
+""" + _PAUSE + """
+    }
+#endif
+""")
+def team_post(ctl: wp.uint64, fn: wp.uint64, bounds: wp.uint64, args: wp.uint64, count: int, workers: int):
+    """Post a job of ``count`` bands (entry point ``fn``; ``bounds`` and ``args``: addresses of arrays of
+    ``count`` pointers) for the first ``workers`` workers, run the bands this thread claims, and return when
+    every band is done."""
+    ...
+
+
+@wp.kernel(enable_backward=False)
+def team_worker_kernel(ctl: wp.uint64, slot: int, row0: int):
+    """A worker thread's one call (dim 1, the CPU device; ``row0``, unused, is the trailing argument
+    ``parallel``'s packing expects): returns at the team's shutdown."""
+    team_wait(ctl, slot)
+
+
+@wp.kernel(enable_backward=False)
+def team_run_kernel(ctl: wp.uint64, fn: wp.uint64, bounds: wp.uint64, args: wp.uint64, count: int, workers: int,
+                    row0: int):
+    """The launching thread's call for one band-parallel launch (dim 1, the CPU device)."""
+    team_post(ctl, fn, bounds, args, count, workers)
