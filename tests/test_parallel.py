@@ -164,6 +164,10 @@ def test_concurrent_launches_stress(every_band, rng):
     """Many band-parallel launches of several kernels from several Python threads at once, repeated: every
     result equals the one-thread result (a static launch index or shared state in the generated CPU code, as
     in the old Warp threading crash, would mix up rows or crash here)."""
+    _concurrent_launches(rng)
+
+
+def _concurrent_launches(rng):
     h, w = 37, 29
     inputs = [_rand_vec3(rng, h, w) for _ in range(6)]
     expect = []
@@ -462,6 +466,80 @@ def test_launches_from_two_python_threads(every_band, rng):
     for j in range(2):
         np.testing.assert_allclose(outs[j].numpy(), srcs[j] * 2.0 + np.array([j, 1.0, 0.0], np.float32),
                                    rtol=1e-6, atol=1e-6)
+
+
+@wp.kernel(enable_backward=False)
+def _count_rows_kernel(out: wp.array2d(dtype=wp.int32), row0: int):
+    """Adds 1 to every element of its row: a band run twice (or never) leaves 2 (or 0) there."""
+    y, x = wp.tid()
+    y += row0
+    out[y, x] = out[y, x] + 1
+
+
+@pytest.fixture
+def native_team(monkeypatch):
+    """A private native team of 5 workers serving every launch of up to 6 threads (the machine may have fewer
+    cores: the workers then share them, which is slower but must stay exact); shut down after the test."""
+    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
+        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    team = parallel._NativeTeam(5, wp.get_device(DEV))
+    monkeypatch.setattr(parallel, "_native", team)
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 6)
+    yield team
+    team.shutdown()
+    assert not any(t.is_alive() for t in team.threads)
+
+
+def test_native_team_runs_every_band_once(every_band, native_team):
+    """Launches of 2-6 threads and 1-24 bands on the native team, one after another: every row's band ran exactly
+    once per launch (the claims are tagged with the job's generation, so a worker late from one job cannot
+    take a band of the next); the Python team gives the same counts."""
+    h, w = 23, 5
+    out = wp.zeros((h, w), dtype=wp.int32, device=DEV)
+    launches = 0
+    for rep in range(120):
+        n = 2 + rep % 5
+        parallel.OVERSPLIT = 1 + rep % 4
+        try:
+            parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=n)
+        finally:
+            parallel.OVERSPLIT = None
+        launches += 1
+        if rep % 17 == 0:
+            np.testing.assert_array_equal(out.numpy(), np.full((h, w), launches, np.int32))
+    np.testing.assert_array_equal(out.numpy(), np.full((h, w), launches, np.int32))
+    parallel.NATIVE_TEAM = False
+    try:
+        parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=4)
+    finally:
+        parallel.NATIVE_TEAM = True
+    np.testing.assert_array_equal(out.numpy(), np.full((h, w), launches + 1, np.int32))
+
+
+def test_native_team_concurrent_launches(every_band, native_team, rng):
+    """The race test of ``test_concurrent_launches_stress`` with every launch of up to 6 threads on the native
+    team: launches from six Python threads at once (one holds the team, the others run their bands in their own
+    thread) all equal the one-thread results."""
+    _concurrent_launches(rng)
+
+
+def test_native_team_frames_bit_identical(every_band, native_team):
+    """Whole foveated and reference frames with 2 AO rays, rendered with 4 threads on the native team, equal
+    those of one thread byte for byte."""
+    cfg = fw.Config().with_(shading={"ao_samples": 2})
+    one = _frame_state(1, cfg, "cornell", (48, 32), frames=3)
+    four = _frame_state(4, cfg, "cornell", (48, 32), frames=3)
+    for k, (a, b) in enumerate(zip(one, four)):
+        assert a.tobytes() == b.tobytes(), k
+
+
+def test_native_team_shutdown_returns_its_workers():
+    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
+        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    team = parallel._NativeTeam(3, wp.get_device(DEV))
+    assert all(t.is_alive() for t in team.threads)
+    team.shutdown()
+    assert not any(t.is_alive() for t in team.threads)
 
 
 def _frame_state(n, config, scene, size, frames=5):

@@ -20,7 +20,9 @@ The control block is 64 int64 words (the caller keeps it alive as long as the wo
   n, and how many workers take part (worker ``slot`` takes part when ``slot`` < that count: one team serves
   launches of any thread count up to its size).
 * word 32: the address of a ``usleep``-like function (``int(unsigned int microseconds)``) the workers nap with.
-* word 40: how many spin iterations a worker waits after a job before it starts napping.
+* word 40: how many spin iterations a worker waits after its last job before it starts napping: 50 us naps,
+  and after 2000 of them (~0.1-0.2 s without a job) 1 ms naps, so an idle team costs little; the thread that
+  posts a job never waits for a napping worker (it runs the bands itself, and a worker joins when it wakes).
 
 The code is for the CPU only: compiled for CUDA (every kernel module is, in the tests) the functions are empty.
 
@@ -66,16 +68,18 @@ _CLAIM = """
         const long long g = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE) >> 32;
         if (g == seen) {
             if (idle < spin) {
-                ++idle;
 """ + _PAUSE + """
-            } else {
+            } else if (idle < spin + 2000) {
                 nap(50u);
+            } else {
+                nap(1000u);
             }
+            ++idle;
             continue;
         }
         seen = g;
+        if ((long long)slot >= __atomic_load_n(&c[28], __ATOMIC_RELAXED)) continue;  // not in this job
         idle = 0;
-        if ((long long)slot >= __atomic_load_n(&c[28], __ATOMIC_RELAXED)) continue;
         entry_t f = (entry_t)__atomic_load_n(&c[24], __ATOMIC_RELAXED);
         const unsigned long long* b = (const unsigned long long*)__atomic_load_n(&c[25], __ATOMIC_RELAXED);
         const unsigned long long* a = (const unsigned long long*)__atomic_load_n(&c[26], __ATOMIC_RELAXED);
