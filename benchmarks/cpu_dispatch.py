@@ -1,7 +1,9 @@
 """What one band-parallel CPU launch costs beyond its kernel (issue 16): ``parallel.launch`` of a kernel that
 does almost nothing (360 x 4 items, every row its own band) at several thread counts, median and p90 of the
 launches. ``--root DIR`` measures the foveawarp package under DIR instead of this checkout (an A/B of two trees
-in one session). Writes benchmarks/results/cpu-dispatch-cpu.{json,md}.
+in one session). Each thread count is measured with the native team (``parallel.NATIVE_TEAM``, where the
+package has one and the threads fit the usable cores) and with the Python team, alternating. Writes
+benchmarks/results/cpu-dispatch-cpu.{json,md}.
 
     python benchmarks/cpu_dispatch.py [--root DIR] [--threads 1,2,4,8,16]
 """
@@ -43,21 +45,38 @@ def main(argv=None):
     a = wp.zeros((h, w), dtype=float, device="cpu")
     b = wp.zeros_like(a)
     rows = []
-    for n in [int(t) for t in args.threads.split(",")]:
-        def f():
-            par.launch(nearly_nothing, (h, w), [a], [b], device="cpu", threads=n, min_band_items=1)
+    has_native = hasattr(par, "NATIVE_TEAM")
+    saved = getattr(par, "NATIVE_TEAM", False)
+    teams = ("native", "python") if has_native else ("python",)
+    try:
+        for n in [int(t) for t in args.threads.split(",")]:
+            def f():
+                par.launch(nearly_nothing, (h, w), [a], [b], device="cpu", threads=n, min_band_items=1)
 
-        for _ in range(args.warmup + 10):
-            f()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            f()
-            ts.append(time.perf_counter() - t0)
-        rows.append({"threads": n, "bands": len(par.bands(h, n * par.bands_per_thread(n), w, 1)) if n > 1 else 1,
-                     "launch_us_median": float(np.median(ts) * 1e6), "launch_us_p90": float(np.percentile(ts, 90) * 1e6)})
-        print(rows[-1], flush=True)
-    md = md_table(rows, ["threads", "bands", "launch_us_median", "launch_us_p90"])
+            ts = {t: [] for t in teams}
+            for t in teams:
+                if has_native:
+                    par.NATIVE_TEAM = t == "native"
+                for _ in range(args.warmup + 10):
+                    f()
+            for k in range(repeats):  # the teams take turns launch by launch
+                for t in teams:
+                    if has_native:
+                        par.NATIVE_TEAM = t == "native"
+                    t0 = time.perf_counter()
+                    f()
+                    ts[t].append(time.perf_counter() - t0)
+            for t in teams:
+                used = t if n > 1 and (t == "python" or n <= par.usable_cores()) else ("python" if n > 1 else "-")
+                rows.append({"threads": n, "team": used,
+                             "bands": len(par.bands(h, n * par.bands_per_thread(n), w, 1)) if n > 1 else 1,
+                             "launch_us_median": float(np.median(ts[t]) * 1e6),
+                             "launch_us_p90": float(np.percentile(ts[t], 90) * 1e6)})
+                print(rows[-1], flush=True)
+    finally:
+        if has_native:
+            par.NATIVE_TEAM = saved
+    md = md_table(rows, ["threads", "team", "bands", "launch_us_median", "launch_us_p90"])
     print(md)
     write_results("cpu-dispatch", "cpu", {"package": str(Path(par.__file__).resolve().parent.parent.name),
                                           "resolution": f"{w}x{h}", "scene": "none (a no-op kernel)",

@@ -2,9 +2,11 @@
 
 Warp runs a CPU launch in the calling thread. :func:`launch` runs a kernel whose last argument is
 ``row0: int`` (its first launch index is ``wp.tid()[0] + row0``) as bands of its first dimension (image rows or
-ranges of a work list), one Warp launch per band on a team of threads (:class:`_Team`); the Warp CPU launch
-releases the GIL, so the bands run on several cores. On CUDA, or with one thread, it is one ``wp.launch`` with
-``row0 = 0``.
+ranges of a work list), one call of the kernel's CPU entry point per band on a team of threads: the native team
+(:class:`_NativeTeam`, ``kernels/team.py``: workers that wait for bands in native code, so a launch reaches them
+without a lock, a wake-up or the GIL) where the launch's threads fit the usable cores, else the Python team
+(:class:`_Team`: the Warp CPU call releases the GIL, so its bands run on several cores too). On CUDA, or with one
+thread, it is one ``wp.launch`` with ``row0 = 0``.
 
 Which kernels may be split: each thread of the kernel writes only its own element(s) of its band (reads may
 be anywhere: JFA, Sibson and Sobel neighbourhoods read the whole arrays, which no band writes in the same

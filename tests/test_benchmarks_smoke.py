@@ -116,9 +116,23 @@ def test_cpu_dispatch_quick(tmp_path):
     _run([str(REPO / "benchmarks" / "cpu_dispatch.py"), "--quick", "--threads", "1,2"], tmp_path)
     res = json.loads((tmp_path / "cpu-dispatch-cpu.json").read_text())
     assert res["benchmark"] == "cpu-dispatch" and res["commit"]
-    assert [r["threads"] for r in res["rows"]] == [1, 2]
+    assert [r["threads"] for r in res["rows"]] == [1, 1, 2, 2]  # the native team's row, then the Python team's
     assert all(0 < r["launch_us_median"] <= r["launch_us_p90"] for r in res["rows"])
-    assert res["rows"][1]["bands"] > 1
+    assert res["rows"][2]["bands"] > 1 and res["rows"][3]["team"] == "python"
+    assert res["rows"][2]["team"] in ("native", "python")  # native where 2 threads fit the usable cores
+
+
+def test_cpu_team_quick(tmp_path):
+    """benchmarks/cpu_team.py: the native and the Python team on the same frame loops (no speed assertion)."""
+    _run([str(REPO / "benchmarks" / "cpu_team.py"), "--quick", "--threads", "2", "--scenes", "cornell"], tmp_path)
+    res = json.loads((tmp_path / "cpu-team-cpu.json").read_text())
+    assert res["benchmark"] == "cpu-team" and res["commit"]
+    assert [(r["scene"], r["shading"], r["threads"]) for r in res["records"]] == [("cornell", "default", 2),
+                                                                                  ("cornell", "ao8", 2)]
+    for r in res["records"]:
+        for s in ("native", "python"):
+            assert len(r["ms"][f"foveated_{s}"]) == len(r["ms"][f"full_{s}"]) == 2 * 2
+            assert r[f"full_over_foveated_{s}"] == r[f"full_{s}_ms"] / r[f"foveated_{s}_ms"]
 
 
 def test_default_loop_quick(tmp_path):
