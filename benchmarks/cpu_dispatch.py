@@ -1,8 +1,8 @@
 """What one band-parallel CPU launch costs beyond its kernel (issue 16): ``parallel.launch`` of a kernel that
 does almost nothing (360 x 4 items, every row its own band) at several thread counts, median and p90 of the
 launches. ``--root DIR`` measures the foveawarp package under DIR instead of this checkout (an A/B of two trees
-in one session). Each thread count is measured with the native team (``parallel.NATIVE_TEAM``, where the
-package has one and the threads fit the usable cores) and with the Python team, alternating. Writes
+in one session). Each thread count is measured with the Python team (the native team stopped) and then with
+the native team (``parallel.NATIVE_TEAM``, where the package has one and the threads fit the usable cores). Writes
 benchmarks/results/cpu-dispatch-cpu.{json,md}.
 
     python benchmarks/cpu_dispatch.py [--root DIR] [--threads 1,2,4,8,16]
@@ -54,15 +54,14 @@ def main(argv=None):
                 par.launch(nearly_nothing, (h, w), [a], [b], device="cpu", threads=n, min_band_items=1)
 
             ts = {t: [] for t in teams}
-            for t in teams:
-                if has_native:
+            for t in teams[::-1]:  # the Python team first, with no native team running (its workers would
+                if has_native:     # spin and nap beside the Python team's threads)
                     par.NATIVE_TEAM = t == "native"
+                    if t == "python" and hasattr(par, "shutdown_native_team"):
+                        par.shutdown_native_team()
                 for _ in range(args.warmup + 10):
                     f()
-            for k in range(repeats):  # the teams take turns launch by launch
-                for t in teams:
-                    if has_native:
-                        par.NATIVE_TEAM = t == "native"
+                for _ in range(repeats):
                     t0 = time.perf_counter()
                     f()
                     ts[t].append(time.perf_counter() - t0)

@@ -4,7 +4,8 @@ band), on the same frame loops in one process, the setting toggled round by roun
 
 For each scene and shading, a foveated and a full-resolution ``FrameLoop`` render frames along the scene's camera
 path with a moving gaze; every round renders ``--frames`` frames of each loop under each setting (the order of the
-settings alternates between rounds, so both see the same disturbance from other work on the machine). Medians of
+settings alternates between rounds, so both see the same disturbance from other work on the machine; the native
+team is stopped before a Python-team round, and each round starts with one untimed frame per loop). Medians of
 per-frame wall times (CPU launches are synchronous, so a frame's wall time is its cost).
 
     python benchmarks/cpu_team.py --device cpu [--threads 16] [--rounds 6] [--frames 8] [--scenes cornell,bunny]
@@ -78,6 +79,10 @@ def main(argv=None):
                 for r in range(args.rounds):
                     for setting in SETTINGS if r % 2 == 0 else SETTINGS[::-1]:
                         parallel.NATIVE_TEAM = setting == "native"
+                        if setting == "python":  # no native workers spinning or napping beside its threads
+                            parallel.shutdown_native_team()
+                        for loop in loops.values():  # untimed: a native team starts again here
+                            frame_times(loop, scene, w, h, start, 1)
                         for path, loop in loops.items():
                             ms[(path, setting)] += frame_times(loop, scene, w, h, start, args.frames)
                     start += args.frames

@@ -45,7 +45,7 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
 import ctypes
 
 __all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads",
-           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR"]
+           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR", "shutdown_native_team"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
@@ -233,12 +233,25 @@ class _NativeTeam:
 
 
 _native = None
+_exit_hook = False
+
+
+def shutdown_native_team() -> None:
+    """Stop the native team's workers (they return from native code and their threads end) and wait for them;
+    a later launch that uses the native team starts a new one. For a program that wants its cores back while it
+    does not render, and for benchmarks comparing the two teams. Runs at exit too."""
+    global _native
+    with _team_lock:
+        team, _native = _native, None
+    if team is not None:
+        with team.busy:  # after a launch running on it from another Python thread
+            team.shutdown()
 
 
 def _native_team(dev) -> Optional[_NativeTeam]:
     """The process's native team (``usable_cores() - 1`` workers), built by the first call; None when it
     cannot be built (then ``NATIVE_TEAM`` is turned off and the Python team runs the bands)."""
-    global _native, NATIVE_TEAM
+    global _native, NATIVE_TEAM, _exit_hook
     if _native is not None:
         return _native
     with _team_lock:
@@ -248,9 +261,11 @@ def _native_team(dev) -> Optional[_NativeTeam]:
             except Exception:  # noqa: BLE001 - no native team on this platform: the Python team stays
                 NATIVE_TEAM = False
                 return None
-            import atexit
+            if not _exit_hook:
+                import atexit
 
-            atexit.register(team.shutdown)  # registered after Warp's own exit handlers, so it runs before them
+                atexit.register(shutdown_native_team)  # after Warp's own exit handlers, so it runs before them
+                _exit_hook = True
             _native = team
     return _native
 

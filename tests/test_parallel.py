@@ -575,3 +575,18 @@ def test_row_kernels_equal_pixel_kernels(monkeypatch, config, scene):
         pix = _frame_state(n, config, scene, size)
         for i, (a, b) in enumerate(zip(rows, pix)):
             assert a.tobytes() == b.tobytes(), (n, i)
+
+
+def test_shutdown_native_team_and_start_again(every_band):
+    """``parallel.shutdown_native_team`` ends the workers; the next launch starts a new team and stays exact."""
+    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
+        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    old = parallel._native
+    parallel.shutdown_native_team()
+    assert parallel._native is None and not any(t.is_alive() for t in old.threads)
+    h, w = 9, 4
+    out = wp.zeros((h, w), dtype=wp.int32, device=DEV)
+    parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=2)
+    np.testing.assert_array_equal(out.numpy(), np.ones((h, w), np.int32))
+    if parallel.usable_cores() > 1:  # 2 threads fit: the launch started a new native team
+        assert parallel._native is not None and parallel._native is not old
