@@ -590,3 +590,21 @@ def test_shutdown_native_team_and_start_again(every_band):
     np.testing.assert_array_equal(out.numpy(), np.ones((h, w), np.int32))
     if parallel.usable_cores() > 1:  # 2 threads fit: the launch started a new native team
         assert parallel._native is not None and parallel._native is not old
+
+
+def test_native_team_that_cannot_be_built_turns_itself_off(every_band, monkeypatch):
+    """Where the native team cannot be built (e.g. no ``usleep`` in the C library), the first launch turns
+    ``NATIVE_TEAM`` off and runs on the Python team, with the same result."""
+
+    def broken(*a, **k):
+        raise OSError("no usleep here")
+
+    monkeypatch.setattr(parallel, "_native", None)
+    monkeypatch.setattr(parallel, "NATIVE_TEAM", True)
+    monkeypatch.setattr(parallel, "_NativeTeam", broken)
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 4)
+    h, w = 11, 3
+    out = wp.zeros((h, w), dtype=wp.int32, device=DEV)
+    parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=3)
+    assert parallel.NATIVE_TEAM is False and parallel._native is None
+    np.testing.assert_array_equal(out.numpy(), np.ones((h, w), np.int32))
