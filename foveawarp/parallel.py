@@ -226,14 +226,19 @@ class _NativeTeam:
         fwd(bounds, ctypes.byref(args))
 
     def shutdown(self, timeout: float = 2.0) -> None:
-        """Ask the workers to return and wait for them (at exit, before Warp unloads its modules)."""
+        """Ask the workers to return and wait for them (at exit, before Warp unloads its modules). A team whose
+        workers have not all returned within ``timeout`` is kept alive (``_retired``): they still read its
+        control block."""
         self.ctl[16] = 1
         for t in self.threads:
             t.join(timeout)
+        if any(t.is_alive() for t in self.threads):
+            _retired.append(self)
 
 
 _native = None
 _exit_hook = False
+_retired: list = []  # shut-down native teams with a worker still running (never freed)
 
 
 def shutdown_native_team() -> None:

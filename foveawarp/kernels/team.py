@@ -10,7 +10,8 @@ launching thread posts a job and runs bands itself (``team_run_kernel``), then w
 
 The control block is 64 int64 words (the caller keeps it alive as long as the workers run):
 
-* word 0: ``generation << 32 | next band``. Posting a job stores a new generation with band 0 (release);
+* word 0: ``generation << 32 | next band`` (the generation counts jobs modulo 2**31). Posting a job stores a new
+  generation with band 0 (release);
   a thread claims band k of generation g by a compare-and-swap from ``g << 32 | k`` to ``g << 32 | k + 1``, so a
   thread that still holds an older generation can never claim a band of a newer job.
 * word 8: bands finished in the current job (the poster resets it before posting and waits until it reaches
@@ -108,7 +109,7 @@ def team_wait(ctl: wp.uint64, slot: int):
     __atomic_store_n(&c[27], n, __ATOMIC_RELAXED);
     __atomic_store_n(&c[28], (long long)workers, __ATOMIC_RELAXED);
     __atomic_store_n(&c[8], 0LL, __ATOMIC_RELAXED);
-    const long long g = (__atomic_load_n(&c[0], __ATOMIC_RELAXED) >> 32) + 1;
+    const long long g = ((__atomic_load_n(&c[0], __ATOMIC_RELAXED) >> 32) + 1) & 0x7fffffffLL;  // wraps, stays >= 0
     __atomic_store_n(&c[0], g << 32, __ATOMIC_RELEASE);
 """ + _CLAIM + """
     while (__atomic_load_n(&c[8], __ATOMIC_ACQUIRE) < n) {
