@@ -209,14 +209,18 @@ class _NativeTeam:
         self._run = (fwd, ctypes.byref(_bounds_of((1,), kdim)), args)
         self._keep = [self._run]
         self.threads = []
-        for slot in range(self.size):
-            wf, _, wargs, wdim = _record(team_worker_kernel, (1,), [addr, slot], [], dev)
-            bounds = _bounds_of((1,), wdim)
-            self._keep.append((bounds, wargs))
-            t = threading.Thread(target=wf, args=(ctypes.byref(bounds), ctypes.byref(wargs)), daemon=True,
-                                 name=f"foveawarp-native-{slot}")
-            t.start()
-            self.threads.append(t)
+        try:
+            for slot in range(self.size):
+                wf, _, wargs, wdim = _record(team_worker_kernel, (1,), [addr, slot], [], dev)
+                bounds = _bounds_of((1,), wdim)
+                self._keep.append((bounds, wargs))
+                t = threading.Thread(target=wf, args=(ctypes.byref(bounds), ctypes.byref(wargs)), daemon=True,
+                                     name=f"foveawarp-native-{slot}")
+                t.start()
+                self.threads.append(t)
+        except BaseException:  # e.g. no more threads: the started workers return, the block outlives them
+            self.shutdown()
+            raise
 
     def run(self, tables, workers: int) -> None:
         """Run the bands of ``tables`` (``_Bands.tables``) on this thread and ``workers`` team workers."""
@@ -239,6 +243,17 @@ class _NativeTeam:
 _native = None
 _exit_hook = False
 _retired: list = []  # shut-down native teams with a worker still running (never freed)
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of the parent's team threads: forget the teams and their locks (a lock held by a
+    parent thread at the fork would stay held); the child's first band launch starts its own."""
+    global _teams, _team_lock, _native
+    _teams, _team_lock, _native = {}, threading.Lock(), None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def shutdown_native_team() -> None:
@@ -319,7 +334,7 @@ def _record(kernel, dims, inputs, outputs, dev):
                            device=dev, record_cmd=True))
 
 
-def _packed_args(kernel, dims, inputs, outputs, dev):
+def _packed_args(kernel, dims, inputs, outputs, dev, mexec=None):
     """``_pack`` of this launch, reused when the same kernel is launched again with the same arrays (the same
     objects, checked through weak references, so a freed array's reused id cannot match) and the same numbers;
     Warp structs and vectors are set again in the kept argument struct on every call (their fields may have
@@ -341,8 +356,10 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
     key = tuple(key)
     hit = _pack_cache.get(key)
     if hit is not None:
-        refs, packed = hit
-        if all(r() is a for r, a in zip(refs, arrays)):
+        refs, packed, kept_exec = hit
+        # the same loaded module (Warp rebuilds a module when a kernel is added to it after loading, and frees
+        # the old code: a kept entry point of the old one must not be called) and the same arrays
+        if kept_exec is mexec and all(r() is a for r, a in zip(refs, arrays)):
             fields = packed[1]._fields_
             st = packed[2]
             for i in reset:
@@ -352,7 +369,7 @@ def _packed_args(kernel, dims, inputs, outputs, dev):
     packed = _record(kernel, dims, inputs, outputs, dev)
     if len(_pack_cache) >= _PACK_CACHE_MAX:
         _pack_cache.clear()
-    _pack_cache[key] = ([weakref.ref(a) for a in arrays], packed)
+    _pack_cache[key] = ([weakref.ref(a) for a in arrays], packed, mexec)
     return packed
 
 
@@ -456,14 +473,14 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev,
                   max_blocks=int(max_blocks) if dev.is_cuda else 0, stream=stream)
         return
-    kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) on this thread, not in the bands
+    mexec = kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) here, not in the bands
     packed = None
     if fast:
         # the arguments are checked and packed once (wp.launch with record_cmd=True launches nothing) into the
         # CPU entry point's argument struct; each band copies it with its own row0 and launch bounds and calls
         # the entry point (a ctypes call: it releases the GIL). The packed struct is kept per kernel and
         # arguments (_packed_args): a frame's launches repeat theirs, and packing ~20 arguments costs ~60 us.
-        packed = _packed_args(kernel, dims, inputs, outputs, dev)
+        packed = _packed_args(kernel, dims, inputs, outputs, dev, mexec)
 
     if packed is not None:
         # every band's launch bounds and argument struct (a copy of the packed one with its row0) are kept with

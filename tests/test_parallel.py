@@ -4,6 +4,7 @@ the thread-count settings."""
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numpy as np
@@ -608,3 +609,109 @@ def test_native_team_that_cannot_be_built_turns_itself_off(every_band, monkeypat
     parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=3)
     assert parallel.NATIVE_TEAM is False and parallel._native is None
     np.testing.assert_array_equal(out.numpy(), np.ones((h, w), np.int32))
+
+
+def test_native_team_poster_held_up_between_jobs(every_band, monkeypatch):
+    """A worker that wakes while the next job is being written must not claim a band of it under the finished
+    job's generation (which ran bands twice, and let a launch return before its bands were done, before the
+    poster closed the word first). The poster is held up between writing a job and publishing it (the control
+    block's testing word 48), the worker naps at once after a job, and 2- and 8-band launches alternate: every
+    band runs exactly once per launch."""
+    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
+        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    monkeypatch.setattr(parallel, "NATIVE_SPIN", 0)
+    team = parallel._NativeTeam(1, wp.get_device(DEV))
+    team.ctl[48] = 300
+    monkeypatch.setattr(parallel, "_native", team)
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 2)
+    h, w = 16, 2
+    out = wp.zeros((h, w), dtype=wp.int32, device=DEV)
+    try:
+        for rep in range(1500):
+            parallel.OVERSPLIT = 1 if rep % 2 == 0 else 4  # 2 or 8 bands on 2 threads
+            parallel.launch(_count_rows_kernel, (h, w), [], [out], DEV, threads=2)
+            if rep % 100 == 99:
+                np.testing.assert_array_equal(out.numpy(), np.full((h, w), rep + 1, np.int32))
+    finally:
+        parallel.OVERSPLIT = None
+        team.shutdown()
+    np.testing.assert_array_equal(out.numpy(), np.full((h, w), 1500, np.int32))
+
+
+_ROWS_SCRIPT = """
+import os, sys, time
+import warp as wp
+wp.config.quiet = True
+from foveawarp import parallel
+
+@wp.kernel
+def fill(a: wp.array(dtype=float), row0: int):
+    i = wp.tid() + row0
+    a[i] = float(i)
+
+a = wp.zeros(50000, dtype=float, device="cpu")
+"""
+
+
+def _run_script(tmp_path, body: str) -> str:
+    import subprocess
+    import sys
+
+    script = tmp_path / "script.py"
+    script.write_text(_ROWS_SCRIPT + body)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    return r.stdout
+
+
+def test_band_launch_after_its_module_was_rebuilt(tmp_path):
+    """Warp rebuilds a loaded module when a kernel is added to it, and frees the old code: a band launch of a
+    kernel of that module packed before must not call its old entry point (it crashed the process)."""
+    out = _run_script(tmp_path, """
+parallel.launch(fill, a.shape[0], [a], threads=2, device="cpu", min_band_items=1)
+def factory(c):
+    @wp.kernel
+    def late(a: wp.array(dtype=float), row0: int):
+        a[wp.tid() + row0] = float(c)
+    return late
+wp.launch(factory(3.0), 10, [a, 0], device="cpu")  # the module is rebuilt with the new kernel
+import gc; gc.collect()
+a.zero_()
+parallel.launch(fill, a.shape[0], [a], threads=2, device="cpu", min_band_items=1)
+assert (a.numpy() == range(a.shape[0])).all()
+# the entry point the band launches call is the rebuilt module's (calling the freed one may or may not crash)
+import ctypes
+dev = wp.get_device("cpu")
+packed = parallel._packed_args(fill, (a.shape[0],), [a], [], dev, fill.module.load(dev, 1))
+now = fill.module.load(dev, 1).get_kernel_hooks(fill).forward
+assert ctypes.cast(packed[0], ctypes.c_void_p).value == ctypes.cast(now, ctypes.c_void_p).value
+print("ok")
+""")
+    assert out.strip().endswith("ok")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no os.fork on this platform")
+@pytest.mark.parametrize("threads", [2, 3])
+def test_band_launch_in_a_forked_child(tmp_path, threads):
+    """A child forked after band launches has none of the parent's team threads: its own band launches (the
+    Python team at 3 threads on 2 cores, the native team where the threads fit) finish, with the right values
+    (the Python team's launch waited forever for threads that were not there)."""
+    out = _run_script(tmp_path, f"""
+parallel.launch(fill, a.shape[0], [a], threads={threads}, device="cpu", min_band_items=1)
+pid = os.fork()
+if pid == 0:
+    a.zero_()
+    parallel.launch(fill, a.shape[0], [a], threads={threads}, device="cpu", min_band_items=1)
+    os._exit(0 if (a.numpy() == range(a.shape[0])).all() else 3)
+t0 = time.time()
+while time.time() - t0 < 60:
+    done, status = os.waitpid(pid, os.WNOHANG)
+    if done:
+        print("child", os.waitstatus_to_exitcode(status))
+        break
+    time.sleep(0.05)
+else:
+    os.kill(pid, 9)
+    print("child hung")
+""")
+    assert out.strip().endswith("child 0"), out

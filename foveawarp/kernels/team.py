@@ -10,8 +10,9 @@ launching thread posts a job and runs bands itself (``team_run_kernel``), then w
 
 The control block is 64 int64 words (the caller keeps it alive as long as the workers run):
 
-* word 0: ``generation << 32 | next band`` (the generation counts jobs modulo 2**31). Posting a job stores a new
-  generation with band 0 (release);
+* word 0: ``generation << 32 | next band`` (the generation counts jobs modulo 2**31). Posting a job first closes
+  the word (the new generation with band index 0xffffffff, which no claim accepts and no worker takes for a job),
+  then writes the job's fields, then stores the new generation with band 0 (release);
   a thread claims band k of generation g by a compare-and-swap from ``g << 32 | k`` to ``g << 32 | k + 1``, so a
   thread that still holds an older generation can never claim a band of a newer job.
 * word 8: bands finished in the current job (the poster resets it before posting and waits until it reaches
@@ -21,6 +22,9 @@ The control block is 64 int64 words (the caller keeps it alive as long as the wo
   n, and how many workers take part (worker ``slot`` takes part when ``slot`` < that count: one team serves
   launches of any thread count up to its size).
 * word 32: the address of a ``usleep``-like function (``int(unsigned int microseconds)``) the workers nap with.
+* word 48: a testing aid, 0 in use: microseconds the poster naps between writing a job and publishing it (the
+  tests hold it up there, as a preempted poster would be, to check that no worker runs a band of the new job with
+  the old generation).
 * word 40: how many spin iterations a worker waits after its last job before it starts napping: 50 us naps,
   and after 2000 of them (~0.1-0.2 s without a job) 1 ms naps, so an idle team costs little; the thread that
   posts a job never waits for a napping worker (it runs the bands itself, and a worker joins when it wakes).
@@ -66,8 +70,10 @@ _CLAIM = """
     long long idle = 0;
     for (;;) {
         if (__atomic_load_n(&c[16], __ATOMIC_ACQUIRE) != 0) break;
-        const long long g = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE) >> 32;
-        if (g == seen) {
+        const long long w = __atomic_load_n(&c[0], __ATOMIC_ACQUIRE);
+        const long long g = w >> 32;
+        // nothing new, or a job being written (its word closed: the fields are not complete yet)
+        if (g == seen || (w & 0xffffffffLL) == 0xffffffffLL) {
             if (idle < spin) {
 """ + _PAUSE + """
             } else if (idle < spin + 2000) {
@@ -79,6 +85,9 @@ _CLAIM = """
             continue;
         }
         seen = g;
+        // the fields of job g (published before its word, release/acquire); if job g has ended and the next one is
+        // being written, these reads may mix the two, but then no claim below can succeed (the word's generation
+        // moved on when the poster closed it, before writing), so they are never used
         if ((long long)slot >= __atomic_load_n(&c[28], __ATOMIC_RELAXED)) continue;  // not in this job
         idle = 0;
         entry_t f = (entry_t)__atomic_load_n(&c[24], __ATOMIC_RELAXED);
@@ -103,14 +112,23 @@ def team_wait(ctl: wp.uint64, slot: int):
     const unsigned long long* b = (const unsigned long long*)bounds;
     const unsigned long long* a = (const unsigned long long*)args;
     const long long n = (long long)count;
+    const long long g = ((__atomic_load_n(&c[0], __ATOMIC_RELAXED) >> 32) + 1) & 0x7fffffffLL;  // wraps, stays >= 0
+    // close the word first: a worker still holding the previous generation (it may have read the fields just as
+    // they change below) can no longer claim a band with it, and no worker takes the new generation until it is
+    // published below (acq_rel: every claim of the previous job is ordered before the writes that follow)
+    __atomic_exchange_n(&c[0], (g << 32) | 0xffffffffLL, __ATOMIC_ACQ_REL);
     __atomic_store_n(&c[24], (long long)fn, __ATOMIC_RELAXED);
     __atomic_store_n(&c[25], (long long)bounds, __ATOMIC_RELAXED);
     __atomic_store_n(&c[26], (long long)args, __ATOMIC_RELAXED);
     __atomic_store_n(&c[27], n, __ATOMIC_RELAXED);
     __atomic_store_n(&c[28], (long long)workers, __ATOMIC_RELAXED);
     __atomic_store_n(&c[8], 0LL, __ATOMIC_RELAXED);
-    const long long g = ((__atomic_load_n(&c[0], __ATOMIC_RELAXED) >> 32) + 1) & 0x7fffffffLL;  // wraps, stays >= 0
-    __atomic_store_n(&c[0], g << 32, __ATOMIC_RELEASE);
+    const long long delay = __atomic_load_n(&c[48], __ATOMIC_RELAXED);
+    if (delay > 0) {  // a testing aid: the poster held up here, as if preempted (0 in use)
+        typedef void (*nap_t)(unsigned);
+        ((nap_t)__atomic_load_n(&c[32], __ATOMIC_RELAXED))((unsigned)delay);
+    }
+    __atomic_store_n(&c[0], g << 32, __ATOMIC_RELEASE);  // publish: band 0 of generation g
 """ + _CLAIM + """
     while (__atomic_load_n(&c[8], __ATOMIC_ACQUIRE) < n) {
 """ + _PAUSE + """
