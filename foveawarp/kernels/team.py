@@ -22,12 +22,12 @@ The control block is 64 int64 words (the caller keeps it alive as long as the wo
   n, and how many workers take part (worker ``slot`` takes part when ``slot`` < that count: one team serves
   launches of any thread count up to its size).
 * word 32: the address of a ``usleep``-like function (``int(unsigned int microseconds)``) the workers nap with.
-* word 48: a testing aid, 0 in use: microseconds the poster naps between writing a job and publishing it (the
-  tests hold it up there, as a preempted poster would be, to check that no worker runs a band of the new job with
-  the old generation).
 * word 40: how many spin iterations a worker waits after its last job before it starts napping: 50 us naps,
   and after 2000 of them (~0.1-0.2 s without a job) 1 ms naps, so an idle team costs little; the thread that
   posts a job never waits for a napping worker (it runs the bands itself, and a worker joins when it wakes).
+* word 48: a testing aid, 0 in use: microseconds the poster naps between writing a job and publishing it (the
+  tests hold it up there, as a preempted poster would be, to check that no worker runs a band of the new job with
+  the old generation).
 
 The code is for the CPU only: compiled for CUDA (every kernel module is, in the tests) the functions are empty.
 
