@@ -206,7 +206,7 @@ class _NativeTeam:
         for k in (team_run_kernel, team_worker_kernel):
             k.module.load(dev, 1)
         fwd, _, args, kdim = _record(team_run_kernel, (1,), [addr, 0, 0, 0, 0, 0], [], dev)
-        self._run = (fwd, ctypes.byref(_bounds_of((1,), kdim)), args)
+        self._run = (fwd, ctypes.byref(_bounds_of((1,), kdim)), args, ctypes.byref(args))
         self._keep = [self._run]
         self.threads = []
         try:
@@ -224,10 +224,10 @@ class _NativeTeam:
 
     def run(self, tables, workers: int) -> None:
         """Run the bands of ``tables`` (``_Bands.tables``) on this thread and ``workers`` team workers."""
-        fwd, bounds, args = self._run
+        fwd, bounds, args, args_ref = self._run
         args.fn, args.bounds, args.args, args.count = tables[2], tables[3], tables[4], tables[5]
         args.workers = int(workers)
-        fwd(bounds, ctypes.byref(args))
+        fwd(bounds, args_ref)
 
     def shutdown(self, timeout: float = 2.0) -> None:
         """Ask the workers to return and wait for them (at exit, before Warp unloads its modules). A team whose

@@ -477,12 +477,19 @@ def _count_rows_kernel(out: wp.array2d(dtype=wp.int32), row0: int):
     out[y, x] = out[y, x] + 1
 
 
+def _native_team_or_skip() -> None:
+    """Skip where this platform has no native team: ``parallel`` turns it off when it cannot be built (no
+    ``usleep`` in the C library, e.g. Windows) or when ``FOVEAWARP_CPU_NATIVE_TEAM=0`` is set; launches then run
+    on the Python team, which the other tests of this file cover. On Linux and macOS these tests run (CI: Linux)."""
+    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
+        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+
+
 @pytest.fixture
 def native_team(monkeypatch):
     """A private native team of 5 workers serving every launch of up to 6 threads (the machine may have fewer
     cores: the workers then share them, which is slower but must stay exact); shut down after the test."""
-    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
-        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    _native_team_or_skip()
     team = parallel._NativeTeam(5, wp.get_device(DEV))
     monkeypatch.setattr(parallel, "_native", team)
     monkeypatch.setattr(parallel, "usable_cores", lambda: 6)
@@ -535,8 +542,7 @@ def test_native_team_frames_bit_identical(every_band, native_team):
 
 
 def test_native_team_shutdown_returns_its_workers():
-    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
-        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    _native_team_or_skip()
     team = parallel._NativeTeam(3, wp.get_device(DEV))
     assert all(t.is_alive() for t in team.threads)
     team.shutdown()
@@ -580,8 +586,7 @@ def test_row_kernels_equal_pixel_kernels(monkeypatch, config, scene):
 
 def test_shutdown_native_team_and_start_again(every_band):
     """``parallel.shutdown_native_team`` ends the workers; the next launch starts a new team and stays exact."""
-    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
-        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    _native_team_or_skip()
     old = parallel._native
     parallel.shutdown_native_team()
     assert parallel._native is None and not any(t.is_alive() for t in old.threads)
@@ -617,8 +622,7 @@ def test_native_team_poster_held_up_between_jobs(every_band, monkeypatch):
     poster closed the word first). The poster is held up between writing a job and publishing it (the control
     block's testing word 48), the worker naps at once after a job, and 2- and 8-band launches alternate: every
     band runs exactly once per launch."""
-    if not parallel.NATIVE_TEAM or parallel._native_team(wp.get_device(DEV)) is None:
-        pytest.skip("no native team on this platform (parallel.NATIVE_TEAM is off)")
+    _native_team_or_skip()
     monkeypatch.setattr(parallel, "NATIVE_SPIN", 0)
     team = parallel._NativeTeam(1, wp.get_device(DEV))
     team.ctl[48] = 300
