@@ -3,7 +3,9 @@
 import warp as wp
 
 from .camera import CameraParams, camera_project, camera_ray_dir
+from .load import load_f32, load_i32, load_vec2, load_vec3, store_vec3
 from .order import tile_order_pixel
+from .packet import PACKET, trace_packet_row
 
 # reprojection UV of pixels with no previous position (miss, or behind the previous eye)
 NO_REPROJ = -1.0e4
@@ -86,22 +88,58 @@ def trace_primary(
     they follow from the face (:func:`surface_albedo`) and the reprojection (:func:`reproj_velocity`), exactly."""
     d = camera_ray_dir(cam, px, py)
     q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
-    if q.result:
-        p = cam.eye + d * q.t
-        fn = q.normal
+    write_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t, d, q.result, q.t, q.face,
+                  q.u, q.v, q.normal, y, x, out_pos, out_normal, out_depth, out_face, out_hit, out_reproj,
+                  out_prev_dist, out_moved)
+
+
+@wp.func
+def write_primary(
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    points_prev: wp.array(dtype=wp.vec3),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    cam: CameraParams,
+    cam_prev: CameraParams,
+    max_t: float,
+    d: wp.vec3,
+    result: bool,
+    t: float,
+    face: int,
+    u: float,
+    v: float,
+    face_normal: wp.vec3,
+    y: int,
+    x: int,
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_reproj: wp.array2d(dtype=wp.vec2),
+    out_prev_dist: wp.array2d(dtype=float),
+    out_moved: wp.array2d(dtype=wp.uint8),
+):
+    """The G-buffer entry at [y, x] of the primary ray ``d`` from the eye with the closest hit (``result``, ``t``,
+    ``face``, ``u``, ``v``, unit ``face_normal``) of ``wp.mesh_query_ray`` (or the packet walk of
+    kernels/packet.py, which gives the same)."""
+    if result:
+        p = cam.eye + d * t
+        fn = face_normal
         if wp.dot(fn, d) > 0.0:
             fn = -fn  # face the viewer
-        n = shading_normal(mesh, q.face, q.u, q.v, fn, vnormals, smooth, indices)
-        i0 = indices[q.face * 3 + 0]
-        i1 = indices[q.face * 3 + 1]
-        i2 = indices[q.face * 3 + 2]
+        n = shading_normal(mesh, face, u, v, fn, vnormals, smooth, indices)
+        i0 = indices[face * 3 + 0]
+        i1 = indices[face * 3 + 1]
+        i2 = indices[face * 3 + 2]
         # the same surface point at the previous frame's vertex positions (object motion)
-        pp = points_prev[i0] * q.u + points_prev[i1] * q.v + points_prev[i2] * (1.0 - q.u - q.v)
+        pp = points_prev[i0] * u + points_prev[i1] * v + points_prev[i2] * (1.0 - u - v)
         pr = camera_project(cam_prev, pp)
         out_prev_dist[y, x] = wp.length(pp - cam_prev.eye)
         # the surface point itself moved (object motion): its lighting may have changed too
         moved = wp.uint8(0)
-        if wp.length(pp - p) > 1.0e-6 * q.t + 1.0e-7:
+        if wp.length(pp - p) > 1.0e-6 * t + 1.0e-7:
             moved = wp.uint8(1)
         out_moved[y, x] = moved
         uv = wp.vec2(NO_REPROJ, NO_REPROJ)
@@ -109,8 +147,8 @@ def trace_primary(
             uv = wp.vec2(pr[0], pr[1])
         out_pos[y, x] = p
         out_normal[y, x] = n
-        out_depth[y, x] = q.t
-        out_face[y, x] = q.face
+        out_depth[y, x] = t
+        out_face[y, x] = face
         out_hit[y, x] = wp.uint8(1)
         out_reproj[y, x] = uv
     else:
@@ -154,11 +192,23 @@ def _make_gbuffer(mode: str):
     ):
         """``wlog2``: the "tiles" launch's block width, log2 (``kernels/order.py``); the other modes ignore it."""
         if wp.static(rows):
+            # the row's rays in packets of 8 (kernels/packet.py: the same hits as wp.mesh_query_ray). The row of
+            # out_pos holds the directions, and the packets' hits go to out_depth, out_face, out_reproj (u, v)
+            # and out_normal (the unit face normal) until write_primary replaces them with the entries
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
-            for x in range(out_depth.shape[1]):
-                trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t,
-                              float(x) + 0.5, float(y) + 0.5, y, x, out_pos, out_normal, out_depth,
-                              out_face, out_hit, out_reproj, out_prev_dist, out_moved)
+            w = out_depth.shape[1]
+            for x in range(w):
+                store_vec3(out_pos, y, x, camera_ray_dir(cam, float(x) + 0.5, float(y) + 0.5))
+            for x0 in range(0, w, PACKET):
+                trace_packet_row(mesh, cam.eye, max_t, out_pos, y, x0, w - x0, out_depth, out_face, out_reproj,
+                                 out_normal)
+            for x in range(w):
+                f = load_i32(out_face, y, x)
+                uv = load_vec2(out_reproj, y, x)
+                write_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t,
+                              load_vec3(out_pos, y, x), f >= 0, load_f32(out_depth, y, x), f, uv[0], uv[1],
+                              load_vec3(out_normal, y, x), y, x, out_pos, out_normal, out_depth, out_face, out_hit,
+                              out_reproj, out_prev_dist, out_moved)
         elif wp.static(tiles):
             p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
             x = p[0]

@@ -1,0 +1,281 @@
+"""Primary rays traced in packets of 8 on the CPU: one walk of the scene BVH for 8 neighbouring pixels.
+
+``wp.mesh_query_ray`` walks the BVH once per ray, one ray at a time. Primary rays of neighbouring pixels enter
+nearly the same nodes, so here up to 8 rays share one walk: each inner node's two boxes are loaded once and
+tested against the 8 rays in one loop (which the compiler turns into SIMD), and a node is entered while any ray
+of the packet reaches it (a mask of those rays goes with it). A leaf tests its triangles against the rays of the
+mask only.
+
+Every ray gets what ``wp.mesh_query_ray`` gives it:
+
+* the box test is Warp's ``intersect_ray_aabb`` on the same operands in the same order (the ray's direction with
+  its zero components replaced as Warp does), and a child is entered by a ray when its box is hit at a distance
+  below the ray's nearest hit so far, as in Warp's walk;
+* the triangle test is Warp's own ``intersect_ray_tri_woop``, and a hit is kept when 0 <= t < the nearest so far;
+* the normal is the kept triangle's, normalized by Warp's ``normalize``.
+
+So t, face, u, v and the normal are the same bits, except where two triangles are hit at exactly the same
+distance (a ray through a shared edge): Warp keeps the one its walk reaches first, and the packet's walk may reach
+them in another order. A ray with a zero direction component (Warp then uses its robust box test) is traced by
+``mesh_query_ray`` itself. Compiled for CUDA, every ray is traced by ``mesh_query_ray`` (the packet path is for
+the CPU: the G-buffer's CUDA kernels do not call it).
+
+Results are written per ray: the distance (``max_t`` on a miss), the face (-1 on a miss), (u, v) and the unit
+normal (left as they were on a miss).
+"""
+
+import warp as wp
+
+PACKET = 8  # rays per packet
+
+# {dir}, {t}, {face}, {uv}, {nrm}: the address of ray l's direction and outputs (set per signature below)
+_BODY = """
+    const int n = count < 8 ? count : 8;
+    wp::Mesh mesh = wp::mesh_get(mesh_id);
+    wp::vec3 d[8];
+    float best[8];
+    int face[8];
+    float bu[8], bv[8];
+    wp::vec3 bn[8];
+    unsigned active = 0u;
+    for (int l = 0; l < n; ++l) {{
+        d[l] = *(const wp::vec3*)({dir});
+        face[l] = -1;
+        best[l] = max_t;
+#if !defined(__CUDACC__)
+        if (d[l][0] != 0.0f && d[l][1] != 0.0f && d[l][2] != 0.0f)
+            active |= 1u << l;
+        else
+#endif
+        {{
+            float qt, qu, qv, qs;
+            wp::vec3 qn;
+            int qf;
+            if (wp::mesh_query_ray(mesh_id, eye, d[l], max_t, qt, qu, qv, qs, qn, qf)) {{
+                best[l] = qt; face[l] = qf; bu[l] = qu; bv[l] = qv; bn[l] = qn;
+            }}
+        }}
+    }}
+#if !defined(__CUDACC__)
+    if (active) {{
+        float rx[8], ry[8], rz[8];
+        for (int l = 0; l < 8; ++l) {{
+            // lanes past n: a copy of lane 0 (never in a mask)
+            const wp::vec3 dl = d[l < n ? l : 0];
+            rx[l] = 1.0f / dl[0];
+            ry[l] = 1.0f / dl[1];
+            rz[l] = 1.0f / dl[2];
+        }}
+        // the per-ray part of intersect_ray_tri_woop (its axes and shear), once per ray instead of per triangle
+        int kx[8], ky[8], kz[8];
+        float sx[8], sy[8], sz[8];
+        for (int l = 0; l < 8; ++l) {{
+            const wp::vec3 dl = d[l < n ? l : 0];
+            int z = wp::max_dim(dl);
+            int a = z + 1;
+            if (a == 3) a = 0;
+            int b = a + 1;
+            if (b == 3) b = 0;
+            if (dl[z] < 0.0f) {{
+                const int tmp = a;
+                a = b;
+                b = tmp;
+            }}
+            kx[l] = a; ky[l] = b; kz[l] = z;
+            sx[l] = dl[a] / dl[z];
+            sy[l] = dl[b] / dl[z];
+            sz[l] = 1.0f / dl[z];
+        }}
+        unsigned long long stack[64];
+        unsigned smask[64];
+        int sp = 0;
+        unsigned long long cur = wp::bvh_query_node_load(mesh.bvh, *mesh.bvh.root);
+        unsigned cmask = active;
+        for (;;) {{
+            if (wp::bvh_query_node_is_leaf(cur)) {{
+                const int pb = wp::bvh_query_node_lower_payload(cur);
+                const int pe = wp::bvh_query_node_upper_payload(cur);
+                for (int pc = pb; pc < pe; ++pc) {{
+                    const int prim = mesh.bvh.primitive_indices[pc];
+                    const wp::vec3 p = mesh.points[mesh.indices[prim * 3 + 0]];
+                    const wp::vec3 q = mesh.points[mesh.indices[prim * 3 + 1]];
+                    const wp::vec3 r = mesh.points[mesh.indices[prim * 3 + 2]];
+                    const wp::vec3 A = p - eye;
+                    const wp::vec3 B = q - eye;
+                    const wp::vec3 C = r - eye;
+                    for (unsigned m = cmask; m; m &= m - 1u) {{
+                        const int l = __builtin_ctz(m);
+                        // intersect_ray_tri_woop's operations, in its order, with the ray's part above
+                        const float Sx = sx[l], Sy = sy[l];
+                        const int ix = kx[l], iy = ky[l], iz = kz[l];
+                        const float Ax = A[ix] - Sx * A[iz];
+                        const float Ay = A[iy] - Sy * A[iz];
+                        const float Bx = B[ix] - Sx * B[iz];
+                        const float By = B[iy] - Sy * B[iz];
+                        const float Cx = C[ix] - Sx * C[iz];
+                        const float Cy = C[iy] - Sy * C[iz];
+                        float U = wp::diff_product(Cx, By, Cy, Bx);
+                        float V = wp::diff_product(Ax, Cy, Ay, Cx);
+                        float W = wp::diff_product(Bx, Ay, By, Ax);
+                        if (U == 0.0f || V == 0.0f || W == 0.0f) {{
+                            U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
+                            V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+                            W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+                        }}
+                        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) continue;
+                        const float det = U + V + W;
+                        if (det == 0.0f) continue;
+                        const float Az = sz[l] * A[iz];
+                        const float Bz = sz[l] * B[iz];
+                        const float Cz = sz[l] * C[iz];
+                        const float T = U * Az + V * Bz + W * Cz;
+                        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) continue;
+                        const float rcp = 1.0f / det;
+                        const float tt = T * rcp;
+                        if (tt < best[l] && tt >= 0.0f) {{
+                            best[l] = tt; face[l] = prim; bu[l] = U * rcp; bv[l] = V * rcp;
+                            bn[l] = wp::cross(q - p, r - p);
+                        }}
+                    }}
+                }}
+                if (sp == 0) break;
+                --sp;
+                cur = stack[sp];
+                cmask = smask[sp];
+                continue;
+            }}
+            const int li = wp::bvh_query_node_lower_payload(cur);
+            const int ri = wp::bvh_query_node_upper_payload(cur);
+            const wp::BVHPackedNodeHalf ll = wp::bvh_load_node(mesh.bvh.node_lowers, li);
+            const wp::BVHPackedNodeHalf lu = wp::bvh_load_node(mesh.bvh.node_uppers, li);
+            const wp::BVHPackedNodeHalf rl = wp::bvh_load_node(mesh.bvh.node_lowers, ri);
+            const wp::BVHPackedNodeHalf ru = wp::bvh_load_node(mesh.bvh.node_uppers, ri);
+            // the slab distances of intersect_ray_aabb: (bound - origin) * (1 / dir), per axis
+            const float a0x = ll.x - eye[0], a0y = ll.y - eye[1], a0z = ll.z - eye[2];
+            const float b0x = lu.x - eye[0], b0y = lu.y - eye[1], b0z = lu.z - eye[2];
+            const float a1x = rl.x - eye[0], a1y = rl.y - eye[1], a1z = rl.z - eye[2];
+            const float b1x = ru.x - eye[0], b1y = ru.y - eye[1], b1z = ru.z - eye[2];
+            float t0[8], t1[8];
+            int h0[8], h1[8];
+            for (int l = 0; l < 8; ++l) {{
+                float l1 = a0x * rx[l], l2 = b0x * rx[l];
+                float lmin = l1 < l2 ? l1 : l2, lmax = l1 > l2 ? l1 : l2;
+                l1 = a0y * ry[l]; l2 = b0y * ry[l];
+                float mn = l1 < l2 ? l1 : l2, mx = l1 > l2 ? l1 : l2;
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
+                l1 = a0z * rz[l]; l2 = b0z * rz[l];
+                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
+                t0[l] = lmin;
+                h0[l] = (lmax >= 0.0f) & (lmax >= lmin) & (lmin < best[l]);
+                l1 = a1x * rx[l]; l2 = b1x * rx[l];
+                lmin = l1 < l2 ? l1 : l2; lmax = l1 > l2 ? l1 : l2;
+                l1 = a1y * ry[l]; l2 = b1y * ry[l];
+                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
+                l1 = a1z * rz[l]; l2 = b1z * rz[l];
+                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
+                t1[l] = lmin;
+                h1[l] = (lmax >= 0.0f) & (lmax >= lmin) & (lmin < best[l]);
+            }}
+            unsigned m0 = 0u, m1 = 0u;
+            for (int l = 0; l < 8; ++l) {{
+                m0 |= (unsigned)h0[l] << l;
+                m1 |= (unsigned)h1[l] << l;
+            }}
+            m0 &= cmask;
+            m1 &= cmask;
+            const unsigned long long ln = wp::bvh_query_node_pack(ll, lu);
+            const unsigned long long rn = wp::bvh_query_node_pack(rl, ru);
+            if (m0 && m1) {{
+                // the nearer child first, as seen by the first ray that enters both (or by the first ray)
+                const unsigned both = m0 & m1;
+                const int l = __builtin_ctz(both ? both : (m0 | m1));
+                const bool left_first = both ? (t0[l] < t1[l]) : ((m0 >> l) & 1u) != 0u;
+                if (sp >= 64) break;
+                stack[sp] = left_first ? rn : ln;
+                smask[sp] = left_first ? m1 : m0;
+                ++sp;
+                cur = left_first ? ln : rn;
+                cmask = left_first ? m0 : m1;
+            }} else if (m0) {{
+                cur = ln;
+                cmask = m0;
+            }} else if (m1) {{
+                cur = rn;
+                cmask = m1;
+            }} else {{
+                if (sp == 0) break;
+                --sp;
+                cur = stack[sp];
+                cmask = smask[sp];
+            }}
+        }}
+        for (unsigned m = active; m; m &= m - 1u) {{
+            const int l = __builtin_ctz(m);
+            if (face[l] >= 0) bn[l] = wp::normalize(bn[l]);
+        }}
+    }}
+#endif
+    for (int l = 0; l < n; ++l) {{
+        *(float*)({t}) = best[l];
+        *(int*)({face}) = face[l];
+        if (face[l] >= 0) {{
+            *(wp::vec2*)({uv}) = wp::vec2(bu[l], bv[l]);
+            *(wp::vec3*)({nrm}) = bn[l];
+        }}
+    }}
+"""
+
+_A1 = "(char*){a}.data + (size_t)(start + l) * {a}.strides[0]"
+_A2 = "(char*){a}.data + (size_t)y * {a}.strides[0] + (size_t)(x0 + l) * {a}.strides[1]"
+
+
+def _body(addr: str) -> str:
+    return _BODY.format(dir=addr.format(a="dirs"), t=addr.format(a="out_t"), face=addr.format(a="out_face"),
+                        uv=addr.format(a="out_uv"), nrm=addr.format(a="out_n"))
+
+
+@wp.func_native(_body(_A1))
+def trace_packet(mesh_id: wp.uint64, eye: wp.vec3, max_t: float, dirs: wp.array(dtype=wp.vec3), start: int,
+                 count: int, out_t: wp.array(dtype=float), out_face: wp.array(dtype=wp.int32),
+                 out_uv: wp.array(dtype=wp.vec2), out_n: wp.array(dtype=wp.vec3)):
+    """Rays ``start`` .. ``start + min(count, 8) - 1`` of ``dirs`` from ``eye`` (1-D arrays, unchecked)."""
+    ...
+
+
+@wp.func_native(_body(_A2))
+def trace_packet_row(mesh_id: wp.uint64, eye: wp.vec3, max_t: float, dirs: wp.array2d(dtype=wp.vec3), y: int,
+                     x0: int, count: int, out_t: wp.array2d(dtype=float), out_face: wp.array2d(dtype=wp.int32),
+                     out_uv: wp.array2d(dtype=wp.vec2), out_n: wp.array2d(dtype=wp.vec3)):
+    """Rays [y, x0] .. [y, x0 + min(count, 8) - 1] of ``dirs`` from ``eye`` (2-D arrays, unchecked)."""
+    ...
+
+
+@wp.kernel(enable_backward=False)
+def packet_ray_kernel(mesh: wp.uint64, eye: wp.vec3, dirs: wp.array(dtype=wp.vec3), max_t: float,
+                      out_t: wp.array(dtype=float), out_face: wp.array(dtype=wp.int32),
+                      out_uv: wp.array(dtype=wp.vec2), out_n: wp.array(dtype=wp.vec3), row0: int):
+    """Thread i traces rays 8 i .. 8 i + 7 of ``dirs`` in one packet (``row0``: the band offset of
+    ``foveawarp.parallel``)."""
+    i = wp.tid() + row0
+    trace_packet(mesh, eye, max_t, dirs, i * PACKET, dirs.shape[0] - i * PACKET, out_t, out_face, out_uv, out_n)
+
+
+@wp.kernel(enable_backward=False)
+def single_ray_kernel(mesh: wp.uint64, eye: wp.vec3, dirs: wp.array(dtype=wp.vec3), max_t: float,
+                      out_t: wp.array(dtype=float), out_face: wp.array(dtype=wp.int32),
+                      out_uv: wp.array(dtype=wp.vec2), out_n: wp.array(dtype=wp.vec3), row0: int):
+    """``wp.mesh_query_ray`` per ray, with the outputs of :func:`trace_packet` (the tests' and the benchmark's
+    comparison)."""
+    i = wp.tid() + row0
+    q = wp.mesh_query_ray(mesh, eye, dirs[i], max_t)
+    if q.result:
+        out_t[i] = q.t
+        out_face[i] = q.face
+        out_uv[i] = wp.vec2(q.u, q.v)
+        out_n[i] = q.normal
+    else:
+        out_t[i] = max_t
+        out_face[i] = -1
