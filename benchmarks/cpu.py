@@ -2,9 +2,10 @@
 
 * thread scaling: median foveated and reference frame time at 1, 2, 4, ..., cores threads (cornell);
 * foveated vs the full-resolution reference per scene, default shading and ``ao_samples=8``, all threads;
-* primary rays of the scene camera: Warp's BVH (``wp.mesh_query_ray``, one thread and all threads) against
-  Embree (``embreex``, optional: ``pip install embreex``; one thread) on the same rays: Mrays/s per core and
-  hit agreement.
+* primary rays of the scene camera: Warp's BVH one ray at a time (``wp.mesh_query_ray``, "warp_single") and
+  in packets of 8 rays (``kernels/packet.py``, "warp": the G-buffer's CPU path, the same hits), one thread and
+  all threads, against Embree (``embreex``, optional: ``pip install embreex``; one thread) on the same rays:
+  Mrays/s per core and hit agreement.
 
 Frames follow the scene's camera path (1/30 s per frame) with the gaze at the screen centre, after warm-up
 frames; the policy is fixed ("foveated" / ``render_reference``), ``timing=False``, except in the per-scene rows'
@@ -31,6 +32,7 @@ import warp as wp  # noqa: E402
 
 from benchmarks._common import RESULTS, base_parser, md_table, write_results  # noqa: E402
 import foveawarp as fw  # noqa: E402
+from foveawarp.kernels.packet import packet_ray_kernel  # noqa: E402
 from foveawarp import parallel  # noqa: E402
 from foveawarp._util import get_device  # noqa: E402
 
@@ -101,21 +103,30 @@ def rays_bench(scene_name, w, h, dev, threads_all, repeats):
     dirs = wp.array(dirs_np, dtype=wp.vec3, device=dev)
     out_t = wp.zeros(n, dtype=float, device=dev)
     out_f = wp.zeros(n, dtype=wp.int32, device=dev)
+    out_uv = wp.zeros(n, dtype=wp.vec2, device=dev)
+    out_n = wp.zeros(n, dtype=wp.vec3, device=dev)
     origin = wp.vec3(*[float(v) for v in cam.eye])
     row = {"scene": scene_name, "rays": n}
-    for label, nt in (("warp_1t", 1), (f"warp_{threads_all}t", threads_all)):
-        def run(nt=nt):
-            parallel.launch(primary_ray_kernel, n, [ds.mesh.id, origin, dirs, 1.0e6], [out_t, out_f], dev,
-                            threads=nt)
-            wp.synchronize_device(dev)
-        run()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
+    # "warp_single": wp.mesh_query_ray one ray at a time; "warp": packets of 8 rays (kernels/packet.py), the
+    # G-buffer's CPU path, the same hits
+    single_faces = None
+    for kind, kernel, dim in (("warp_single", primary_ray_kernel, n), ("warp", packet_ray_kernel, (n + 7) // 8)):
+        outs = [out_t, out_f] if kind == "warp_single" else [out_t, out_f, out_uv, out_n]
+        for label, nt in ((f"{kind}_1t", 1), (f"{kind}_{threads_all}t", threads_all)):
+            def run(nt=nt, kernel=kernel, dim=dim, outs=outs):
+                parallel.launch(kernel, dim, [ds.mesh.id, origin, dirs, 1.0e6], outs, dev, threads=nt)
+                wp.synchronize_device(dev)
             run()
-            ts.append(time.perf_counter() - t0)
-        row[f"{label}_mrays_s"] = n / statistics.median(ts) / 1e6
+            ts = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                run()
+                ts.append(time.perf_counter() - t0)
+            row[f"{label}_mrays_s"] = n / statistics.median(ts) / 1e6
+        if kind == "warp_single":
+            single_faces = out_f.numpy().copy()
     row["warp_threads"] = threads_all
+    row["packet_same_face_as_single"] = float((out_f.numpy() == single_faces).mean())
     warp_t, warp_f = out_t.numpy(), out_f.numpy()
     row["hit_fraction"] = float((warp_f >= 0).mean())
     try:
@@ -141,6 +152,7 @@ def rays_bench(scene_name, w, h, dev, threads_all, repeats):
     row["max_rel_t_diff"] = float(np.max(np.abs(et[both] - warp_t[both]) / np.maximum(et[both], 1e-6))) if (
         both.any()) else 0.0
     row["warp_per_core_vs_embree"] = row["warp_1t_mrays_s"] / row["embree_1t_mrays_s"]
+    row["warp_single_per_core_vs_embree"] = row["warp_single_1t_mrays_s"] / row["embree_1t_mrays_s"]
     return row
 
 
@@ -300,8 +312,9 @@ def main(argv=None):
                             "sampled_fraction", "auto_ms", "auto_path", "reference_over_auto"])
     if rays:
         md += "\n### Primary rays (scene camera, one ray per pixel)\n\n"
-        cols = ["scene", "rays", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s", "embree_1t_mrays_s",
-                "warp_per_core_vs_embree", "same_hit_miss", "same_face", "max_rel_t_diff", "embree"]
+        cols = ["scene", "rays", "warp_single_1t_mrays_s", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s",
+                "embree_1t_mrays_s", "warp_single_per_core_vs_embree", "warp_per_core_vs_embree",
+                "packet_same_face_as_single", "same_hit_miss", "same_face", "max_rel_t_diff", "embree"]
         md += md_table(rays, [c for c in cols if any(c in r for r in rays)])
     if stages:
         md += f"\n### Stage ms ({args.scaling_scene}, timing=True: each stage synchronized)\n\n"
