@@ -4,7 +4,10 @@
 nearly the same nodes, so here up to 8 rays share one walk: each inner node's two boxes are loaded once and
 tested against the 8 rays in one loop (which the compiler turns into SIMD), and a node is entered while any ray
 of the packet reaches it (a mask of those rays goes with it). A leaf tests its triangles against the rays of the
-mask only.
+mask only: when the packet's rays share their axes (Warp's watertight test orders the axes by the direction's
+largest component, which neighbouring primary rays share), the test runs for all 8 rays in one loop as a filter,
+and the rays it passes (a hit nearer than the ray's nearest so far, or a case for the exact fallback) are tested
+again one at a time, which decides.
 
 Every ray gets what ``wp.mesh_query_ray`` gives it:
 
@@ -86,6 +89,11 @@ _BODY = """
             sy[l] = dl[b] / dl[z];
             sz[l] = 1.0f / dl[z];
         }}
+        // all rays of the packet with the same axes (the usual case for neighbouring primary rays)
+        bool uniform = true;
+        for (int l = 1; l < 8; ++l)
+            uniform = uniform && kx[l] == kx[0] && ky[l] == ky[0] && kz[l] == kz[0];
+        const int ux = kx[0], uy = ky[0], uz = kz[0];
         unsigned long long stack[64];
         unsigned smask[64];
         int sp = 0;
@@ -103,7 +111,43 @@ _BODY = """
                     const wp::vec3 A = p - eye;
                     const wp::vec3 B = q - eye;
                     const wp::vec3 C = r - eye;
-                    for (unsigned m = cmask; m; m &= m - 1u) {{
+                    unsigned todo = cmask;
+                    if (uniform && (cmask & (cmask - 1u))) {{
+                        // the rays share their axes: the test's operations for all 8 rays in one loop (SIMD), the
+                        // same operations on the same operands as the scalar test below; rays whose U, V or W is 0
+                        // (the exact fallback) and rays that hit go to the scalar test
+                        const float Akx = A[ux], Aky = A[uy], Akz = A[uz];
+                        const float Bkx = B[ux], Bky = B[uy], Bkz = B[uz];
+                        const float Ckx = C[ux], Cky = C[uy], Ckz = C[uz];
+                        int go[8];
+                        for (int l = 0; l < 8; ++l) {{
+                            const float Sx = sx[l], Sy = sy[l];
+                            const float Ax = Akx - Sx * Akz;
+                            const float Ay = Aky - Sy * Akz;
+                            const float Bx = Bkx - Sx * Bkz;
+                            const float By = Bky - Sy * Bkz;
+                            const float Cx = Ckx - Sx * Ckz;
+                            const float Cy = Cky - Sy * Ckz;
+                            float cd = Cy * Bx;
+                            const float U = fmaf(Cx, By, -cd) + fmaf(-Cy, Bx, cd);
+                            cd = Ay * Cx;
+                            const float V = fmaf(Ax, Cy, -cd) + fmaf(-Ay, Cx, cd);
+                            cd = By * Ax;
+                            const float W = fmaf(Bx, Ay, -cd) + fmaf(-By, Ax, cd);
+                            const int zero = (U == 0.0f) | (V == 0.0f) | (W == 0.0f);
+                            const int outside = ((U < 0.0f) | (V < 0.0f) | (W < 0.0f)) & ((U > 0.0f) | (V > 0.0f) | (W > 0.0f));
+                            const float det = U + V + W;
+                            const float T = U * (sz[l] * Akz) + V * (sz[l] * Bkz) + W * (sz[l] * Ckz);
+                            const float Ts = __builtin_bit_cast(float, __builtin_bit_cast(int, T)
+                                ^ (__builtin_bit_cast(int, det) & (int)0x80000000));
+                            const float tt = T * (1.0f / det);
+                            go[l] = zero | ((outside == 0) & (det != 0.0f) & (Ts >= 0.0f) & (tt < best[l]) & (tt >= 0.0f));
+                        }}
+                        unsigned g = 0u;
+                        for (int l = 0; l < 8; ++l) g |= (unsigned)go[l] << l;
+                        todo &= g;
+                    }}
+                    for (unsigned m = todo; m; m &= m - 1u) {{
                         const int l = __builtin_ctz(m);
                         // intersect_ray_tri_woop's operations, in its order, with the ray's part above
                         const float Sx = sx[l], Sy = sy[l];
