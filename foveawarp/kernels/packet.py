@@ -11,17 +11,20 @@ again one at a time, which decides.
 
 Every ray gets what ``wp.mesh_query_ray`` gives it:
 
-* the box test is Warp's ``intersect_ray_aabb`` on the same operands in the same order (the ray's direction with
-  its zero components replaced as Warp does), and a child is entered by a ray when its box is hit at a distance
-  below the ray's nearest hit so far, as in Warp's walk;
-* the triangle test is Warp's own ``intersect_ray_tri_woop``, and a hit is kept when 0 <= t < the nearest so far;
+* the box test is Warp's ``intersect_ray_aabb`` on the same operands in the same order, and a child is entered by
+  a ray when its box is hit at a distance below the ray's nearest hit so far, as in Warp's walk (its min and max
+  differ from Warp's only where an operand is NaN, which cannot happen for the rays the packets take: a finite
+  eye, nonzero direction components with finite reciprocals);
+* the triangle test is the operations of Warp's ``intersect_ray_tri_woop`` in its order (its per-ray part, the
+  axes and the shear, computed once per ray), and a hit is kept when 0 <= t < the nearest so far;
 * the normal is the kept triangle's, normalized by Warp's ``normalize``.
 
 So t, face, u, v and the normal are the same bits, except where two triangles are hit at exactly the same
 distance (a ray through a shared edge): Warp keeps the one its walk reaches first, and the packet's walk may reach
-them in another order. A ray with a zero direction component (Warp then uses its robust box test) is traced by
-``mesh_query_ray`` itself. Compiled for CUDA, every ray is traced by ``mesh_query_ray`` (the packet path is for
-the CPU: the G-buffer's CUDA kernels do not call it).
+them in another order. Any other ray (a zero direction component, where Warp uses its robust box test; a component
+so small that its reciprocal overflows; a non-finite direction or eye) is traced by ``mesh_query_ray`` itself.
+Compiled for CUDA, every ray is traced by ``mesh_query_ray`` (the packet path is for the CPU: the G-buffer's CUDA
+kernels do not call it).
 
 Results are written per ray: the distance (``max_t`` on a miss), the face (-1 on a miss), (u, v) and the unit
 normal (left as they were on a miss).
@@ -41,12 +44,16 @@ _BODY = """
     float bu[8], bv[8];
     wp::vec3 bn[8];
     unsigned active = 0u;
+    const bool eye_ok = __builtin_isfinite(eye[0]) && __builtin_isfinite(eye[1]) && __builtin_isfinite(eye[2]);
     for (int l = 0; l < n; ++l) {{
         d[l] = *(const wp::vec3*)({dir});
         face[l] = -1;
         best[l] = max_t;
 #if !defined(__CUDACC__)
-        if (d[l][0] != 0.0f && d[l][1] != 0.0f && d[l][2] != 0.0f)
+        // the packet's box test is exact for a finite eye and finite reciprocals of nonzero direction components
+        // (no NaN in the slab distances, so its min and max agree with Warp's); other rays go to mesh_query_ray
+        if (eye_ok && d[l][0] != 0.0f && d[l][1] != 0.0f && d[l][2] != 0.0f && __builtin_isfinite(1.0f / d[l][0])
+            && __builtin_isfinite(1.0f / d[l][1]) && __builtin_isfinite(1.0f / d[l][2]))
             active |= 1u << l;
         else
 #endif
