@@ -3,10 +3,13 @@ views."""
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import warp as wp
 
 from foveawarp.kernels.load import (load1_i32, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
-                                   store1_i32, store1_vec3, store_f32, store_i32, store_u8, store_vec2i, store_vec3)
+                                   nine_equal_i32, nine_equal_vec3, store1_i32, store1_vec3, store_f32, store_i32,
+                                   store_u8, store_vec2i, store_vec3)
 
 
 @wp.kernel(enable_backward=False)
@@ -158,3 +161,71 @@ def test_float_vec2_u8_and_flat_loads_and_stores(device, view):
     e3[pos] = b3[pos]
     np.testing.assert_array_equal(oib.numpy(), ei)
     np.testing.assert_array_equal(o3b.numpy(), e3)
+
+
+@wp.kernel(enable_backward=False)
+def _nine_equal(a3: wp.array2d(dtype=wp.vec3), ai: wp.array2d(dtype=wp.int32), o3: wp.array2d(dtype=wp.int32),
+                oi: wp.array2d(dtype=wp.int32)):
+    y, x = wp.tid()
+    o3[y, x] = nine_equal_vec3(a3, y, x)
+    oi[y, x] = nine_equal_i32(ai, y, x)
+
+
+def _nine_equal_reference(a, contiguous):
+    """NumPy: 1 where the pixel is in an interior column of a row-contiguous array, and its 3x3 neighbourhood (rows
+    clamped) holds nine bitwise-equal values, none of them NaN (for floats); else 0."""
+    h, w = a.shape[:2]
+    bits = a.view(np.uint32).reshape(h, w, -1)
+    out = np.zeros((h, w), np.int32)
+    if not contiguous:
+        return out
+    for y in range(h):
+        rows = [max(y - 1, 0), y, min(y + 1, h - 1)]
+        for x in range(1, w - 1):
+            taps = bits[rows][:, x - 1:x + 2].reshape(9, -1)
+            ok = (taps == bits[y, x]).all()
+            if a.dtype == np.float32 and np.isnan(a[y, x]).any():
+                ok = False
+            out[y, x] = int(ok)
+    return out
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(1, 7), w=st.integers(1, 9), levels=st.integers(1, 3),
+       strided=st.booleans())
+def test_nine_equal_tests_against_numpy(seed, h, w, levels, strided):
+    """The CPU's word compares of the Sobel terms' "nine taps equal" test (kernels/load.py) against NumPy, on
+    images of few distinct values (so that flat neighbourhoods occur), with +0 / -0 and NaN among them; a strided
+    view, a border column or CUDA answers 0, and a 1 is only ever given where every float compare is true."""
+    rng = np.random.default_rng(seed)
+    pal3 = np.array([[0.0, 0.0, 1.0], [-0.0, 0.0, 1.0], [np.nan, 0.0, 0.0], [0.5, 0.25, -1.0]], np.float32)
+    big3 = pal3[rng.integers(0, levels + 1, size=(h * 2, w * 2))]
+    bigi = rng.integers(-1, levels, size=(h * 2, w * 2)).astype(np.int32)
+    a3 = wp.array(big3, dtype=wp.vec3, device="cpu")
+    ai = wp.array(bigi, dtype=wp.int32, device="cpu")
+    n3, ni = big3, bigi
+    if strided:
+        a3, ai, n3, ni = a3[::2, ::2], ai[::2, ::2], big3[::2, ::2], bigi[::2, ::2]
+    else:
+        a3, ai, n3, ni = a3[:h, :w], ai[:h, :w], big3[:h, :w], bigi[:h, :w]
+    o3 = wp.zeros(n3.shape[:2], dtype=wp.int32, device="cpu")
+    oi = wp.zeros(ni.shape, dtype=wp.int32, device="cpu")
+    wp.launch(_nine_equal, dim=ni.shape, inputs=[a3, ai], outputs=[o3, oi], device="cpu")
+    got3, goti = o3.numpy(), oi.numpy()
+    np.testing.assert_array_equal(got3, _nine_equal_reference(np.ascontiguousarray(n3), not strided))
+    np.testing.assert_array_equal(goti, _nine_equal_reference(np.ascontiguousarray(ni), not strided))
+    # soundness: a 1 only where all nine float compares with the centre hold
+    for y, x in zip(*np.nonzero(got3)):
+        rows = [max(y - 1, 0), y, min(y + 1, n3.shape[0] - 1)]
+        assert (n3[rows][:, x - 1:x + 2] == n3[y, x]).all()
+
+
+def test_nine_equal_tests_answer_zero_on_cuda():
+    if not wp.is_cuda_available():
+        pytest.skip("needs a CUDA device")
+    a3 = wp.zeros((4, 5), dtype=wp.vec3, device="cuda:0")
+    ai = wp.zeros((4, 5), dtype=wp.int32, device="cuda:0")
+    o3 = wp.full((4, 5), 7, dtype=wp.int32, device="cuda:0")
+    oi = wp.full((4, 5), 7, dtype=wp.int32, device="cuda:0")
+    wp.launch(_nine_equal, dim=(4, 5), inputs=[a3, ai], outputs=[o3, oi], device="cuda:0")
+    assert (o3.numpy() == 0).all() and (oi.numpy() == 0).all()

@@ -97,3 +97,79 @@ def store1_i32(a: wp.array(dtype=wp.int32), i: int, v: int):
 def store_f32(a: wp.array2d(dtype=float), y: int, x: int, v: float):
     """``a[y, x] = v`` for 0 <= y < H, 0 <= x < W (unchecked)."""
     ...
+
+
+# -- the 3x3 "all nine taps equal" tests of the Sobel terms, on the CPU ------------------------------------------
+# At an interior pixel of a row-contiguous array the three rows' taps are 3 contiguous elements each: compared as
+# 64-bit words against the centre repeated, instead of 8 element loads and compares. Where the test does not
+# apply (CUDA, a border pixel, other strides) it answers 0 and the caller compares the taps itself.
+
+_ROWS3 = """
+#if defined(__CUDA_ARCH__)
+    return 0;
+#else
+    const int W = a.shape[1], H = a.shape[0];
+    if (a.strides[1] != {size} || x <= 0 || x >= W - 1 || y < 0 || y >= H) return 0;
+    const int ym = y > 0 ? y - 1 : 0;
+    const int yp = y < H - 1 ? y + 1 : H - 1;
+    const char* base = (const char*)a.data + (size_t)(x - 1) * {size};
+    const char* r0 = base + (size_t)ym * (size_t)a.strides[0];
+    const char* r1 = base + (size_t)y * (size_t)a.strides[0];
+    const char* r2 = base + (size_t)yp * (size_t)a.strides[0];
+{body}
+#endif
+"""
+
+_EQ_VEC3 = _ROWS3.format(size=12, body="""
+    const float* c = (const float*)(r1 + 12);
+    if (!(c[0] == c[0] && c[1] == c[1] && c[2] == c[2])) return 0;  // NaN: the caller's float compares decide
+    unsigned int b0, b1, b2;
+    __builtin_memcpy(&b0, r1 + 12, 4);
+    __builtin_memcpy(&b1, r1 + 16, 4);
+    __builtin_memcpy(&b2, r1 + 20, 4);
+    const unsigned long long p0 = (unsigned long long)b0 | ((unsigned long long)b1 << 32);
+    const unsigned long long p1 = (unsigned long long)b2 | ((unsigned long long)b0 << 32);
+    const unsigned long long p2 = (unsigned long long)b1 | ((unsigned long long)b2 << 32);
+    unsigned long long d = 0;
+    const char* rows[3] = {r0, r1, r2};
+    for (int k = 0; k < 3; ++k) {
+        unsigned long long u0, u1, u2, u3;
+        unsigned int u4;
+        __builtin_memcpy(&u0, rows[k], 8);
+        __builtin_memcpy(&u1, rows[k] + 8, 8);
+        __builtin_memcpy(&u2, rows[k] + 16, 8);
+        __builtin_memcpy(&u3, rows[k] + 24, 8);
+        __builtin_memcpy(&u4, rows[k] + 32, 4);
+        d |= (u0 ^ p0) | (u1 ^ p1) | (u2 ^ p2) | (u3 ^ p0) | (unsigned long long)(u4 ^ b2);
+    }
+    return d == 0 ? 1 : 0;""")
+
+_EQ_I32 = _ROWS3.format(size=4, body="""
+    unsigned int f;
+    __builtin_memcpy(&f, r1 + 4, 4);
+    const unsigned long long p = (unsigned long long)f | ((unsigned long long)f << 32);
+    unsigned long long d = 0;
+    const char* rows[3] = {r0, r1, r2};
+    for (int k = 0; k < 3; ++k) {
+        unsigned long long u0;
+        unsigned int u1;
+        __builtin_memcpy(&u0, rows[k], 8);
+        __builtin_memcpy(&u1, rows[k] + 8, 4);
+        d |= (u0 ^ p) | (unsigned long long)(u1 ^ f);
+    }
+    return d == 0 ? 1 : 0;""")
+
+
+@wp.func_native(_EQ_VEC3)
+def nine_equal_vec3(a: wp.array2d(dtype=wp.vec3), y: int, x: int) -> int:
+    """1 when pixel (x, y) is inside the image's interior columns and its 3x3 neighbourhood (rows clamped) holds
+    nine bitwise-equal, non-NaN values, so that every float compare of them with the centre is true; 0 otherwise
+    (including always on CUDA and wherever the test does not apply: the caller then compares the taps)."""
+    ...
+
+
+@wp.func_native(_EQ_I32)
+def nine_equal_i32(a: wp.array2d(dtype=wp.int32), y: int, x: int) -> int:
+    """1 when pixel (x, y) is inside the image's interior columns and its 3x3 neighbourhood (rows clamped) holds
+    nine equal values; 0 otherwise (including always on CUDA and wherever the test does not apply)."""
+    ...

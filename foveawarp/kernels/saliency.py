@@ -13,7 +13,7 @@ Conventions:
 
 import warp as wp
 
-from .load import load1_vec3, load_i32, load_vec3
+from .load import load1_vec3, load_i32, load_vec3, nine_equal_i32, nine_equal_vec3
 
 # Sobel response to a unit step between neighbouring pixels (1 + 2 + 1).
 SOBEL_GAIN = 4.0
@@ -67,6 +67,8 @@ def sobel_vec3(a: wp.array2d(dtype=wp.vec3), x: int, y: int) -> float:
     """Sobel gradient magnitude at (x, y) of a 3-channel image, max over the channels (edge-clamped). A
     neighbourhood whose nine values are all equal (a flat face's normals) returns 0 without the arithmetic: the
     operator's two sums are then the same operations on the same values, so their difference is exactly 0."""
+    if nine_equal_vec3(a, y, x) != 0:  # the CPU's word compare of the same test (kernels/load.py)
+        return 0.0
     xm, xp, ym, yp = clamped_neighbours(x, y, a.shape[1], a.shape[0])
     c = load_vec3(a, y, x)  # every tap is clamped into the image: the unchecked loads (kernels/load.py)
     a00 = load_vec3(a, ym, xm)
@@ -96,6 +98,8 @@ def sobel_lab_by_face(face: wp.array2d(dtype=wp.int32), face_lab: wp.array(dtype
     """Sobel magnitude (max over channels, edge-clamped) of the CIE-Lab albedo of a G-buffer, each tap looked up
     by its face in ``face_lab`` (``saliency.face_lab_kernel``: the same values as converting the albedo). Nine
     taps on one face (or all misses) read one table entry: the gradient is exactly 0 (see :func:`sobel_vec3`)."""
+    if nine_equal_i32(face, y, x) != 0:  # the CPU's word compare of the same test (kernels/load.py)
+        return 0.0
     xm, xp, ym, yp = clamped_neighbours(x, y, face.shape[1], face.shape[0])
     f = load_i32(face, y, x)  # clamped taps and table indices in [0, F]: the unchecked loads (kernels/load.py)
     f00 = load_i32(face, ym, xm)
