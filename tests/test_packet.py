@@ -28,15 +28,12 @@ def _cast(mesh_id, eye, dirs_np, device, max_t=1.0e6):
 
 
 def _assert_same_hits(p, s):
-    """Every ray has the same distance bits; the same face, (u, v) and normal bits but where two faces are hit
-    at exactly the same distance (the walk order decides a tie: kernels/packet.py)."""
+    """Every ray has the same distance, face, (u, v) and normal bits (the normal and (u, v) where it hits)."""
     np.testing.assert_array_equal(p[0].view(np.int32), s[0].view(np.int32))
-    np.testing.assert_array_equal(p[1] >= 0, s[1] >= 0)
-    same = p[1] == s[1]
+    np.testing.assert_array_equal(p[1], s[1])
     hit = s[1] >= 0
-    np.testing.assert_array_equal(p[2][same & hit].view(np.int32), s[2][same & hit].view(np.int32))
-    np.testing.assert_array_equal(p[3][same & hit].view(np.int32), s[3][same & hit].view(np.int32))
-    return int((~same).sum())
+    np.testing.assert_array_equal(p[2][hit].view(np.int32), s[2][hit].view(np.int32))
+    np.testing.assert_array_equal(p[3][hit].view(np.int32), s[3][hit].view(np.int32))
 
 
 def _scenes():
@@ -49,8 +46,7 @@ def _scenes():
 @pytest.mark.parametrize("name", _scenes())
 def test_packets_equal_single_rays_on_scene_views(name, device):
     """Primary rays of a 97 x 61 view (a partial last packet) at two times of the camera path, in raster
-    order as the G-buffer traces them: the same hits bit for bit, but for rays through an edge that two faces
-    share at exactly the same distance (one such ray of 11834 on the city's boxes): at most 1 in 1000."""
+    order as the G-buffer traces them: the same hits bit for bit."""
     scene = fw.load_scene(name)
     ds = fw.scene.DeviceScene(scene, device)
     w, h = 97, 61
@@ -60,7 +56,7 @@ def test_packets_equal_single_rays_on_scene_views(name, device):
         dirs = cam.ray_dirs(xs.ravel(), ys.ravel(), w, h)
         p, s = _cast(ds.mesh.id, cam.eye, dirs, device)
         assert (s[1] >= 0).any() and (s[1] < 0).any()
-        assert _assert_same_hits(p, s) <= len(dirs) // 1000
+        _assert_same_hits(p, s)
 
 
 def _brute_force(tris, eye, dirs):
@@ -132,6 +128,70 @@ def test_packets_equal_single_rays_on_random_soups(seed, ntri, nray, zero_axis, 
     both = hit & np.isfinite(ref)
     np.testing.assert_allclose(p[0][both], ref[both], rtol=1e-4)
     assert np.all(p[0][~hit] == np.float32(1.0e6))
+
+
+def _box(lo, hi):
+    """The 12 triangles of an axis-aligned box."""
+    c = np.array([[lo[0], lo[1], lo[2]], [hi[0], lo[1], lo[2]], [hi[0], hi[1], lo[2]], [lo[0], hi[1], lo[2]],
+                  [lo[0], lo[1], hi[2]], [hi[0], lo[1], hi[2]], [hi[0], hi[1], hi[2]], [lo[0], hi[1], hi[2]]])
+    f = [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [3, 7, 6], [3, 6, 2], [0, 4, 7],
+         [0, 7, 3], [1, 2, 6], [1, 6, 5]]
+    return c[np.array(f)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_packets_equal_single_rays_on_overlapping_coplanar_boxes(seed):
+    """Boxes on a floor, half of them with a second box whose faces lie in the same planes, seen from random
+    cameras: coplanar faces hit an ulp apart, where the nearer hit kept depends on the order in which a ray's
+    walk visits the two children of a node (found by a review: the packets now let each ray visit them in its own
+    order). The same bits as mesh_query_ray on every ray."""
+    rng = np.random.default_rng(seed)
+    parts = [_box((-10.0, -1.0, -10.0), (10.0, 0.0, 10.0))]
+    for _ in range(12):
+        lo = np.round(rng.uniform(-6, 5, 3), 1)
+        lo[1] = 0.0
+        hi = lo + np.round(rng.uniform(0.5, 3, 3), 1)
+        parts.append(_box(lo, hi))
+        if rng.random() < 0.5:
+            parts.append(_box(lo + [0.3, 0.0, 0.0], hi + [0.4, 0.0, 0.7]))
+    tris = np.concatenate(parts).astype(np.float32)
+    pts = tris.reshape(-1, 3)
+    mesh = wp.Mesh(points=wp.array(pts, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(np.arange(len(pts), dtype=np.int32), dtype=wp.int32, device="cpu"))
+    w, h = 97, 61
+    sx, sy = np.meshgrid((np.arange(w) + 0.5) / w * 2 - 1, (np.arange(h) + 0.5) / h * 2 - 1)
+    for _ in range(4):
+        eye = np.array([rng.uniform(-9, 9), rng.uniform(1, 6), rng.uniform(-9, 9)], np.float32)
+        fwd = np.array([rng.uniform(-3, 3), 0.5, rng.uniform(-3, 3)]) - eye
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross([0.0, 1.0, 0.0], fwd)
+        right /= np.linalg.norm(right)
+        up = np.cross(fwd, right)
+        dirs = fwd + 0.7 * sx.ravel()[:, None] * right - 0.45 * sy.ravel()[:, None] * up
+        p, s = _cast(mesh.id, eye, dirs.astype(np.float32), "cpu")
+        assert (s[1] >= 0).any()
+        _assert_same_hits(p, s)
+
+
+@pytest.mark.parametrize("leaf", [1, 4])
+def test_packets_send_infinite_directions_to_mesh_query_ray(leaf):
+    """A direction with an infinite component has a finite reciprocal (0). With boxes whose distance from the eye
+    overflows, its slab distance is 0 * inf = NaN, where Warp's min and max (NaN ignored) and the packet's differ:
+    such rays are traced by mesh_query_ray (a case found by a review; here three triangles near the ends of the
+    float range, the eye at -2.5e38)."""
+    tris = np.array([[[2.95e38, 0.7, -0.8], [2.9e38, -0.4, -0.2], [2.96e38, -0.8, 0.5]],
+                     [[1.8e38, 0.4, -0.1], [1.85e38, -0.8, 0.5], [1.86e38, 0.7, 0.0]],
+                     [[-2.4e38, -0.5, -0.1], [-2.45e38, 0.3, -0.4], [-2.47e38, -0.1, 0.9]]], np.float32)
+    pts = tris.reshape(-1, 3)
+    mesh = wp.Mesh(points=wp.array(pts, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(np.arange(9, dtype=np.int32), dtype=wp.int32, device="cpu"),
+                   bvh_constructor="sah", bvh_leaf_size=leaf)
+    rng = np.random.default_rng(2)
+    dirs = np.stack([np.full(64, np.inf), rng.uniform(-0.5, 0.5, 64), rng.uniform(0.5, 1.5, 64)], 1)
+    dirs[1::2, 0] = 1.0e30
+    p, s = _cast(mesh.id, np.array([-2.5e38, 0.0, 0.0], np.float32), dirs.astype(np.float32), "cpu")
+    assert (s[1] >= 0).any()
+    _assert_same_hits(p, s)
 
 
 @pytest.mark.parametrize("name,w,h", [("cornell", 67, 41), ("earth", 64, 48)])

@@ -9,22 +9,26 @@ largest component, which neighbouring primary rays share), the test runs for all
 and the rays it passes (a hit nearer than the ray's nearest so far, or a case for the exact fallback) are tested
 again one at a time, which decides.
 
-Every ray gets what ``wp.mesh_query_ray`` gives it:
+Every ray gets what ``wp.mesh_query_ray`` gives it, because it sees the same tests in the same order:
 
 * the box test is Warp's ``intersect_ray_aabb`` on the same operands in the same order, and a child is entered by
   a ray when its box is hit at a distance below the ray's nearest hit so far, as in Warp's walk (its min and max
   differ from Warp's only where an operand is NaN, which cannot happen for the rays the packets take: a finite
-  eye, nonzero direction components with finite reciprocals);
+  eye, finite nonzero direction components with finite reciprocals);
+* each ray visits the two children of a node in its own order, the one ``mesh_query_ray`` takes (the nearer
+  entry first, the right child on equal entries): where the rays entering both children disagree, the walk splits,
+  those preferring the right child walking it and then the left one on their own. The order matters: a triangle
+  can be hit an ulp below its box's entry distance, so which of two such hits is kept depends on it (a review
+  found rays on coplanar box faces where a shared order kept the other face);
 * the triangle test is the operations of Warp's ``intersect_ray_tri_woop`` in its order (its per-ray part, the
   axes and the shear, computed once per ray), and a hit is kept when 0 <= t < the nearest so far;
 * the normal is the kept triangle's, normalized by Warp's ``normalize``.
 
-So t, face, u, v and the normal are the same bits, except where two triangles are hit at exactly the same
-distance (a ray through a shared edge): Warp keeps the one its walk reaches first, and the packet's walk may reach
-them in another order. Any other ray (a zero direction component, where Warp uses its robust box test; a component
-so small that its reciprocal overflows; a non-finite direction or eye) is traced by ``mesh_query_ray`` itself.
-Compiled for CUDA, every ray is traced by ``mesh_query_ray`` (the packet path is for the CPU: the G-buffer's CUDA
-kernels do not call it).
+So t, face, u, v and the normal are the same bits, ties included. Any other ray (a zero direction component,
+where Warp uses its robust box test; an infinite component, or one so small that its reciprocal overflows; a
+non-finite eye) is traced by ``mesh_query_ray`` itself, as is a ray whose split walk would overflow the packet's
+stack (Warp's trees are at most 31 levels deep, so this is not seen). Compiled for CUDA, every ray is traced by
+``mesh_query_ray`` (the packet path is for the CPU: the G-buffer's CUDA kernels do not call it).
 
 Results are written per ray: the distance (``max_t`` on a miss), the face (-1 on a miss), (u, v) and the unit
 normal (left as they were on a miss).
@@ -44,6 +48,10 @@ _BODY = """
     float bu[8], bv[8];
     wp::vec3 bn[8];
     unsigned active = 0u;
+    for (int l = 0; l < 8; ++l) {{
+        best[l] = max_t;  // lanes past n too (never in a mask, but read by the 8-wide loops)
+        face[l] = -1;
+    }}
     const bool eye_ok = __builtin_isfinite(eye[0]) && __builtin_isfinite(eye[1]) && __builtin_isfinite(eye[2]);
     for (int l = 0; l < n; ++l) {{
         d[l] = *(const wp::vec3*)({dir});
@@ -52,7 +60,8 @@ _BODY = """
 #if !defined(__CUDACC__)
         // the packet's box test is exact for a finite eye and finite reciprocals of nonzero direction components
         // (no NaN in the slab distances, so its min and max agree with Warp's); other rays go to mesh_query_ray
-        if (eye_ok && d[l][0] != 0.0f && d[l][1] != 0.0f && d[l][2] != 0.0f && __builtin_isfinite(1.0f / d[l][0])
+        if (eye_ok && d[l][0] != 0.0f && d[l][1] != 0.0f && d[l][2] != 0.0f && __builtin_isfinite(d[l][0])
+            && __builtin_isfinite(d[l][1]) && __builtin_isfinite(d[l][2]) && __builtin_isfinite(1.0f / d[l][0])
             && __builtin_isfinite(1.0f / d[l][1]) && __builtin_isfinite(1.0f / d[l][2]))
             active |= 1u << l;
         else
@@ -101,8 +110,11 @@ _BODY = """
         for (int l = 1; l < 8; ++l)
             uniform = uniform && kx[l] == kx[0] && ky[l] == ky[0] && kz[l] == kz[0];
         const int ux = kx[0], uy = ky[0], uz = kz[0];
-        unsigned long long stack[64];
-        unsigned smask[64];
+        // a walk that splits pushes up to 3 entries a level; a ray whose walk would overflow the stack is dropped
+        // from the packet and traced by mesh_query_ray (Warp's trees are at most 31 deep: not seen)
+        unsigned long long stack[96];
+        unsigned smask[96];
+        unsigned dropped = 0u;
         int sp = 0;
         unsigned long long cur = wp::bvh_query_node_load(mesh.bvh, *mesh.bvh.root);
         unsigned cmask = active;
@@ -192,7 +204,7 @@ _BODY = """
                 if (sp == 0) break;
                 --sp;
                 cur = stack[sp];
-                cmask = smask[sp];
+                cmask = smask[sp] & ~dropped;
                 continue;
             }}
             const int li = wp::bvh_query_node_lower_payload(cur);
@@ -239,17 +251,40 @@ _BODY = """
             m1 &= cmask;
             const unsigned long long ln = wp::bvh_query_node_pack(ll, lu);
             const unsigned long long rn = wp::bvh_query_node_pack(rl, ru);
+            bool pop = false;
             if (m0 && m1) {{
-                // the nearer child first, as seen by the first ray that enters both (or by the first ray)
+                // each ray visits the two children in its own order, as mesh_query_ray does (the nearer entry
+                // first; the right one on equal entries): the order decides which of two hits an ulp apart is
+                // kept, since a triangle can be hit just below its box's entry distance
                 const unsigned both = m0 & m1;
-                const int l = __builtin_ctz(both ? both : (m0 | m1));
-                const bool left_first = both ? (t0[l] < t1[l]) : ((m0 >> l) & 1u) != 0u;
-                if (sp >= 64) break;
-                stack[sp] = left_first ? rn : ln;
-                smask[sp] = left_first ? m1 : m0;
-                ++sp;
-                cur = left_first ? ln : rn;
-                cmask = left_first ? m0 : m1;
+                unsigned pl = 0u;
+                for (int l = 0; l < 8; ++l) pl |= (unsigned)(t0[l] < t1[l]) << l;
+                const unsigned pref_l = both & pl, pref_r = both & ~pl;
+                if (pref_l && pref_r) {{
+                    // the rays that enter both disagree: those preferring the right child walk it and then the
+                    // left one on their own; the others (with the rays entering one child) go left first
+                    if (sp + 3 > 96) {{
+                        dropped |= cmask;
+                        pop = true;
+                    }} else {{
+                        const unsigned a1 = m1 & ~pref_r;
+                        stack[sp] = ln; smask[sp] = pref_r; ++sp;
+                        stack[sp] = rn; smask[sp] = pref_r; ++sp;
+                        if (a1) {{ stack[sp] = rn; smask[sp] = a1; ++sp; }}
+                        cur = ln;
+                        cmask = m0 & ~pref_r;
+                    }}
+                }} else if (sp + 1 > 96) {{
+                    dropped |= cmask;
+                    pop = true;
+                }} else {{
+                    const bool left_first = pref_l != 0u || both == 0u;
+                    stack[sp] = left_first ? rn : ln;
+                    smask[sp] = left_first ? m1 : m0;
+                    ++sp;
+                    cur = left_first ? ln : rn;
+                    cmask = left_first ? m0 : m1;
+                }}
             }} else if (m0) {{
                 cur = ln;
                 cmask = m0;
@@ -257,15 +292,29 @@ _BODY = """
                 cur = rn;
                 cmask = m1;
             }} else {{
+                pop = true;
+            }}
+            if (pop) {{
                 if (sp == 0) break;
                 --sp;
                 cur = stack[sp];
-                cmask = smask[sp];
+                cmask = smask[sp] & ~dropped;
             }}
         }}
-        for (unsigned m = active; m; m &= m - 1u) {{
+        for (unsigned m = active & ~dropped; m; m &= m - 1u) {{
             const int l = __builtin_ctz(m);
             if (face[l] >= 0) bn[l] = wp::normalize(bn[l]);
+        }}
+        for (unsigned m = dropped; m; m &= m - 1u) {{
+            const int l = __builtin_ctz(m);
+            float qt, qu, qv, qs;
+            wp::vec3 qn;
+            int qf;
+            best[l] = max_t;
+            face[l] = -1;
+            if (wp::mesh_query_ray(mesh_id, eye, d[l], max_t, qt, qu, qv, qs, qn, qf)) {{
+                best[l] = qt; face[l] = qf; bu[l] = qu; bv[l] = qv; bn[l] = qn;
+            }}
         }}
     }}
 #endif
