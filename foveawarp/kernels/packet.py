@@ -220,28 +220,23 @@ _BODY = """
             const float b1x = ru.x - eye[0], b1y = ru.y - eye[1], b1z = ru.z - eye[2];
             float t0[8], t1[8];
             int h0[8], h1[8];
+            // intersect_ray_aabb for ray l and one child (lower - eye = a, upper - eye = b): entry distance, hit
+#define FW_SLAB(ax, ay, az, bx, by, bz, T, H) {{ \
+                float l1 = ax * rx[l], l2 = bx * rx[l]; \
+                float lmin = l1 < l2 ? l1 : l2, lmax = l1 > l2 ? l1 : l2; \
+                l1 = ay * ry[l]; l2 = by * ry[l]; \
+                float mn = l1 < l2 ? l1 : l2, mx = l1 > l2 ? l1 : l2; \
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax; \
+                l1 = az * rz[l]; l2 = bz * rz[l]; \
+                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2; \
+                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax; \
+                T[l] = lmin; \
+                H[l] = (lmax >= 0.0f) & (lmax >= lmin) & (lmin < best[l]); }}
             for (int l = 0; l < 8; ++l) {{
-                float l1 = a0x * rx[l], l2 = b0x * rx[l];
-                float lmin = l1 < l2 ? l1 : l2, lmax = l1 > l2 ? l1 : l2;
-                l1 = a0y * ry[l]; l2 = b0y * ry[l];
-                float mn = l1 < l2 ? l1 : l2, mx = l1 > l2 ? l1 : l2;
-                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
-                l1 = a0z * rz[l]; l2 = b0z * rz[l];
-                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
-                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
-                t0[l] = lmin;
-                h0[l] = (lmax >= 0.0f) & (lmax >= lmin) & (lmin < best[l]);
-                l1 = a1x * rx[l]; l2 = b1x * rx[l];
-                lmin = l1 < l2 ? l1 : l2; lmax = l1 > l2 ? l1 : l2;
-                l1 = a1y * ry[l]; l2 = b1y * ry[l];
-                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
-                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
-                l1 = a1z * rz[l]; l2 = b1z * rz[l];
-                mn = l1 < l2 ? l1 : l2; mx = l1 > l2 ? l1 : l2;
-                lmin = mn > lmin ? mn : lmin; lmax = mx < lmax ? mx : lmax;
-                t1[l] = lmin;
-                h1[l] = (lmax >= 0.0f) & (lmax >= lmin) & (lmin < best[l]);
+                FW_SLAB(a0x, a0y, a0z, b0x, b0y, b0z, t0, h0)
+                FW_SLAB(a1x, a1y, a1z, b1x, b1y, b1z, t1, h1)
             }}
+#undef FW_SLAB
             unsigned m0 = 0u, m1 = 0u;
             for (int l = 0; l < 8; ++l) {{
                 m0 |= (unsigned)h0[l] << l;
