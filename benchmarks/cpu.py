@@ -8,7 +8,9 @@
   Mrays/s per core and hit agreement.
 
 Frames follow the scene's camera path (1/30 s per frame) with the gaze at the screen centre, after warm-up
-frames; the policy is fixed ("foveated" / ``render_reference``), ``timing=False``, except in the per-scene rows'
+frames (the per-scene rows also time both paths with ``frame.py``'s moving gaze, a Lissajous figure over the
+central 60 % x 40 % of the screen, one period per 60 frames, in loops of their own, interleaved with the
+others); the policy is fixed ("foveated" / ``render_reference``), ``timing=False``, except in the per-scene rows'
 "default policy" column (``FrameLoop``'s default with ``timing=False``: "auto", timed after its measurement
 frames, with the path it chose). Writes
 ``results/cpu-<device>.json`` and ``.md`` and a scaling plot ``cpu-scaling-<device>.png`` (matplotlib).
@@ -33,6 +35,7 @@ import warp as wp  # noqa: E402
 from benchmarks._common import RESULTS, base_parser, md_table, write_results  # noqa: E402
 import foveawarp as fw  # noqa: E402
 from foveawarp.kernels.packet import packet_ray_kernel  # noqa: E402
+from benchmarks.frame import gaze_path  # noqa: E402
 from foveawarp import parallel  # noqa: E402
 from foveawarp._util import get_device  # noqa: E402
 
@@ -60,18 +63,23 @@ def thread_counts(cores: int) -> list:
     return out
 
 
-def frame_ms(fl, frames: int, reference: bool, start: int = 0) -> list:
-    """Wall times (ms) of ``frames`` frames along the scene's camera path from frame ``start``."""
+GAZE_PERIOD = 60  # frames per period of the moving gaze (frame.py's Lissajous figure)
+
+
+def frame_ms(fl, frames: int, reference: bool, start: int = 0, moving: bool = False) -> list:
+    """Wall times (ms) of ``frames`` frames along the scene's camera path from frame ``start``; the gaze at the
+    screen centre, or (``moving``) along ``frame.py``'s moving gaze, one period per ``GAZE_PERIOD`` frames."""
     sc = fl.scene
     ts = []
     for i in range(start, start + frames):
         t = i / 30.0
         cam = sc.camera_at(t)
+        g = gaze_path(i, GAZE_PERIOD, fl.width, fl.height) if moving else None
         t0 = time.perf_counter()
         if reference:
-            fl.render_reference(cam, time=t)
+            fl.render_reference(cam, time=t, gaze_px=g)
         else:
-            fl.render(cam, time=t)
+            fl.render(cam, time=t, gaze_px=g)
         wp.synchronize_device(fl.device)
         ts.append((time.perf_counter() - t0) * 1e3)
     return ts
@@ -79,15 +87,15 @@ def frame_ms(fl, frames: int, reference: bool, start: int = 0) -> list:
 
 def interleaved(loops: dict, frames: int, warmup: int, rounds: int) -> dict:
     """Median and best (minimum over rounds of the per-round median) frame time of every (key -> (loop,
-    reference)) entry, the entries measured in turn within each round: on a machine shared with other jobs
-    every entry sees the same interference, and the best round is the least disturbed one."""
-    for fl, ref in loops.values():
-        frame_ms(fl, warmup, ref)
+    reference[, moving gaze])) entry, the entries measured in turn within each round: on a machine shared with
+    other jobs every entry sees the same interference, and the best round is the least disturbed one."""
+    for fl, ref, *mv in loops.values():
+        frame_ms(fl, warmup, ref, moving=bool(mv and mv[0]))
     per = {k: [] for k in loops}
     allt = {k: [] for k in loops}
     for r in range(rounds):
-        for k, (fl, ref) in loops.items():
-            ts = frame_ms(fl, frames, ref, start=warmup + r * frames)
+        for k, (fl, ref, *mv) in loops.items():
+            ts = frame_ms(fl, frames, ref, start=warmup + r * frames, moving=bool(mv and mv[0]))
             per[k].append(statistics.median(ts))
             allt[k] += ts
     return {k: {"median_ms": statistics.median(allt[k]), "best_ms": min(per[k])} for k in loops}
@@ -246,7 +254,12 @@ def main(argv=None):
             # runs first, so the timed frames render the path it chose
             fl_auto = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, cpu_threads=tmax)
             frame_ms(fl_auto, 2 * (fl_auto.POLICY_WARM + fl_auto.POLICY_TIMED) + 1, False)
-            m = interleaved({"fov": (fl, False), "ref": (fl_ref, True), "auto": (fl_auto, False)}, frames, warmup,
+            # the same two paths with frame.py's moving gaze (its own loops: a loop's history follows its gaze)
+            fl_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
+            fl_ref_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",
+                                     cpu_threads=tmax)
+            m = interleaved({"fov": (fl, False), "ref": (fl_ref, True), "auto": (fl_auto, False),
+                             "fov_mv": (fl_mv, False, True), "ref_mv": (fl_ref_mv, True, True)}, frames, warmup,
                             rounds)
             frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
             fov, ref, auto = m["fov"]["median_ms"], m["ref"]["median_ms"], m["auto"]["median_ms"]
@@ -257,6 +270,9 @@ def main(argv=None):
                    "reference_over_foveated_best": m["ref"]["best_ms"] / m["fov"]["best_ms"],
                    "sampled_fraction": frac, "auto_ms": auto, "auto_path": pol["path"],
                    "reference_over_auto": ref / auto,
+                   "foveated_moving_ms": m["fov_mv"]["median_ms"], "reference_moving_ms": m["ref_mv"]["median_ms"],
+                   "reference_over_foveated_moving": m["ref_mv"]["median_ms"] / m["fov_mv"]["median_ms"],
+                   "reference_over_foveated_moving_best": m["ref_mv"]["best_ms"] / m["fov_mv"]["best_ms"],
                    "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol}}
             versus.append(row)
             print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x), "
@@ -309,7 +325,9 @@ def main(argv=None):
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
                             "foveated_best_ms", "reference_best_ms", "reference_over_foveated_best",
-                            "sampled_fraction", "auto_ms", "auto_path", "reference_over_auto"])
+                            "sampled_fraction", "auto_ms", "auto_path", "reference_over_auto", "foveated_moving_ms",
+                            "reference_moving_ms", "reference_over_foveated_moving",
+                            "reference_over_foveated_moving_best"])
     if rays:
         md += "\n### Primary rays (scene camera, one ray per pixel)\n\n"
         cols = ["scene", "rays", "warp_single_1t_mrays_s", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s",
