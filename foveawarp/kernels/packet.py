@@ -52,11 +52,20 @@ _BODY = """
         best[l] = max_t;  // lanes past n too (never in a mask, but read by the 8-wide loops)
         face[l] = -1;
     }}
+    // ray l traced by mesh_query_ray itself (the rays the packet does not take, and those it drops)
+    auto single = [&](int l) {{
+        float qt, qu, qv, qs;
+        wp::vec3 qn;
+        int qf;
+        best[l] = max_t;
+        face[l] = -1;
+        if (wp::mesh_query_ray(mesh_id, eye, d[l], max_t, qt, qu, qv, qs, qn, qf)) {{
+            best[l] = qt; face[l] = qf; bu[l] = qu; bv[l] = qv; bn[l] = qn;
+        }}
+    }};
     const bool eye_ok = __builtin_isfinite(eye[0]) && __builtin_isfinite(eye[1]) && __builtin_isfinite(eye[2]);
     for (int l = 0; l < n; ++l) {{
         d[l] = *(const wp::vec3*)({dir});
-        face[l] = -1;
-        best[l] = max_t;
 #if !defined(__CUDACC__)
         // the packet's box test is exact for a finite eye and finite reciprocals of nonzero direction components
         // (no NaN in the slab distances, so its min and max agree with Warp's); other rays go to mesh_query_ray
@@ -66,14 +75,7 @@ _BODY = """
             active |= 1u << l;
         else
 #endif
-        {{
-            float qt, qu, qv, qs;
-            wp::vec3 qn;
-            int qf;
-            if (wp::mesh_query_ray(mesh_id, eye, d[l], max_t, qt, qu, qv, qs, qn, qf)) {{
-                best[l] = qt; face[l] = qf; bu[l] = qu; bv[l] = qv; bn[l] = qn;
-            }}
-        }}
+            single(l);
     }}
 #if !defined(__CUDACC__)
     if (active) {{
@@ -301,15 +303,7 @@ _BODY = """
             if (face[l] >= 0) bn[l] = wp::normalize(bn[l]);
         }}
         for (unsigned m = dropped; m; m &= m - 1u) {{
-            const int l = __builtin_ctz(m);
-            float qt, qu, qv, qs;
-            wp::vec3 qn;
-            int qf;
-            best[l] = max_t;
-            face[l] = -1;
-            if (wp::mesh_query_ray(mesh_id, eye, d[l], max_t, qt, qu, qv, qs, qn, qf)) {{
-                best[l] = qt; face[l] = qf; bu[l] = qu; bv[l] = qv; bn[l] = qn;
-            }}
+            single(__builtin_ctz(m));
         }}
     }}
 #endif
