@@ -10,9 +10,11 @@
 Frames follow the scene's camera path (1/30 s per frame) with the gaze at the screen centre, after warm-up
 frames (the per-scene rows also time both paths with ``frame.py``'s moving gaze, a Lissajous figure over the
 central 60 % x 40 % of the screen, one period per 60 frames, in loops of their own, interleaved with the
-others); the policy is fixed ("foveated" / ``render_reference``), ``timing=False``, except in the per-scene rows'
+others); the policy is fixed ("foveated" / the reference), ``timing=False``, except in the per-scene rows'
 "default policy" column (``FrameLoop``'s default with ``timing=False``: "auto", timed after its measurement
-frames, with the path it chose). Writes
+frames, with the path it chose). With ``timing=False`` a loop replays its recorded frame body (``FrameLoop``'s
+``graph``; the CPU's ``parallel.record``); the reference is timed both as ``render_reference`` (eager) and as a
+``policy="full"`` loop (its body replayed), and the faster of the two is the one the ratios divide. Writes
 ``results/cpu-<device>.json`` and ``.md`` and a scaling plot ``cpu-scaling-<device>.png`` (matplotlib).
 
     python benchmarks/cpu.py --device cpu                 # 640x360, cornell + bunny, 1..cores threads
@@ -258,10 +260,24 @@ def main(argv=None):
             fl_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
             fl_ref_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",
                                      cpu_threads=tmax)
-            m = interleaved({"fov": (fl, False), "ref": (fl_ref, True), "auto": (fl_auto, False),
-                             "fov_mv": (fl_mv, False, True), "ref_mv": (fl_ref_mv, True, True)}, frames, warmup,
-                            rounds)
+            # the reference two ways: render_reference (G-buffer and full shading, eager), and a loop with
+            # policy="full" (the same launches through render, its body replayed as the foveated loops' are);
+            # the faster of the two is the reference of the ratios
+            fl_full = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=tmax)
+            fl_full_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full",
+                                      cpu_threads=tmax)
+            m = interleaved({"fov": (fl, False), "ref_eager": (fl_ref, True), "ref_full": (fl_full, False),
+                             "auto": (fl_auto, False), "fov_mv": (fl_mv, False, True),
+                             "ref_eager_mv": (fl_ref_mv, True, True), "ref_full_mv": (fl_full_mv, False, True)},
+                            frames, warmup, rounds)
+            for suffix in ("", "_mv"):
+                a, b = m["ref_eager" + suffix], m["ref_full" + suffix]
+                m["ref" + suffix] = {"median_ms": min(a["median_ms"], b["median_ms"]),
+                                     "best_ms": min(a["best_ms"], b["best_ms"])}
             frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
+            # how the loops ran their frame bodies (FrameLoop stats["graph"]: "replayed" once recorded)
+            body_state = fl.render(fl.scene.camera_at(0.0)).stats["graph"]
+            full_state = fl_full.render(fl_full.scene.camera_at(0.0)).stats["graph"]
             fov, ref, auto = m["fov"]["median_ms"], m["ref"]["median_ms"], m["auto"]["median_ms"]
             pol = fl_auto.render(fl_auto.scene.camera_at(0.0)).stats["policy"]  # the path it renders, estimates
             row = {"scene": sc, "shading": label, "threads": tmax, "foveated_ms": fov, "reference_ms": ref,
@@ -273,7 +289,9 @@ def main(argv=None):
                    "foveated_moving_ms": m["fov_mv"]["median_ms"], "reference_moving_ms": m["ref_mv"]["median_ms"],
                    "reference_over_foveated_moving": m["ref_mv"]["median_ms"] / m["fov_mv"]["median_ms"],
                    "reference_over_foveated_moving_best": m["ref_mv"]["best_ms"] / m["fov_mv"]["best_ms"],
-                   "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol}}
+                   "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol},
+                   "reference_eager_ms": m["ref_eager"]["median_ms"], "reference_full_policy_ms": m["ref_full"]["median_ms"],
+                   "foveated_body": body_state, "reference_full_policy_body": full_state}
             versus.append(row)
             print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x), "
                   f"default policy {auto:.1f} ms ({pol['path']}, {ref / auto:.2f}x)", flush=True)
@@ -327,7 +345,8 @@ def main(argv=None):
                             "foveated_best_ms", "reference_best_ms", "reference_over_foveated_best",
                             "sampled_fraction", "auto_ms", "auto_path", "reference_over_auto", "foveated_moving_ms",
                             "reference_moving_ms", "reference_over_foveated_moving",
-                            "reference_over_foveated_moving_best"])
+                            "reference_over_foveated_moving_best", "reference_eager_ms", "reference_full_policy_ms",
+                            "foveated_body"])
     if rays:
         md += "\n### Primary rays (scene camera, one ray per pixel)\n\n"
         cols = ["scene", "rays", "warp_single_1t_mrays_s", "warp_1t_mrays_s", f"warp_{tmax}t_mrays_s",

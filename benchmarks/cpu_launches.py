@@ -61,7 +61,9 @@ class LaunchTimer:
 
 
 def profile(fw, scene, w, h, threads: int, policy: str, frames: int, warm: int = 3, config=None) -> dict:
-    loop = fw.FrameLoop(scene, w, h, config=config, device="cpu", policy=policy, cpu_threads=threads, timing=False)
+    # graph=False: eager launches, each one timed (a replayed body runs its bands without these calls)
+    loop = fw.FrameLoop(scene, w, h, config=config, device="cpu", policy=policy, cpu_threads=threads, timing=False,
+                        graph=False)
     for i in range(warm):
         loop.render(scene.camera_at(i / 30), gaze_px=(w * 0.45, h * 0.5), time=i / 30)
     with LaunchTimer() as lt:

@@ -80,8 +80,9 @@ class FrameLoop:
         device: Warp device ("cpu", "cuda:0", ...) or None for Warp's default.
         timing: synchronize after each stage and report ``ms_<stage>`` in ``stats`` (slower; off for
             benchmarks of whole frames, which use CUDA graphs on CUDA).
-        graph: capture the steady-state frame body as a CUDA graph and replay it. None (default): on CUDA
-            when ``timing`` is False. Ignored (eager launches) on the CPU and when ``timing`` is True.
+        graph: capture the steady-state frame body and replay it: on CUDA as a CUDA graph, on the CPU as a
+            recording of its launches (``parallel.record``: the bands run again without the stages' Python).
+            None (default): when ``timing`` is False. Ignored (eager launches) when ``timing`` is True.
         policy: "foveated" always renders the foveated frame (research use); "full" always traces every pixel;
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames, and sooner when a check of the chosen path's frames says the choice
@@ -162,7 +163,8 @@ class FrameLoop:
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
             raise ValueError(f"graph must be True, False or None, got {graph!r}")
-        self._graphs_on = bool(dev.is_cuda and not self.timing and graph is not False)
+        # CUDA: graphs of the frame body; the CPU: recordings of its launches (parallel.record), replayed the same way
+        self._graphs_on = bool(not self.timing and graph is not False)
         self._graphs: dict = {}
         self._warm_keys: set = set()
         self._graph_error: Optional[str] = None
@@ -778,6 +780,8 @@ class FrameLoop:
         if not self._graphs_on:
             body()
             return "eager"
+        if not self._on_cuda:
+            return self._run_body_cpu(key, body)
         g = self._graphs.get(key)
         if g is not None:
             wp.capture_launch(g)
@@ -796,6 +800,28 @@ class FrameLoop:
             return f"eager (capture failed: {self._graph_error})"
         self._graphs[key] = cap.graph
         wp.capture_launch(cap.graph)
+        return "captured"
+
+    def _run_body_cpu(self, key, body) -> str:
+        """``_run_body`` on the CPU: the first frame of a key runs eagerly, the second runs while its CPU work is
+        recorded (``parallel.record``), later ones replay the recording (for the thread count it was made with;
+        another count records anew). A recording that cannot be replayed (a host read in the body) turns
+        replays off for this loop and says why."""
+        prog = self._graphs.get(key)
+        if prog is not None and prog.threads == parallel.current_cpu_threads():
+            prog.replay()
+            return "replayed"
+        if key not in self._warm_keys:
+            body()
+            self._warm_keys.add(key)
+            return "warm-up"
+        with parallel.record() as prog:
+            body()
+        if prog.problem is not None:
+            self._graphs_on = False
+            self._graph_error = prog.problem
+            return f"eager (recording not replayable: {prog.problem})"
+        self._graphs[key] = prog
         return "captured"
 
     def _list_keep(self):

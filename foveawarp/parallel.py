@@ -30,6 +30,7 @@ from __future__ import annotations
 import _thread
 import contextlib
 import contextvars
+import functools
 import os
 import threading
 import weakref
@@ -45,7 +46,7 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
 import ctypes
 
 __all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads",
-           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR", "shutdown_native_team"]
+           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR", "shutdown_native_team", "record", "CpuProgram"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
@@ -448,6 +449,18 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
     inputs, outputs = list(inputs), list(outputs)
+    rec = _recording()
+    if rec is not None and (count is not None or not dev.is_cpu or _invoke is None or not FAST_BANDS):
+        # bands that depend on a count read now, or a launch that is not packed bands: the replay makes the whole
+        # launch again (the same arguments), without the recording
+        if not dev.is_cpu:
+            rec.fail(f"a launch of {kernel.key} on {dev}")
+        rec.add(launch, kernel, dim, inputs, outputs, dev, threads=threads, min_band_items=min_band_items,
+                count=count, per_count=per_count)
+        with rec.paused():
+            launch(kernel, dim, inputs, outputs, dev, threads=threads, min_band_items=min_band_items, count=count,
+                   per_count=per_count, max_blocks=max_blocks, stream=stream)
+        return
     if stream is not None and not dev.is_cuda:
         raise ValueError(f"stream must be None on the CPU device (CPU launches have no streams), got {stream!r}")
     if dims[0] <= 0 or any(d <= 0 for d in dims):
@@ -487,36 +500,52 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # the packed arguments and copied again only when those changed: a band is then one ctypes call, the
         # least Python a member thread runs under the GIL
         st = _band_calls(packed, parts, dims)
-        calls = iter(st.calls)
-        if len(parts) == 1:  # one band: this thread, with the kept arguments (no packing)
-            for f, b, a in calls:
-                f(b, a)
-            return
+        if rec is not None:
+            rec.add_bands(st, n, min(n, len(parts)), dev, (inputs, outputs))
+        _run_bands(st.calls, st, n, min(n, len(parts)), dev)
+        return
+    queue = iter(parts)
 
-        def worker():
-            for f, b, a in calls:  # the list iterator is shared: each band goes to one thread
-                f(b, a)
-    else:
-        queue = iter(parts)
+    def worker():
+        for r0, r1 in queue:
+            d = (r1 - r0, *dims[1:])
+            wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
-        def worker():
-            for r0, r1 in queue:
-                d = (r1 - r0, *dims[1:])
-                wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
+    _run_on_team(worker, n, min(n, len(parts)))
 
-    # ``workers`` threads (the calling one included) take the bands in order as they finish their last one
-    workers = min(n, len(parts))
-    if packed is not None and NATIVE_TEAM and n <= usable_cores():
+
+def _run_bands(calls, st, n: int, workers: int, dev) -> None:
+    """Run the band calls ``calls`` ((entry point, bounds, arguments) each; ``st`` the ``_Bands`` they are, or a
+    recording's copy of one) on ``workers`` threads (the calling one included) of the native team when the
+    launch's ``n`` threads fit the usable cores, else of the Python team; one band runs in this thread."""
+    if len(calls) == 1:  # one band: this thread, with the kept arguments (no packing)
+        f, b, a = calls[0]
+        f(b, a)
+        return
+    if NATIVE_TEAM and n <= usable_cores():
         native = _native_team(dev)
         if native is not None:
             if not native.busy.acquire(blocking=False):  # another Python thread's launch holds it: run here
-                worker()
+                for f, b, a in calls:
+                    f(b, a)
                 return
             try:
                 native.run(_tables(st), workers - 1)
             finally:
                 native.busy.release()
             return
+    it = iter(calls)
+
+    def worker():
+        for f, b, a in it:  # the list iterator is shared: each band goes to one thread
+            f(b, a)
+
+    _run_on_team(worker, n, workers)
+
+
+def _run_on_team(worker, n: int, workers: int) -> None:
+    """``worker()`` on ``workers`` threads of the Python team of ``n`` threads (the calling one included); in
+    this thread alone when another Python thread's launch holds the team."""
     team = _team(n)
     if not team.busy.acquire(blocking=False):  # another Python thread's launch holds the team: run here
         worker()
@@ -525,6 +554,197 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         team.run(worker, workers)
     finally:
         team.busy.release()
+
+
+# -- a frame body's CPU launches, recorded and replayed -------------------------------------------------------
+
+
+class CpuProgram:
+    """The CPU work of one recorded call (``record``): its launches, memsets and copies in order, each with the
+    arguments it had then, to be run again by :meth:`replay` without the Python that made them (the stages'
+    argument checks, the packing, the band split). The CPU's counterpart of a captured CUDA graph, with the same
+    rule: what was recorded is what runs, so the recorded code must take its per-call values from device arrays
+    (as ``FrameLoop``'s frame body does), not from Python.
+
+    ``problem``: None, or why the recorded call cannot be replayed (a host read, an operation the recording does
+    not know); ``threads``: the thread count the bands were split for."""
+
+    __slots__ = ("ops", "threads", "problem", "_keep")
+
+    def __init__(self, threads: int):
+        self.ops: list = []
+        self.threads = int(threads)
+        self.problem: Optional[str] = None
+        self._keep: list = []  # what the ops point into (arrays, kept launch state): alive as long as the program
+
+    def replay(self) -> None:
+        """Run the recorded operations again, in order."""
+        for op in self.ops:
+            op()
+
+
+class _Recorder:
+    __slots__ = ("program", "thread", "depth")
+
+    def __init__(self, threads: int):
+        self.program = CpuProgram(threads)
+        self.thread = _thread.get_ident()
+        self.depth = 0  # > 0: inside an operation being recorded (its inner calls are part of it)
+
+    def add(self, fn, *args, **kwargs) -> None:
+        self.program.ops.append(functools.partial(fn, *args, **kwargs))
+
+    def fail(self, why: str) -> None:
+        if self.program.problem is None:
+            self.program.problem = why
+
+    @contextlib.contextmanager
+    def paused(self):
+        self.depth += 1
+        try:
+            yield
+        finally:
+            self.depth -= 1
+
+    def add_bands(self, st, n: int, workers: int, dev, keep) -> None:
+        """A band launch: its bands' argument structs copied (a later launch with the same packed arguments may
+        change the kept ones), the bounds shared (fixed per band size)."""
+        cp = _Bands()
+        cp.master = cp.last = cp.tables = None
+        cp.structs = [type(a).from_buffer_copy(a) for a in st.structs]
+        cp.bounds = st.bounds
+        cp.calls = [(f, b, ctypes.byref(a)) for (f, b, _), a in zip(st.calls, cp.structs)]
+        self.program._keep.append((st, keep))
+        self.add(_run_bands, cp.calls, cp, n, workers, dev)
+
+
+_rec: Optional[_Recorder] = None
+
+
+def _recording() -> Optional[_Recorder]:
+    """The active recording when this thread made it and is not inside an operation being recorded."""
+    r = _rec
+    if r is None or r.depth or r.thread != _thread.get_ident():
+        return None
+    return r
+
+
+def _snapshot_launch(cmd):
+    """A call that runs the CPU launch command ``cmd`` (a ``wp.Launch``) with its arguments as they are now
+    (a copy: the command may be changed and launched again before the replay), or None if it is no plain CPU
+    launch (a CUDA one, or a cooperative one with block_dim > 1)."""
+    if not cmd.device.is_cpu or cmd.block_dim > 1 or cmd.adjoint or _invoke is None:
+        return None
+    forward, _, args, _ = _pack(cmd)
+    bounds = type(cmd.params[0]).from_buffer_copy(cmd.params[0])
+    return functools.partial(forward, ctypes.byref(bounds), ctypes.byref(args)), (bounds, args, cmd)
+
+
+def _recording_patches():
+    """(object, name, replacement) for the Warp calls a frame body can make besides :func:`launch`: launches and
+    memsets are recorded; a host read or an operation not known here marks the recording as not replayable.
+    Calls from other threads, and those made inside a recorded operation, pass through unchanged."""
+    from warp._src.context import Launch
+
+    o_launch, o_tiled, o_cmd = wp.launch, wp.launch_tiled, Launch.launch
+    o_copy, o_zero, o_fill, o_numpy, o_assign = wp.copy, wp.array.zero_, wp.array.fill_, wp.array.numpy, wp.array.assign
+
+    def launch_any(orig, name):
+        def patched(*args, **kwargs):
+            rec = _recording()
+            if rec is None or kwargs.get("record_cmd"):
+                return orig(*args, **kwargs)
+            with rec.paused():
+                cmd = orig(*args, **{**kwargs, "record_cmd": True})
+                snap = _snapshot_launch(cmd)
+                if snap is None:
+                    rec.fail(f"{name} of {cmd.kernel.key} (not a plain CPU launch)")
+                else:
+                    rec.add(snap[0])
+                    rec.program._keep.append(snap[1])
+                cmd.launch()
+            return None
+        return patched
+
+    def cmd_launch(self, *args, **kwargs):
+        rec = _recording()
+        if rec is None:
+            return o_cmd(self, *args, **kwargs)
+        snap = _snapshot_launch(self)
+        if snap is None:
+            rec.fail(f"a launch command of {self.kernel.key} (not a plain CPU launch)")
+        else:
+            rec.add(snap[0])
+            rec.program._keep.append(snap[1])
+        with rec.paused():
+            return o_cmd(self, *args, **kwargs)
+
+    def zero(self):
+        rec = _recording()
+        if rec is not None:
+            if self.device.is_cpu and self.is_contiguous and self.ptr:
+                rec.add(ctypes.memset, self.ptr, 0, self.size * wp.types.type_size_in_bytes(self.dtype))
+                rec.program._keep.append(self)
+            elif self.size:
+                rec.fail(f"zero_ of a {'non-contiguous ' if self.device.is_cpu else ''}array on {self.device}")
+        with (rec.paused() if rec is not None else contextlib.nullcontext()):
+            return o_zero(self)
+
+    def fill(self, value):
+        rec = _recording()
+        if rec is not None:
+            if type(value) in (int, float, bool) and self.device.is_cpu:
+                rec.add(o_fill, self, value)
+            else:
+                rec.fail(f"fill_ with a {type(value).__name__}")
+        with (rec.paused() if rec is not None else contextlib.nullcontext()):
+            return o_fill(self, value)
+
+    def copy(dest, src, *args, **kwargs):
+        rec = _recording()
+        if rec is not None:
+            if dest.device.is_cpu and src.device.is_cpu:
+                rec.add(o_copy, dest, src, *args, **kwargs)
+            else:
+                rec.fail(f"a copy from {src.device} to {dest.device}")
+        with (rec.paused() if rec is not None else contextlib.nullcontext()):
+            return o_copy(dest, src, *args, **kwargs)
+
+    def host_read(orig, name):
+        def patched(self, *args, **kwargs):
+            rec = _recording()
+            if rec is not None:
+                rec.fail(f"a host {name} of an array (the replay would keep its value)")
+            return orig(self, *args, **kwargs)
+        return patched
+
+    return [(wp, "launch", launch_any(o_launch, "wp.launch")), (wp, "launch_tiled", launch_any(o_tiled, "wp.launch_tiled")),
+            (Launch, "launch", cmd_launch), (wp, "copy", copy), (wp.array, "zero_", zero), (wp.array, "fill_", fill),
+            (wp.array, "numpy", host_read(o_numpy, "read")), (wp.array, "assign", host_read(o_assign, "write"))]
+
+
+@contextlib.contextmanager
+def record():
+    """Within the block, this thread's CPU launches (:func:`launch`, ``wp.launch``, ``wp.launch_tiled``, launch
+    commands), memsets and copies run as usual and are recorded into the :class:`CpuProgram` it yields, for
+    ``FrameLoop`` to replay its frame body (the CPU's counterpart of a CUDA graph capture). A host read
+    (``numpy``, ``assign``) or an operation the recording does not know sets the program's ``problem``. One
+    recording at a time; it patches those Warp calls for its duration (other threads' calls pass through)."""
+    global _rec
+    with _team_lock:
+        if _rec is not None:
+            raise RuntimeError("a CPU recording is already running (parallel.record does not nest)")
+        r = _rec = _Recorder(current_cpu_threads())
+    patches = _recording_patches()
+    saved = [(obj, name, getattr(obj, name)) for obj, name, _ in patches]
+    try:
+        for obj, name, fn in patches:
+            setattr(obj, name, fn)
+        yield r.program
+    finally:
+        for obj, name, fn in reversed(saved):
+            setattr(obj, name, fn)
+        _rec = None
 
 
 # the CPU runs the per-pixel passes that have a rows variant a row per thread (launch_rows); False: a thread per

@@ -268,12 +268,79 @@ def test_refresh_fraction_zero_traces_only_pixels_without_history(device):
 # -- CUDA graph of the steady-state frame -------------------------------------------------------------------
 
 
-def test_graph_is_off_on_cpu_and_with_timing():
+def test_graph_is_off_with_timing_and_when_asked():
     scene = fw.load_scene("cornell")
-    f = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False, policy="foveated").render(scene.camera)
-    assert f.stats["graph"] == "eager"
+    timed = fw.FrameLoop(scene, 32, 24, device="cpu", timing=True, policy="foveated")
+    off = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False, graph=False, policy="foveated")
+    on = fw.FrameLoop(scene, 32, 24, device="cpu", timing=False, policy="foveated")
+    states = []
+    for i in range(8):
+        cam = scene.camera_at(i / 60.0)
+        states.append((timed.render(cam).stats["graph"], off.render(cam).stats["graph"], on.render(cam).stats["graph"]))
+    assert [s[0] for s in states] == ["eager"] * 8
+    assert [s[1] for s in states] == ["eager"] * 8
+    # the CPU records its frame body's launches (parallel.record) and replays them, as CUDA captures a graph: the
+    # first frame (no history) and the two history parities each run eagerly once, then are recorded once
+    assert [s[2] for s in states] == ["warm-up"] * 3 + ["captured"] * 2 + ["replayed"] * 3
     with pytest.raises(ValueError, match="graph"):
         fw.FrameLoop(scene, 32, 24, device="cpu", graph="yes")
+
+
+@pytest.mark.parametrize("over, scene_kw, threads", [
+    ({}, {}, 3),
+    ({"shading": {"ao_samples": 2}, "dof": {"aperture_m": 0.02}, "temporal": {"max_history_frames": 4}},
+     {"motion": True}, 2),
+    ({"reorder": {"strategy": "tile"}, "shading": {"ao_samples": 2}}, {"motion": True}, 2),
+    ({"reorder": {"strategy": "rows"}, "temporal": {"max_history_frames": 4}}, {}, 1),
+    ({"reorder": {"strategy": "scan"}, "shading": {"indirect": "lighttree"}}, {}, 2),
+    ({"reconstruction": {"jfa_variant": "1+jfa"}}, {"motion": True}, 2),
+    ({"foveation": {"gbuffer": "sparse"}}, {"motion": True}, 2),
+])
+def test_cpu_replay_equals_eager_launches(over, scene_kw, threads):
+    """The CPU's recorded frame body replays each frame's camera, gaze, frame index (AO noise) and object motion:
+    images, sampling maps, histories and stats are identical to eager launches over a moving sequence, through a
+    still phase (the refresh with a short history)."""
+    scene = fw.load_scene("cornell", **scene_kw)
+    cfg = fw.Config().with_(**over) if over else fw.Config()
+    g = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, policy="foveated", cpu_threads=threads)
+    e = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, graph=False, policy="foveated",
+                     cpu_threads=threads)
+    states = []
+    for i in range(24):
+        moving = i < 10
+        cam = scene.camera_at(i / 60.0) if moving else scene.camera_at(10 / 60.0)
+        t = i / 30.0 if moving else 10 / 30.0
+        gaze = (20.0 + 2 * i, 30.0 - i)
+        fg = g.render(cam, gaze_px=gaze, time=t)
+        fe = e.render(cam, gaze_px=gaze, time=t)
+        states.append(fg.stats["graph"])
+        assert fe.stats["graph"] == "eager"
+        np.testing.assert_array_equal(fg.sampling_map.numpy(), fe.sampling_map.numpy(), err_msg=str(i))
+        np.testing.assert_array_equal(fg.numpy(), fe.numpy(), err_msg=str(i))
+        for k in ("sparse", "filled"):
+            np.testing.assert_array_equal(fg.extras[k].numpy(), fe.extras[k].numpy(), err_msg=f"{k} {i}")
+        assert fg.stats["skipped"] == fe.stats["skipped"]
+        assert fg.stats["sampling_rate"] == fe.stats["sampling_rate"]
+    assert "captured" in states and states.count("replayed") >= 12, states
+
+
+def test_cpu_replay_follows_the_thread_count():
+    """A recording is split for the thread count it was made with: a loop whose ``cpu_threads`` changes records
+    anew, and the frames stay equal to eager ones."""
+    scene = fw.load_scene("cornell")
+    g = fw.FrameLoop(scene, W, H, device="cpu", timing=False, policy="foveated")
+    e = fw.FrameLoop(scene, W, H, device="cpu", timing=False, graph=False, policy="foveated")
+    states = []
+    for i, n in enumerate([2] * 6 + [3] * 4 + [1] * 3):
+        g.cpu_threads = e.cpu_threads = n
+        fg = g.render(scene.camera_at(i / 60.0), gaze_px=(30.0 + i, 20.0), time=i / 30.0)
+        fe = e.render(scene.camera_at(i / 60.0), gaze_px=(30.0 + i, 20.0), time=i / 30.0)
+        states.append(fg.stats["graph"])
+        np.testing.assert_array_equal(fg.numpy(), fe.numpy(), err_msg=str(i))
+    # the first frame and the two history parities: eager, recorded, replayed; at 3 threads, and at 1, each
+    # parity is recorded again
+    assert states == (["warm-up"] * 3 + ["captured"] * 2 + ["replayed"] + ["captured"] * 2 + ["replayed"] * 2
+                      + ["captured"] * 2 + ["replayed"]), states
 
 
 @pytest.mark.needs_cuda

@@ -719,3 +719,111 @@ else:
     print("child hung")
 """)
     assert out.strip().endswith("child 0"), out
+
+
+# -- recording and replaying a body's CPU work (parallel.record, FrameLoop's CPU counterpart of a CUDA graph) -----
+
+
+@wp.kernel(enable_backward=False)
+def _count_sum_kernel(a: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.int32), out: wp.array(dtype=float),
+                      row0: int):
+    i = wp.tid() + row0
+    if i < count[0]:
+        out[i] = a[i][0] + a[i][1] + a[i][2]
+
+
+@wp.kernel(enable_backward=False)
+def _twice_index_kernel(out: wp.array(dtype=float), row0: int):
+    i = wp.tid() + row0
+    out[i] = 2.0 * float(i)
+
+
+@wp.kernel(enable_backward=False)
+def _total_kernel(x: wp.array(dtype=float), k: int, total: wp.array(dtype=float)):
+    s = float(0.0)
+    for i in range(x.shape[0]):
+        s += x[i]
+    total[0] = s + float(k)
+
+
+def _recorded_body(a, p, out, sums, count, total, copy_dst, rl_one):
+    """A body like a frame's: a memset, a band launch with a struct argument, a recorded one-thread launch
+    command, a launch over a counted work list, a plain wp.launch, a fill and a copy."""
+    out.zero_()
+    parallel.launch(_relaunch_kernel, out.shape[0], inputs=[a, p, 2], outputs=[out], device=DEV)
+    rl_one(1, inputs=[p, 5], outputs=[copy_dst], device=DEV)  # parallel.Relaunch(bands=False): a launch command
+    sums.fill_(-1.0)
+    parallel.launch(_count_sum_kernel, out.shape[0], inputs=[out, count], outputs=[sums], device=DEV, count=count)
+    wp.launch(_total_kernel, dim=1, inputs=[sums, 3], outputs=[total], device=DEV)
+    wp.copy(copy_dst, out, dest_offset=1, src_offset=0, count=out.shape[0] - 1)
+
+
+def _body_want(a_np, scale, off, live):
+    out = a_np * np.float32(scale) + np.asarray(off, np.float32) + np.array([2, 0, 0], np.float32)
+    sums = np.full(a_np.shape[0], -1.0, np.float32)
+    sums[:live] = out[:live].sum(axis=1)
+    return out, sums
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_record_replays_the_body(every_band, rng, threads):
+    """The replay runs the recorded launches, memsets, fills and copies again, in order, with the arguments they
+    had when recorded, on the arrays' current contents (NumPy reference): a struct changed after the recording,
+    and a launch of the same kernel with other values in between, do not reach it; a counted launch reads the
+    count again."""
+    n = 53
+    a_np = rng.random((n, 3)).astype(np.float32)
+    a = wp.array(a_np, dtype=wp.vec3, device=DEV)
+    out, copy_dst = wp.zeros(n, dtype=wp.vec3, device=DEV), wp.zeros(n, dtype=wp.vec3, device=DEV)
+    sums, total = wp.zeros(n, dtype=float, device=DEV), wp.zeros(1, dtype=float, device=DEV)
+    count = wp.array([20], dtype=wp.int32, device=DEV)
+    rl_one = parallel.Relaunch(_relaunch_one_kernel, bands=False)
+    p = _RelaunchParams()
+    p.scale, p.offset = 1.5, wp.vec3(1.0, -2.0, 0.5)
+    with parallel.cpu_threads(threads):
+        with parallel.record() as prog:
+            _recorded_body(a, p, out, sums, count, total, copy_dst, rl_one)
+        assert prog.problem is None and prog.threads == threads and len(prog.ops) == 7
+        # the same kernels with other values (the packed-argument caches are shared with the recording)
+        p.scale, p.offset = -4.0, wp.vec3(9.0, 9.0, 9.0)
+        _recorded_body(a, p, out, sums, count, total, copy_dst, rl_one)
+        # new contents and a new count, then the replay
+        a_np = rng.random((n, 3)).astype(np.float32)
+        a.assign(a_np)
+        count.assign(np.array([n - 3], np.int32))
+        out.fill_(wp.vec3(7.0, 7.0, 7.0))
+        prog.replay()
+    want_out, want_sums = _body_want(a_np, 1.5, (1.0, -2.0, 0.5), n - 3)
+    np.testing.assert_allclose(out.numpy(), want_out, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(sums.numpy(), want_sums, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(total.numpy()[0], np.float32(want_sums.astype(np.float64).sum() + 3.0), rtol=1e-5)
+    cd = copy_dst.numpy()
+    np.testing.assert_allclose(cd[0], np.array([1.0, -2.0, 0.5], np.float32) * np.float32(1.5) + [5, 0, 0], rtol=1e-6)
+    np.testing.assert_allclose(cd[1:], want_out[:-1], rtol=1e-6, atol=1e-6)
+
+
+def test_record_marks_what_it_cannot_replay():
+    """A host read, a host write or a vector fill inside the recording sets ``problem`` (the replay would keep
+    what the Python decided then); recordings do not nest; and only the recording thread is recorded."""
+    x = wp.zeros(8, dtype=float, device=DEV)
+    v = wp.zeros(8, dtype=wp.vec3, device=DEV)
+    for body, word in ((lambda: x.numpy(), "read"), (lambda: x.assign(np.ones(8, np.float32)), "write"),
+                       (lambda: v.fill_(wp.vec3(1.0, 2.0, 3.0)), "fill_")):
+        with parallel.record() as prog:
+            x.zero_()
+            body()
+        assert prog.problem is not None and word in prog.problem
+    with parallel.record() as prog:
+        with pytest.raises(RuntimeError, match="does not nest"):
+            with parallel.record():
+                pass
+        t = threading.Thread(target=lambda: (x.fill_(3.0), x.numpy(),
+                                             parallel.launch(_twice_index_kernel, 8, outputs=[x], device=DEV)))
+        t.start()
+        t.join()
+    assert prog.problem is None and prog.ops == []
+    np.testing.assert_array_equal(x.numpy(), np.arange(8, dtype=np.float32) * 2.0)
+    # the patched Warp calls are restored
+    from warp._src.context import Launch
+    assert wp.launch.__module__.startswith("warp") and Launch.launch.__qualname__ == "Launch.launch"
+    assert wp.array.zero_.__qualname__ == "array.zero_"
