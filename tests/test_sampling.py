@@ -596,17 +596,32 @@ def test_dither_rank_matches_numpy_model(device, k):
 
 @pytest.mark.parametrize("w,h,k", [(61, 45, 4), (64, 48, 4), (50, 31, 3), (23, 17, 5)])
 @pytest.mark.parametrize("threads", [1, 3])
-def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads):
+@pytest.mark.parametrize("flat", [False, True])
+def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads, flat):
     """On the CPU ``SamplingStage.launch`` runs the map and the tile guarantee as one launch over rows of tiles
-    (``sampling_rows_kernel``): the sample map, cache hits, previous-pixel indices and counters equal the
-    per-pixel kernel (the CUDA path) followed by the tile pass, partial tiles included, at 1 and 3 threads."""
+    (``sampling_rows_kernel``, each tile's rank shift computed once per row of it): the sample map, cache hits,
+    previous-pixel indices and counters equal the per-pixel kernel (the CUDA path) followed by the tile pass,
+    partial tiles included, at 1 and 3 threads. ``flat``: the right part of the G-buffer is one flat, still
+    surface, so its pixels are thresholded below probability 1 (the ranks and jitter decide)."""
     from foveawarp import parallel
     from foveawarp.kernels.sampling import sampling_map_kernel
     from foveawarp.stages.sampling import launch_tile_pass
 
     dev = wp.get_device("cpu")
     g = _textured_gbuffer(w, h, "cpu", rng)
-    cfg = fw.Config().with_(foveation={"block": k})
+    x0 = w // 3
+    if flat:
+        for a, v in ((g.albedo, (0.4, 0.5, 0.6)), (g.normal, (0.0, 0.0, 1.0))):
+            arr = a.numpy()
+            arr[:, x0:] = v
+            a.assign(arr)
+        uv = g.reproj_uv.numpy()
+        ys, xs = np.mgrid[0:h, x0:w]
+        uv[:, x0:, 0], uv[:, x0:, 1] = xs + 0.5, ys + 0.5
+        g.reproj_uv.assign(uv)
+    # flat: a steep MAR, so that pixels this coarse fall below probability 1 away from the gaze
+    fov = {"block": k, "mar_slope": 0.5, "fovea_deg": 2.0, "falloff_deg": 10.0} if flat else {"block": k}
+    cfg = fw.Config().with_(foveation=fov)
     stage = SamplingStage(w, h, cfg, device="cpu")
     cam = fw.Camera(fov_y_deg=50.0)
     stage.run(g, cam, (w * 0.3, h * 0.6), 0, moving=False, first_frame=True)
@@ -637,3 +652,6 @@ def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads):
         assert np.array_equal(a, b)
     assert counts == (int(ns.numpy()[0]), int(nc.numpy()[0])) == (int(got[0].sum()), int(got[1].sum()))
     assert tile_counts(got[0], k).min() >= 1 and 0 < counts[1]
+    if flat:  # the flat part is thresholded: some of its pixels sampled, most not
+        part = got[0][1:-1, x0 + 1:-1]
+        assert 0 < part.mean() < 0.6, part.mean()

@@ -232,17 +232,33 @@ def tile_of(x: int, y: int, sp: SamplingParams):
 
 
 @wp.func
-def rank_in_tile(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
-                 rot: int) -> int:
-    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K,
-    each term in [0, K), so the remainder is at most two subtractions."""
-    k = sp.block
-    r = load_i32(ranks, y - ty * k, x - tx * k) + tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
-    if r >= sp.num_ranks:
-        r -= sp.num_ranks
+def tile_rank_shift(tx: int, ty: int, sp: SamplingParams, rot: int) -> int:
+    """(tile offset + rot) mod K of tile (tx, ty) this frame: what ``rank_in_tile`` adds to the blue-noise rank
+    (each term in [0, K), so the remainder is one subtraction). The same for the K pixels of a tile: the CPU's
+    rows kernel computes it once per tile."""
+    r = tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
     if r >= sp.num_ranks:
         r -= sp.num_ranks
     return r
+
+
+@wp.func
+def rank_shifted(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
+                 shift: int) -> int:
+    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) with the tile's ``tile_rank_shift``: (blue-noise rank +
+    shift) mod K."""
+    k = sp.block
+    r = load_i32(ranks, y - ty * k, x - tx * k) + shift
+    if r >= sp.num_ranks:
+        r -= sp.num_ranks
+    return r
+
+
+@wp.func
+def rank_in_tile(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
+                 rot: int) -> int:
+    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K."""
+    return rank_shifted(x, y, tx, ty, ranks, sp, tile_rank_shift(tx, ty, sp, rot))
 
 
 @wp.func
@@ -256,10 +272,20 @@ def dither_rank(x: int, y: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingP
 def dither_sample(p: float, x: int, y: int, width: int, height: int, ranks: wp.array2d(dtype=wp.int32),
                   sp: SamplingParams, rot: int, phase: float) -> wp.uint8:
     """1 when pixel (x, y) is sampled at probability p this frame (stratified threshold, see module doc)."""
+    return dither_sample_shifted(p, x, y, width, height, ranks, sp, rot, phase, -1)
+
+
+@wp.func
+def dither_sample_shifted(p: float, x: int, y: int, width: int, height: int, ranks: wp.array2d(dtype=wp.int32),
+                          sp: SamplingParams, rot: int, phase: float, shift: int) -> wp.uint8:
+    """``dither_sample`` with the pixel's ``tile_rank_shift`` given (``shift`` >= 0; -1: computed here when
+    needed)."""
     if p >= 1.0:  # the fovea and saturated saliency: no rank or jitter needed
         return wp.uint8(1)
     tx, ty = tile_of(x, y, sp)
-    r = rank_in_tile(x, y, tx, ty, ranks, sp, rot)
+    if shift < 0:
+        shift = tile_rank_shift(tx, ty, sp, rot)
+    r = rank_shifted(x, y, tx, ty, ranks, sp, shift)
     s = wp.rand_init(sp.seed ^ JITTER_SALT, y * width + x)
     u = wp.randf(s) + phase
     if u >= 1.0:
@@ -512,8 +538,10 @@ def sampling_map_pixel(
     out_sample: wp.array2d(dtype=wp.uint8),
     out_cache_hit: wp.array2d(dtype=wp.uint8),
     out_prev_index: wp.array2d(dtype=wp.int32),
+    shift: int,
 ):
-    """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it)."""
+    """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it); ``shift``: the pixel's
+    tile's ``tile_rank_shift``, or -1 (computed when the pixel needs it)."""
     w = depth.shape[1]
     h = depth.shape[0]
     # (y, x) is a pixel: the unchecked loads and stores of kernels/load.py for the per-pixel values
@@ -557,7 +585,7 @@ def sampling_map_pixel(
         out_probability[y, x] = p
         out_saliency[y, x] = s
         return
-    store_u8(out_sample, y, x, dither_sample(s, x, y, w, h, ranks, sp, fp.rot, fp.phase))
+    store_u8(out_sample, y, x, dither_sample_shifted(s, x, y, w, h, ranks, sp, fp.rot, fp.phase, shift))
     idx = int(-1)
     if fp.do_cache != 0:
         idx = cache_lookup(uv, load_f32(prev_dist, y, x), hit_px, load_f32(depth, y, x), depth_prev, valid_prev,
@@ -621,10 +649,18 @@ def _make_sampling_map(rows: bool):
             k = sp.block
             y1 = wp.min(ty * k + k, depth.shape[0])
             for y in range(ty * k, y1):
+                # a tile's rank shift is computed once per row of it, as x enters the tile
+                shift = int(0)
+                tx = int(-1)
+                next_tile = int(0)
                 for x in range(depth.shape[1]):
+                    if x == next_tile:
+                        tx += 1
+                        next_tile += k
+                        shift = tile_rank_shift(tx, ty, sp, fp.rot)
                     sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv,
                                        prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
+                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift)
             if maps_only == 0:
                 c = wp.vec2i(0, 0)
                 for tx in range(sp.tiles_x):
@@ -635,7 +671,7 @@ def _make_sampling_map(rows: bool):
             y += row0  # band offset (foveawarp.parallel)
             sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, position, reproj_uv,
                                prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index)
+                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, -1)
 
     return sampling_map
 
