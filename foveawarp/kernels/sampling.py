@@ -257,8 +257,16 @@ def rank_shifted(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.in
 @wp.func
 def rank_in_tile(x: int, y: int, tx: int, ty: int, ranks: wp.array2d(dtype=wp.int32), sp: SamplingParams,
                  rot: int) -> int:
-    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K."""
-    return rank_shifted(x, y, tx, ty, ranks, sp, tile_rank_shift(tx, ty, sp, rot))
+    """Rank in [0, K) of pixel (x, y) of tile (tx, ty) this frame: (blue-noise rank + tile offset + rot) mod K,
+    each term in [0, K), so the remainder is at most two subtractions (``rank_shifted`` of the tile's
+    ``tile_rank_shift``: the same value)."""
+    k = sp.block
+    r = load_i32(ranks, y - ty * k, x - tx * k) + tile_rank_offset(sp.seed, ty * sp.tiles_x + tx, sp.num_ranks) + rot
+    if r >= sp.num_ranks:
+        r -= sp.num_ranks
+    if r >= sp.num_ranks:
+        r -= sp.num_ranks
+    return r
 
 
 @wp.func
@@ -283,9 +291,11 @@ def dither_sample_shifted(p: float, x: int, y: int, width: int, height: int, ran
     if p >= 1.0:  # the fovea and saturated saliency: no rank or jitter needed
         return wp.uint8(1)
     tx, ty = tile_of(x, y, sp)
+    r = int(0)
     if shift < 0:
-        shift = tile_rank_shift(tx, ty, sp, rot)
-    r = rank_shifted(x, y, tx, ty, ranks, sp, shift)
+        r = rank_in_tile(x, y, tx, ty, ranks, sp, rot)
+    else:
+        r = rank_shifted(x, y, tx, ty, ranks, sp, shift)
     s = wp.rand_init(sp.seed ^ JITTER_SALT, y * width + x)
     u = wp.randf(s) + phase
     if u >= 1.0:
