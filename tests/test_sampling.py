@@ -655,3 +655,70 @@ def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads, 
     if flat:  # the flat part is thresholded: some of its pixels sampled, most not
         part = got[0][1:-1, x0 + 1:-1]
         assert 0 < part.mean() < 0.6, part.mean()
+
+
+# -- the stratified threshold against an independent NumPy model (the jitter skipped where it cannot decide) -------
+
+from foveawarp.kernels.sampling import JITTER_SALT, dither_sample, dither_sample_shifted, tile_rank_shift  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def _dither_kernel(sp: SamplingParams, ranks: wp.array2d(dtype=wp.int32), rot: int, phase: float,
+                   p: wp.array2d(dtype=float), out: wp.array2d(dtype=wp.uint8), out_shifted: wp.array2d(dtype=wp.uint8)):
+    y, x = wp.tid()
+    w = p.shape[1]
+    h = p.shape[0]
+    out[y, x] = dither_sample(p[y, x], x, y, w, h, ranks, sp, rot, phase)
+    tx = x // sp.block
+    ty = y // sp.block
+    out_shifted[y, x] = dither_sample_shifted(p[y, x], x, y, w, h, ranks, sp, rot, phase,
+                                              tile_rank_shift(tx, ty, sp, rot))
+
+
+def _dither_model(p, k, w, h, seed, rot, phase):
+    """sampled = (r + u) / K < p, or rank 0 of a full tile; u = Warp's randf of rand_init(seed ^ salt, y w + x)
+    plus the phase, wrapped into [0, 1); float32 arithmetic as the kernel's."""
+    from foveawarp.stages.sampling import dither_ranks
+
+    kk = k * k
+    ys, xs = np.mgrid[0:h, 0:w]
+    tile = (ys // k) * ((w + k - 1) // k) + xs // k
+    off = _pcg(_pcg(np.uint64(seed) + _pcg(tile))) % kk
+    r = (dither_ranks(k)[ys % k, xs % k] + off.astype(np.int64) + rot) % kk
+    state = _pcg((np.uint64(seed ^ JITTER_SALT) & 0xFFFFFFFF) + _pcg((ys * w + xs).astype(np.uint64)))
+    u = (_pcg(state) >> 8).astype(np.float32) * np.float32(1.0 / 16777216.0)
+    u = (u + np.float32(phase)).astype(np.float32)
+    u = np.where(u >= 1.0, u - np.float32(1.0), u).astype(np.float32)
+    t = ((r.astype(np.float32) + u) / np.float32(kk)).astype(np.float32)
+    full = ((xs // k + 1) * k <= w) & ((ys // k + 1) * k <= h)
+    return ((t < p) | ((r == 0) & full)).astype(np.uint8), r
+
+
+@pytest.mark.parametrize("k", [2, 3, 4, 8])
+@pytest.mark.parametrize("phase", [0.0, 0.618034, 0.99999994])
+def test_dither_sample_matches_numpy_model(device, rng, k, phase):
+    """The threshold decides as (r + u) / K < p with u the per-pixel jitter (NumPy model of Warp's PCG draws), for
+    probabilities at and one ulp around r / K and (r + 1) / K (where skipping the jitter would go wrong first),
+    0, 1 and random ones; with the tile shift given (the CPU's rows kernel) and computed (the pixel kernel)."""
+    from foveawarp.stages.sampling import dither_ranks, sampling_params
+
+    w, h, seed, rot = 45, 31, 777, 5 % (k * k)
+    cfg = fw.Config().with_(foveation={"block": k})
+    sp = sampling_params(cfg, w, h, seed=seed)
+    kk = k * k
+    _, r = _dither_model(np.zeros((h, w), np.float32), k, w, h, seed, rot, phase)
+    edge = np.where(rng.random((h, w)) < 0.5, r, r + 1).astype(np.float32) / np.float32(kk)
+    nudge = rng.integers(-1, 2, (h, w))
+    p = np.where(nudge < 0, np.nextafter(edge, np.float32(0)), np.where(nudge > 0, np.nextafter(edge, np.float32(2)), edge))
+    pick = rng.random((h, w))
+    p = np.where(pick < 0.15, rng.random((h, w)), p)
+    p = np.where((pick >= 0.15) & (pick < 0.2), 0.0, np.where((pick >= 0.2) & (pick < 0.25), 1.0, p)).astype(np.float32)
+    want, _ = _dither_model(p, k, w, h, seed, rot, phase)
+    out = wp.zeros((h, w), dtype=wp.uint8, device=device)
+    out_s = wp.zeros((h, w), dtype=wp.uint8, device=device)
+    ranks = wp.array(dither_ranks(k).astype(np.int32), dtype=wp.int32, device=device)
+    wp.launch(_dither_kernel, dim=(h, w), inputs=[sp, ranks, rot, float(phase), wp.array(p, dtype=float, device=device)],
+              outputs=[out, out_s], device=device)
+    assert np.array_equal(out.numpy(), want)
+    assert np.array_equal(out_s.numpy(), want)
+    assert 0 < want.mean() < 1

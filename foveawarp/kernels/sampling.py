@@ -296,14 +296,24 @@ def dither_sample_shifted(p: float, x: int, y: int, width: int, height: int, ran
         r = rank_in_tile(x, y, tx, ty, ranks, sp, rot)
     else:
         r = rank_shifted(x, y, tx, ty, ranks, sp, shift)
+    k = sp.block
+    if r == 0 and (tx + 1) * k <= width and (ty + 1) * k <= height:  # a full tile's rank 0: always sampled
+        return wp.uint8(1)
+    # the threshold t = (r + u) / K with the jitter u in [0, 1] lies between r / K and (r + 1) / K, rounding
+    # included (adding u >= 0 and dividing by K > 0 are monotone in float arithmetic): the pixel's probability
+    # decides it without the jitter unless it falls in between (for most pixels it does not: their hashes are
+    # skipped, the result is the same)
+    fk = float(sp.num_ranks)
+    if float(r) / fk >= p:
+        return wp.uint8(0)
+    if float(r + 1) / fk < p:
+        return wp.uint8(1)
     s = wp.rand_init(sp.seed ^ JITTER_SALT, y * width + x)
     u = wp.randf(s) + phase
     if u >= 1.0:
         u = u - 1.0
-    t = (float(r) + u) / float(sp.num_ranks)
-    k = sp.block
-    full = (tx + 1) * k <= width and (ty + 1) * k <= height
-    if t < p or (r == 0 and full):
+    t = (float(r) + u) / fk
+    if t < p:
         return wp.uint8(1)
     return wp.uint8(0)
 
