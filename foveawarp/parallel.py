@@ -606,6 +606,15 @@ class _Recorder:
         finally:
             self.depth -= 1
 
+    def add_command(self, cmd, what: str) -> None:
+        """A launch command (``wp.Launch``) as it is now (``_snapshot_launch``), or a failure naming ``what``."""
+        snap = _snapshot_launch(cmd)
+        if snap is None:
+            self.fail(f"{what} of {cmd.kernel.key} (not a plain CPU launch)")
+            return
+        self.add(snap[0])
+        self.program._keep.append(snap[1])
+
     def add_bands(self, st, n: int, workers: int, dev, keep) -> None:
         """A band launch: its bands' argument structs copied (a later launch with the same packed arguments may
         change the kept ones), the bounds shared (fixed per band size)."""
@@ -656,12 +665,7 @@ def _recording_patches():
                 return orig(*args, **kwargs)
             with rec.paused():
                 cmd = orig(*args, **{**kwargs, "record_cmd": True})
-                snap = _snapshot_launch(cmd)
-                if snap is None:
-                    rec.fail(f"{name} of {cmd.kernel.key} (not a plain CPU launch)")
-                else:
-                    rec.add(snap[0])
-                    rec.program._keep.append(snap[1])
+                rec.add_command(cmd, name)
                 cmd.launch()
             return None
         return patched
@@ -670,12 +674,7 @@ def _recording_patches():
         rec = _recording()
         if rec is None:
             return o_cmd(self, *args, **kwargs)
-        snap = _snapshot_launch(self)
-        if snap is None:
-            rec.fail(f"a launch command of {self.kernel.key} (not a plain CPU launch)")
-        else:
-            rec.add(snap[0])
-            rec.program._keep.append(snap[1])
+        rec.add_command(self, "a launch command")
         with rec.paused():
             return o_cmd(self, *args, **kwargs)
 

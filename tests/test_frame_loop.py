@@ -268,6 +268,29 @@ def test_refresh_fraction_zero_traces_only_pixels_without_history(device):
 # -- CUDA graph of the steady-state frame -------------------------------------------------------------------
 
 
+def _replayed_vs_eager(scene, g, e, *, frames: int, still_from: int, atol: float, extras: bool = False) -> list:
+    """Render ``frames`` frames with loop ``g`` (graphs or CPU replays on) and ``e`` (graph=False) along the scene's
+    camera path, still from frame ``still_from`` on, with a moving gaze; assert the outputs agree (images within
+    ``atol``, sampling maps and skipped stages exactly; ``extras``: sparse colour, filled mask and sampling rate
+    exactly too); return ``g``'s ``stats["graph"]`` per frame."""
+    states = []
+    for i in range(frames):
+        j = min(i, still_from)
+        cam, t, gaze = scene.camera_at(j / 60.0), j / 30.0, (20.0 + 2 * i, 30.0 - i)
+        fg = g.render(cam, gaze_px=gaze, time=t)
+        fe = e.render(cam, gaze_px=gaze, time=t)
+        states.append(fg.stats["graph"])
+        assert fe.stats["graph"] == "eager"
+        np.testing.assert_array_equal(fg.sampling_map.numpy(), fe.sampling_map.numpy(), err_msg=str(i))
+        np.testing.assert_allclose(fg.numpy(), fe.numpy(), rtol=0.0, atol=atol, err_msg=str(i))
+        assert fg.stats["skipped"] == fe.stats["skipped"]
+        if extras:
+            for k in ("sparse", "filled"):
+                np.testing.assert_array_equal(fg.extras[k].numpy(), fe.extras[k].numpy(), err_msg=f"{k} {i}")
+            assert fg.stats["sampling_rate"] == fe.stats["sampling_rate"]
+    return states
+
+
 def test_graph_is_off_with_timing_and_when_asked():
     scene = fw.load_scene("cornell")
     timed = fw.FrameLoop(scene, 32, 24, device="cpu", timing=True, policy="foveated")
@@ -305,22 +328,7 @@ def test_cpu_replay_equals_eager_launches(over, scene_kw, threads):
     g = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, policy="foveated", cpu_threads=threads)
     e = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, graph=False, policy="foveated",
                      cpu_threads=threads)
-    states = []
-    for i in range(24):
-        moving = i < 10
-        cam = scene.camera_at(i / 60.0) if moving else scene.camera_at(10 / 60.0)
-        t = i / 30.0 if moving else 10 / 30.0
-        gaze = (20.0 + 2 * i, 30.0 - i)
-        fg = g.render(cam, gaze_px=gaze, time=t)
-        fe = e.render(cam, gaze_px=gaze, time=t)
-        states.append(fg.stats["graph"])
-        assert fe.stats["graph"] == "eager"
-        np.testing.assert_array_equal(fg.sampling_map.numpy(), fe.sampling_map.numpy(), err_msg=str(i))
-        np.testing.assert_array_equal(fg.numpy(), fe.numpy(), err_msg=str(i))
-        for k in ("sparse", "filled"):
-            np.testing.assert_array_equal(fg.extras[k].numpy(), fe.extras[k].numpy(), err_msg=f"{k} {i}")
-        assert fg.stats["skipped"] == fe.stats["skipped"]
-        assert fg.stats["sampling_rate"] == fe.stats["sampling_rate"]
+    states = _replayed_vs_eager(scene, g, e, frames=24, still_from=10, atol=0.0, extras=True)
     assert "captured" in states and states.count("replayed") >= 12, states
 
 
@@ -354,19 +362,7 @@ def test_graph_replay_equals_eager_launches(strategy):
     cfg = fw.Config().with_(**over)
     g = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
     e = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, graph=False, policy="foveated")
-    states = []
-    for i in range(40):
-        moving = i < 12
-        cam = scene.camera_at(i / 60.0) if moving else scene.camera_at(12 / 60.0)
-        t = i / 30.0 if moving else 12 / 30.0
-        gaze = (20.0 + 2 * i, 30.0 - i)
-        fg = g.render(cam, gaze_px=gaze, time=t)
-        fe = e.render(cam, gaze_px=gaze, time=t)
-        states.append(fg.stats["graph"])
-        assert fe.stats["graph"] == "eager"
-        np.testing.assert_array_equal(fg.sampling_map.numpy(), fe.sampling_map.numpy(), err_msg=str(i))
-        np.testing.assert_allclose(fg.numpy(), fe.numpy(), atol=1e-6, err_msg=str(i))
-        assert fg.stats["skipped"] == fe.stats["skipped"]
+    states = _replayed_vs_eager(scene, g, e, frames=40, still_from=12, atol=1e-6)
     assert "captured" in states and states.count("replayed") >= 25, states
     assert any("trace" in s for s in [fg.stats["skipped"]])  # the refresh phase was reached (and replayed)
 
