@@ -493,7 +493,8 @@ class FrameLoop:
                    self.shade.splits())  # the list's launches differ with the split (ShadeStage.split_direct)
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
         if graph_state == "replayed" and foveated and not sparse:
-            self.temporal.swap()  # the body's only host-side state: the history ping-pong
+            self.temporal.swap()  # the body's host-side state: the history ping-pong ...
+            self.reconstruct.set_seed_mask(self.temporal.filled)  # ... and the seed mask run_interpolate reads
         if ev is not None:
             self.device.stream.record_event(ev[1])
         # the policy's host work that this frame's launches do not depend on, after them: the last watched frame's
@@ -806,7 +807,11 @@ class FrameLoop:
         """``_run_body`` on the CPU: the first frame of a key runs eagerly, the second runs while its CPU work is
         recorded (``parallel.record``), later ones replay the recording (for the thread count it was made with;
         another count records anew). A recording that cannot be replayed (a host read in the body) turns
-        replays off for this loop and says why."""
+        replays off for this loop and says why. Inside the caller's own ``parallel.record`` block the body runs
+        eagerly (the caller's recording takes its work)."""
+        if parallel.recording_active():  # inside the caller's own recording: eager, so that it sees the work
+            body()
+            return "eager (inside a parallel.record block)"
         prog = self._graphs.get(key)
         if prog is not None and prog.threads == parallel.current_cpu_threads():
             prog.replay()

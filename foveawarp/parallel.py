@@ -46,7 +46,7 @@ except ImportError:  # another Warp layout: every band is a full wp.launch (slow
 import ctypes
 
 __all__ = ["launch", "launch_rows", "use_row_kernels", "ROW_KERNELS", "Relaunch", "cpu_threads", "default_cpu_threads",
-           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR", "shutdown_native_team", "record", "CpuProgram"]
+           "resolve_cpu_threads", "bands", "MAX_THREADS", "ENV_VAR", "shutdown_native_team", "record", "recording_active", "CpuProgram"]
 
 ENV_VAR = "FOVEAWARP_CPU_THREADS"
 MAX_THREADS = 1024
@@ -251,6 +251,9 @@ def _after_fork_in_child() -> None:
     parent thread at the fork would stay held); the child's first band launch starts its own."""
     global _teams, _team_lock, _native
     _teams, _team_lock, _native = {}, threading.Lock(), None
+    # a parent thread's recording (parallel.record) does not exist here: drop it and restore the Warp calls
+    _recs.clear()
+    _remove_patches()
 
 
 if hasattr(os, "register_at_fork"):
@@ -501,7 +504,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
         # least Python a member thread runs under the GIL
         st = _band_calls(packed, parts, dims)
         if rec is not None:
-            rec.add_bands(st, n, min(n, len(parts)), dev, (inputs, outputs))
+            rec.add_bands(st, n, min(n, len(parts)), dev, (*inputs, *outputs), mexec)
         _run_bands(st.calls, st, n, min(n, len(parts)), dev)
         return
     queue = iter(parts)
@@ -567,7 +570,9 @@ class CpuProgram:
     (as ``FrameLoop``'s frame body does), not from Python.
 
     ``problem``: None, or why the recorded call cannot be replayed (a host read, an operation the recording does
-    not know); ``threads``: the thread count the bands were split for."""
+    not know, an exception in the recorded block); ``threads``: the thread count the bands were split for. The
+    program keeps alive what its operations point into: the arrays passed to them (also those held by a Warp
+    struct's fields when recorded) and the loaded code they call."""
 
     __slots__ = ("ops", "threads", "problem", "_keep")
 
@@ -575,20 +580,39 @@ class CpuProgram:
         self.ops: list = []
         self.threads = int(threads)
         self.problem: Optional[str] = None
-        self._keep: list = []  # what the ops point into (arrays, kept launch state): alive as long as the program
+        self._keep: list = []
 
     def replay(self) -> None:
-        """Run the recorded operations again, in order."""
+        """Run the recorded operations again, in order. Inside a recording of this thread (``record``), they are
+        recorded into it too."""
+        if self.problem is not None:
+            raise RuntimeError(f"this CpuProgram cannot be replayed: {self.problem}")
+        rec = _recording()
+        if rec is not None:
+            rec.program.ops.extend(self.ops)
+            rec.program._keep.append(self)
         for op in self.ops:
             op()
 
 
+def _arrays_in(values) -> list:
+    """The Warp arrays among ``values`` and in the fields of the Warp structs among them (nested structs too):
+    what a recorded operation's copied arguments point into."""
+    out, todo = [], list(values)
+    while todo:
+        v = todo.pop()
+        if isinstance(v, wp.array):
+            out.append(v)
+        elif hasattr(v, "_cls") and hasattr(v._cls, "vars"):  # a Warp struct instance
+            todo.extend(getattr(v, name, None) for name in v._cls.vars)
+    return out
+
+
 class _Recorder:
-    __slots__ = ("program", "thread", "depth")
+    __slots__ = ("program", "depth")
 
     def __init__(self, threads: int):
         self.program = CpuProgram(threads)
-        self.thread = _thread.get_ident()
         self.depth = 0  # > 0: inside an operation being recorded (its inner calls are part of it)
 
     def add(self, fn, *args, **kwargs) -> None:
@@ -613,29 +637,37 @@ class _Recorder:
             self.fail(f"{what} of {cmd.kernel.key} (not a plain CPU launch)")
             return
         self.add(snap[0])
-        self.program._keep.append(snap[1])
+        self.program._keep.append((snap[1], _arrays_in(cmd.fwd_args or ())))
 
-    def add_bands(self, st, n: int, workers: int, dev, keep) -> None:
+    def add_bands(self, st, n: int, workers: int, dev, args, mexec) -> None:
         """A band launch: its bands' argument structs copied (a later launch with the same packed arguments may
-        change the kept ones), the bounds shared (fixed per band size)."""
+        change the kept ones), the bounds shared (fixed per band size); ``args`` (its inputs and outputs) and the
+        loaded module ``mexec`` whose entry point the bands call are kept."""
         cp = _Bands()
         cp.master = cp.last = cp.tables = None
         cp.structs = [type(a).from_buffer_copy(a) for a in st.structs]
         cp.bounds = st.bounds
         cp.calls = [(f, b, ctypes.byref(a)) for (f, b, _), a in zip(st.calls, cp.structs)]
-        self.program._keep.append((st, keep))
+        self.program._keep.append((st, _arrays_in(args), mexec))
         self.add(_run_bands, cp.calls, cp, n, workers, dev)
 
 
-_rec: Optional[_Recorder] = None
+_recs: dict = {}  # thread id -> its active _Recorder
+_patched: list = []  # (object, name, original) of the Warp calls patched while any recording runs
 
 
 def _recording() -> Optional[_Recorder]:
-    """The active recording when this thread made it and is not inside an operation being recorded."""
-    r = _rec
-    if r is None or r.depth or r.thread != _thread.get_ident():
+    """This thread's active recording, unless the call comes from inside an operation being recorded."""
+    r = _recs.get(_thread.get_ident())
+    if r is None or r.depth:
         return None
     return r
+
+
+def recording_active() -> bool:
+    """Whether this thread is inside :func:`record` (``FrameLoop`` then runs its frame body eagerly, so that the
+    outer recording sees its operations)."""
+    return _thread.get_ident() in _recs
 
 
 def _snapshot_launch(cmd):
@@ -649,20 +681,43 @@ def _snapshot_launch(cmd):
     return functools.partial(forward, ctypes.byref(bounds), ctypes.byref(args)), (bounds, args, cmd)
 
 
+# warp.utils calls that run native code directly (no launch a recording could see): refused while recording
+_UNRECORDED_UTILS = ("array_scan", "array_sum", "array_inner", "radix_sort_pairs", "segmented_sort_pairs",
+                     "runlength_encode", "array_cast")
+
+
 def _recording_patches():
     """(object, name, replacement) for the Warp calls a frame body can make besides :func:`launch`: launches and
-    memsets are recorded; a host read or an operation not known here marks the recording as not replayable.
-    Calls from other threads, and those made inside a recorded operation, pass through unchanged."""
+    memsets are recorded; a host read, an operation not known here, or a launch while a ``wp.Tape`` records marks
+    the recording as not replayable. Calls from threads that are not recording, and those made inside a recorded
+    operation, pass through unchanged."""
+    import inspect
+
+    import warp._src.context as wctx
+    import warp.utils as wu
     from warp._src.context import Launch
 
     o_launch, o_tiled, o_cmd = wp.launch, wp.launch_tiled, Launch.launch
     o_copy, o_zero, o_fill, o_numpy, o_assign = wp.copy, wp.array.zero_, wp.array.fill_, wp.array.numpy, wp.array.assign
+    o_iface, o_dunder = wp.array.__dict__.get("__array_interface__"), wp.array.__dict__.get("__array__")
+    launch_sig = inspect.signature(o_launch)
 
     def launch_any(orig, name):
         def patched(*args, **kwargs):
             rec = _recording()
-            if rec is None or kwargs.get("record_cmd"):
+            if rec is None:
                 return orig(*args, **kwargs)
+            if orig is o_launch:
+                bound = launch_sig.bind(*args, **kwargs)
+                if bound.arguments.get("record_cmd"):
+                    return orig(*args, **kwargs)
+                args, kwargs = (), dict(bound.arguments)
+            elif kwargs.get("record_cmd"):
+                return orig(*args, **kwargs)
+            if getattr(wctx.runtime, "tape", None) is not None:
+                rec.fail(f"{name} while a wp.Tape records (its launches are not recorded commands)")
+                with rec.paused():
+                    return orig(*args, **kwargs)
             with rec.paused():
                 cmd = orig(*args, **{**kwargs, "record_cmd": True})
                 rec.add_command(cmd, name)
@@ -678,6 +733,10 @@ def _recording_patches():
         with rec.paused():
             return o_cmd(self, *args, **kwargs)
 
+    def paused_call(rec, fn, *args, **kwargs):
+        with (rec.paused() if rec is not None else contextlib.nullcontext()):
+            return fn(*args, **kwargs)
+
     def zero(self):
         rec = _recording()
         if rec is not None:
@@ -686,8 +745,7 @@ def _recording_patches():
                 rec.program._keep.append(self)
             elif self.size:
                 rec.fail(f"zero_ of a {'non-contiguous ' if self.device.is_cpu else ''}array on {self.device}")
-        with (rec.paused() if rec is not None else contextlib.nullcontext()):
-            return o_zero(self)
+        return paused_call(rec, o_zero, self)
 
     def fill(self, value):
         rec = _recording()
@@ -696,8 +754,7 @@ def _recording_patches():
                 rec.add(o_fill, self, value)
             else:
                 rec.fail(f"fill_ with a {type(value).__name__}")
-        with (rec.paused() if rec is not None else contextlib.nullcontext()):
-            return o_fill(self, value)
+        return paused_call(rec, o_fill, self, value)
 
     def copy(dest, src, *args, **kwargs):
         rec = _recording()
@@ -706,20 +763,48 @@ def _recording_patches():
                 rec.add(o_copy, dest, src, *args, **kwargs)
             else:
                 rec.fail(f"a copy from {src.device} to {dest.device}")
-        with (rec.paused() if rec is not None else contextlib.nullcontext()):
-            return o_copy(dest, src, *args, **kwargs)
+        return paused_call(rec, o_copy, dest, src, *args, **kwargs)
 
-    def host_read(orig, name):
-        def patched(self, *args, **kwargs):
+    def refused(orig, what):
+        def patched(*args, **kwargs):
             rec = _recording()
             if rec is not None:
-                rec.fail(f"a host {name} of an array (the replay would keep its value)")
-            return orig(self, *args, **kwargs)
+                rec.fail(what)
+            return paused_call(rec, orig, *args, **kwargs)
         return patched
 
-    return [(wp, "launch", launch_any(o_launch, "wp.launch")), (wp, "launch_tiled", launch_any(o_tiled, "wp.launch_tiled")),
-            (Launch, "launch", cmd_launch), (wp, "copy", copy), (wp.array, "zero_", zero), (wp.array, "fill_", fill),
-            (wp.array, "numpy", host_read(o_numpy, "read")), (wp.array, "assign", host_read(o_assign, "write"))]
+    out = [(wp, "launch", launch_any(o_launch, "wp.launch")),
+           (wp, "launch_tiled", launch_any(o_tiled, "wp.launch_tiled")),
+           (Launch, "launch", cmd_launch), (wp, "copy", copy), (wp.array, "zero_", zero), (wp.array, "fill_", fill),
+           (wp.array, "numpy", refused(o_numpy, "a host read of an array (the replay would keep its value)")),
+           (wp.array, "assign", refused(o_assign, "a host write of an array (the replay would keep its value)"))]
+    if o_dunder is not None:
+        out.append((wp.array, "__array__", refused(o_dunder, "a host read of an array through __array__")))
+    if isinstance(o_iface, property):
+        out.append((wp.array, "__array_interface__",
+                    property(refused(o_iface.fget, "a host view of an array (__array_interface__)"))))
+    for name in _UNRECORDED_UTILS:
+        fn = getattr(wu, name, None)
+        if fn is not None:
+            out.append((wu, name, refused(fn, f"warp.utils.{name} (native code no recording sees)")))
+    return out
+
+
+def _install_patches() -> None:
+    """Patch the Warp calls for recording (``_team_lock`` held; once for any number of recording threads)."""
+    if not _patched:
+        patches = _recording_patches()
+        _patched.extend((obj, name, obj.__dict__[name] if name in obj.__dict__ else getattr(obj, name))
+                        for obj, name, _ in patches)
+        for obj, name, fn in patches:
+            setattr(obj, name, fn)
+
+
+def _remove_patches() -> None:
+    """Restore the patched Warp calls (``_team_lock`` held)."""
+    while _patched:
+        obj, name, orig = _patched.pop()
+        setattr(obj, name, orig)
 
 
 @contextlib.contextmanager
@@ -727,23 +812,33 @@ def record():
     """Within the block, this thread's CPU launches (:func:`launch`, ``wp.launch``, ``wp.launch_tiled``, launch
     commands), memsets and copies run as usual and are recorded into the :class:`CpuProgram` it yields, for
     ``FrameLoop`` to replay its frame body (the CPU's counterpart of a CUDA graph capture). A host read
-    (``numpy``, ``assign``) or an operation the recording does not know sets the program's ``problem``. One
-    recording at a time; it patches those Warp calls for its duration (other threads' calls pass through)."""
-    global _rec
+    (``numpy``, ``assign``, a NumPy view), an operation the recording does not know, or an exception leaving the
+    block sets the program's ``problem``. Several threads may record at once, each its own program; recordings do
+    not nest within a thread. The Warp calls named are patched while any recording runs (other threads' calls pass
+    through). What the recording cannot see (native code called directly, reads through raw pointers) is the
+    caller's to keep out of the block."""
+    tid = _thread.get_ident()
     with _team_lock:
-        if _rec is not None:
-            raise RuntimeError("a CPU recording is already running (parallel.record does not nest)")
-        r = _rec = _Recorder(current_cpu_threads())
-    patches = _recording_patches()
-    saved = [(obj, name, getattr(obj, name)) for obj, name, _ in patches]
+        if tid in _recs:
+            raise RuntimeError("a CPU recording is already running in this thread (parallel.record does not nest)")
+        r = _Recorder(current_cpu_threads())
+        try:
+            _install_patches()
+        except BaseException:
+            if not _recs:
+                _remove_patches()
+            raise
+        _recs[tid] = r
     try:
-        for obj, name, fn in patches:
-            setattr(obj, name, fn)
         yield r.program
+    except BaseException as e:
+        r.fail(f"the recorded block raised {type(e).__name__}: {e}")
+        raise
     finally:
-        for obj, name, fn in reversed(saved):
-            setattr(obj, name, fn)
-        _rec = None
+        with _team_lock:
+            _recs.pop(tid, None)
+            if not _recs:
+                _remove_patches()
 
 
 # the CPU runs the per-pixel passes that have a rows variant a row per thread (launch_rows); False: a thread per

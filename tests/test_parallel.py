@@ -827,3 +827,134 @@ def test_record_marks_what_it_cannot_replay():
     from warp._src.context import Launch
     assert wp.launch.__module__.startswith("warp") and Launch.launch.__qualname__ == "Launch.launch"
     assert wp.array.zero_.__qualname__ == "array.zero_"
+
+
+def test_record_keeps_code_and_struct_arrays_alive(every_band, tmp_path):
+    """A recorded band launch keeps its loaded module: after the module is rebuilt (a kernel added to it) and the
+    same launch made eagerly again, the replay still runs (it called unloaded code before). A recorded launch
+    keeps the arrays a Warp struct argument pointed to when recorded, after the field is reassigned."""
+    out = _run_script(tmp_path, _RECORD_RELOAD_SCRIPT)
+    assert "replayed [4. 4. 4.]" in out and "struct array kept True" in out, out
+
+
+_RECORD_RELOAD_SCRIPT = """
+import gc, weakref
+import numpy as np
+import warp as wp
+wp.config.quiet = True
+from foveawarp import parallel
+parallel.MIN_ITEMS_PER_BAND = 0
+
+@wp.kernel
+def add_one(a: wp.array(dtype=float), row0: int):
+    i = wp.tid() + row0
+    a[i] = a[i] + 1.0
+
+@wp.struct
+class Holder:
+    out: wp.array(dtype=float)
+
+@wp.kernel
+def put_seven(h: Holder, row0: int):
+    i = wp.tid() + row0
+    h.out[i] = 7.0
+
+a = wp.zeros(64, dtype=float, device="cpu")
+with parallel.cpu_threads(2):
+    parallel.launch(add_one, 64, inputs=[a], device="cpu")
+    with parallel.record() as prog:
+        parallel.launch(add_one, 64, inputs=[a], device="cpu")
+
+def _sub(b: wp.array(dtype=float), row0: int):
+    i = wp.tid() + row0
+    b[i] = b[i] - 1.0
+
+k2 = wp.Kernel(_sub, key="sub_one", module=add_one.module)
+wp.launch(k2, 8, inputs=[wp.zeros(8, dtype=float, device="cpu"), 0], device="cpu")  # the module is rebuilt
+with parallel.cpu_threads(2):
+    parallel.launch(add_one, 64, inputs=[a], device="cpu")  # the same launch, packed anew for the new module
+    gc.collect()
+    prog.replay()
+print("replayed", a.numpy()[:3])
+
+h = Holder()
+h.out = wp.zeros(64, dtype=float, device="cpu")
+ref = weakref.ref(h.out)
+with parallel.cpu_threads(2):
+    with parallel.record() as prog2:
+        parallel.launch(put_seven, 64, inputs=[h], device="cpu")
+h.out = wp.zeros(64, dtype=float, device="cpu")  # the recorded array's last outside reference
+gc.collect()
+with parallel.cpu_threads(2):
+    prog2.replay()
+print("struct array kept", ref() is not None and bool((ref().numpy() == 7.0).all()))
+"""
+
+
+def test_record_in_several_threads_and_inside_frames():
+    """Two threads record at once, each into its own program; a FrameLoop rendered inside the caller's own
+    recording runs its body eagerly (so the caller's program holds the frame's work, and replays it); recordings
+    do not nest within a thread."""
+    x = [wp.zeros(8, dtype=float, device=DEV) for _ in range(2)]
+    progs, barrier = [None, None], threading.Barrier(2)
+
+    def body(k):
+        with parallel.record() as prog:
+            barrier.wait()  # both recordings open at once
+            parallel.launch(_twice_index_kernel, 8, outputs=[x[k]], device=DEV)
+            barrier.wait()
+        progs[k] = prog
+
+    ts = [threading.Thread(target=body, args=(k,)) for k in range(2)]
+    [t.start() for t in ts]
+    [t.join() for t in ts]
+    assert [p.problem for p in progs] == [None, None] and [len(p.ops) for p in progs] == [1, 1]
+    assert not parallel.recording_active() and wp.launch.__module__.startswith("warp")
+    for k in range(2):
+        x[k].zero_()
+        progs[k].replay()
+        np.testing.assert_array_equal(x[k].numpy(), np.arange(8, dtype=np.float32) * 2.0)
+
+    scene = fw.load_scene("cornell")
+    loop = fw.FrameLoop(scene, 40, 24, device=DEV, timing=False, policy="foveated", cpu_threads=2)
+    for i in range(5):
+        loop.render(scene.camera_at(i / 60.0), gaze_px=(20.0, 12.0))
+    cam = scene.camera_at(5 / 60.0)
+    with parallel.record() as prog:
+        f = loop.render(cam, gaze_px=(20.0, 12.0))
+        with pytest.raises(RuntimeError, match="does not nest"):
+            with parallel.record():
+                pass
+    assert f.stats["graph"].startswith("eager (inside") and prog.problem is None and prog.ops
+    want = f.numpy().copy()
+    loop.image.zero_()
+    prog.replay()  # the frame body's work, recorded by the caller
+    np.testing.assert_array_equal(loop.image.numpy(), want)
+
+
+@pytest.mark.parametrize("case", ["asarray", "utils", "raises", "positional"])
+def test_record_refuses_unseen_work_and_accepts_call_forms(case):
+    """A NumPy view of an array, a warp.utils call running native code, or an exception leaving the block set
+    ``problem``; wp.launch with its arguments given positionally (record_cmd among them) is recorded."""
+    a = wp.zeros(8, dtype=float, device=DEV)
+    if case == "raises":
+        with pytest.raises(ValueError):
+            with parallel.record() as prog:
+                a.zero_()
+                raise ValueError("half-way")
+        assert "raised ValueError" in prog.problem
+    elif case == "positional":
+        with parallel.record() as prog:
+            wp.launch(_twice_index_kernel, 8, [], [a, 0], [], [], DEV, None, False, True, False)
+        assert prog.problem is None and len(prog.ops) == 1
+        a.zero_()
+        prog.replay()
+        np.testing.assert_array_equal(a.numpy(), np.arange(8, dtype=np.float32) * 2.0)
+    else:
+        with parallel.record() as prog:
+            if case == "asarray":
+                np.asarray(a)
+            else:
+                wp.utils.array_sum(a)
+        assert prog.problem is not None and ("__array_interface__" in prog.problem or "warp.utils" in prog.problem)
+    assert wp.launch.__module__.startswith("warp") and not parallel.recording_active()

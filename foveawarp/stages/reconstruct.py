@@ -256,6 +256,13 @@ class ReconstructStage:
     def _stats_args(self):
         return [self.max_radius_sq, self.max_radius, self.unreached]
 
+    def set_seed_mask(self, seed_mask) -> None:
+        """Make ``seed_mask`` the mask ``run_interpolate`` reads (what ``run_jfa`` sets): ``FrameLoop`` calls it
+        after a replayed frame body (a CUDA graph or a CPU recording runs no Python), whose last seed mask is
+        the temporal history's current one."""
+        self._check("seed_mask", seed_mask, wp.uint8)
+        self._mask = seed_mask
+
     def run_jfa(self, seed_mask, *, color_in=None, color_out=None) -> None:
         """Jump flooding: ``nearest`` <- nearest seed of every pixel, plus ``radius_sq``, ``tile_radius_sq`` and
         the statistics. ``seed_mask``: (H, W) uint8, nonzero = seed. With ``color_in`` ((H, W) vec3, read at
