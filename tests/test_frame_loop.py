@@ -272,7 +272,7 @@ def _replayed_vs_eager(scene, g, e, *, frames: int, still_from: int, atol: float
     """Render ``frames`` frames with loop ``g`` (graphs or CPU replays on) and ``e`` (graph=False) along the scene's
     camera path, still from frame ``still_from`` on, with a moving gaze; assert the outputs agree (images within
     ``atol``, sampling maps and skipped stages exactly; ``extras``: sparse colour, filled mask and sampling rate
-    exactly too); return ``g``'s ``stats["graph"]`` per frame."""
+    exactly too); return ``g``'s ``stats["graph"]`` per frame and its last frame."""
     states = []
     for i in range(frames):
         j = min(i, still_from)
@@ -288,7 +288,7 @@ def _replayed_vs_eager(scene, g, e, *, frames: int, still_from: int, atol: float
             for k in ("sparse", "filled"):
                 np.testing.assert_array_equal(fg.extras[k].numpy(), fe.extras[k].numpy(), err_msg=f"{k} {i}")
             assert fg.stats["sampling_rate"] == fe.stats["sampling_rate"]
-    return states
+    return states, fg
 
 
 def test_graph_is_off_with_timing_and_when_asked():
@@ -328,7 +328,7 @@ def test_cpu_replay_equals_eager_launches(over, scene_kw, threads):
     g = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, policy="foveated", cpu_threads=threads)
     e = fw.FrameLoop(scene, W, H, config=cfg, device="cpu", timing=False, graph=False, policy="foveated",
                      cpu_threads=threads)
-    states = _replayed_vs_eager(scene, g, e, frames=24, still_from=10, atol=0.0, extras=True)
+    states, _ = _replayed_vs_eager(scene, g, e, frames=24, still_from=10, atol=0.0, extras=True)
     assert "captured" in states and states.count("replayed") >= 12, states
 
 
@@ -362,7 +362,7 @@ def test_graph_replay_equals_eager_launches(strategy):
     cfg = fw.Config().with_(**over)
     g = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, policy="foveated")
     e = fw.FrameLoop(scene, W, H, config=cfg, device="cuda:0", timing=False, graph=False, policy="foveated")
-    states = _replayed_vs_eager(scene, g, e, frames=40, still_from=12, atol=1e-6)
+    states, fg = _replayed_vs_eager(scene, g, e, frames=40, still_from=12, atol=1e-6)
     assert "captured" in states and states.count("replayed") >= 25, states
     assert any("trace" in s for s in [fg.stats["skipped"]])  # the refresh phase was reached (and replayed)
 
