@@ -597,20 +597,16 @@ def test_dither_rank_matches_numpy_model(device, k):
 @pytest.mark.parametrize("w,h,k", [(61, 45, 4), (64, 48, 4), (50, 31, 3), (23, 17, 5)])
 @pytest.mark.parametrize("threads", [1, 3])
 @pytest.mark.parametrize("flat", [False, True])
-@pytest.mark.parametrize("segments", [1, 3])
-def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, monkeypatch, w, h, k, threads, flat, segments):
+def test_cpu_rows_pass_equals_pixel_kernel_and_tile_pass(rng, w, h, k, threads, flat):
     """On the CPU ``SamplingStage.launch`` runs the map and the tile guarantee as one launch over rows of tiles
     (``sampling_rows_kernel``, each tile's rank shift computed once per row of it): the sample map, cache hits,
     previous-pixel indices and counters equal the per-pixel kernel (the CUDA path) followed by the tile pass,
-    partial tiles included, at 1 and 3 threads, with whole tile rows or 3 segments of them a thread. ``flat``: the
-    right part of the G-buffer is one flat, still surface, so its pixels are thresholded below probability 1 (the
-    ranks and jitter decide)."""
+    partial tiles included, at 1 and 3 threads. ``flat``: the right part of the G-buffer is one flat, still
+    surface, so its pixels are thresholded below probability 1 (the ranks and jitter decide)."""
     from foveawarp import parallel
     from foveawarp.kernels.sampling import sampling_map_kernel
-    from foveawarp.stages import sampling as sampling_stage
     from foveawarp.stages.sampling import launch_tile_pass
 
-    monkeypatch.setattr(sampling_stage, "ROW_SEGMENTS", segments)  # tile rows split in runs of tiles
     dev = wp.get_device("cpu")
     g = _textured_gbuffer(w, h, "cpu", rng)
     x0 = w // 3

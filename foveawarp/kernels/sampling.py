@@ -616,11 +616,10 @@ def sampling_map_pixel(
 
 def _make_sampling_map(rows: bool):
     """``sampling_map_kernel`` (a thread per pixel, CUDA) or ``sampling_rows_kernel`` (the CPU: a thread per row
-    of ``block``-row tiles and segment of it, launched over ``tiles_y * S`` in bands by ``foveawarp.parallel``,
-    with ``tile_counts`` of shape (tiles_y, S): S segments per tile row, each a run of whole tiles; the thread runs
-    the pixel pass over its segment's pixels and then ``tile_guarantee`` on its tiles, writing the sum of their
-    (samples, cache hits) to ``tile_counts[ty, segment]`` for ``tile_counts_sum_kernel``: the map and the tile
-    pass in one launch, with the same values as the two; the pixel kernel does not touch ``tile_counts``)."""
+    of ``block``-row tiles, launched over ``tiles_y`` in bands by ``foveawarp.parallel``, that runs the pixel pass
+    over its rows and then ``tile_guarantee`` on its tiles, writing the sum of their (samples, cache hits) to
+    ``tile_counts[ty, 0]`` ((tiles_y, 1) vec2i) for ``tile_counts_sum_kernel``: the map and the tile pass in one
+    launch, with the same values as the two; the pixel kernel does not touch ``tile_counts``)."""
 
     # CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
     # loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
@@ -665,24 +664,16 @@ def _make_sampling_map(rows: bool):
         miss has no surface depth or motion).
         """
         if wp.static(rows):
-            # thread i: tile row ty, segment seg of its tiles (tile_counts' columns: the segments per row)
-            segs = tile_counts.shape[1]
-            i = wp.tid() + row0  # band offset (foveawarp.parallel)
-            ty = i // segs
-            seg = i - ty * segs
-            per = (sp.tiles_x + segs - 1) // segs
-            tx0 = wp.min(seg * per, sp.tiles_x)
-            tx1 = wp.min(tx0 + per, sp.tiles_x)
+            ty = wp.tid() + row0  # band offset (foveawarp.parallel)
             fp = frame[0]
             k = sp.block
             y1 = wp.min(ty * k + k, depth.shape[0])
-            x1 = wp.min(tx1 * k, depth.shape[1])
             for y in range(ty * k, y1):
                 # a tile's rank shift is computed once per row of it, as x enters the tile
                 shift = int(0)
-                tx = tx0 - 1
-                next_tile = tx0 * k
-                for x in range(tx0 * k, x1):
+                tx = int(-1)
+                next_tile = int(0)
+                for x in range(depth.shape[1]):
                     if x == next_tile:
                         tx += 1
                         next_tile += k
@@ -692,9 +683,9 @@ def _make_sampling_map(rows: bool):
                                        out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift)
             if maps_only == 0:
                 c = wp.vec2i(0, 0)
-                for tx in range(tx0, tx1):
+                for tx in range(sp.tiles_x):
                     c += tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
-                tile_counts[ty, seg] = c
+                tile_counts[ty, 0] = c
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)

@@ -37,9 +37,6 @@ GAZE_LIMIT_PX = 1.0e6
 NO_FALLOFF = 1.0e9
 # threads per block of the tile pass on CUDA (the CPU runs blocks of one thread)
 TILE_PASS_THREADS = 256
-# the CPU's sampling rows kernel: a thread per tile row and segment of it (its tiles split in this many runs of
-# columns): finer work for the band split at many threads; 1: a thread per whole tile row. The same values.
-ROW_SEGMENTS = 1
 
 
 # -- threshold ranks -------------------------------------------------------------------------------------------
@@ -373,10 +370,7 @@ class SamplingStage:
         if rows:
             # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum over the
             # tile rows' sums
-            segs = max(1, int(ROW_SEGMENTS))
-            if self._row_counts.shape[1] != segs:
-                self._row_counts = wp.zeros((self.tiles[0], segs), dtype=wp.vec2i, device=dev)
-            parallel.launch(sampling_rows_kernel, dim=self.tiles[0] * segs, inputs=args, outputs=[*outs, self._row_counts],
+            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=[*outs, self._row_counts],
                             device=dev, min_band_items=1)
             self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
                              device=dev)
