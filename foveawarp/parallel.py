@@ -641,14 +641,14 @@ class _Recorder:
 
     def add_bands(self, st, n: int, workers: int, dev, args, mexec) -> None:
         """A band launch: its bands' argument structs copied (a later launch with the same packed arguments may
-        change the kept ones), the bounds shared (fixed per band size); ``args`` (its inputs and outputs) and the
-        loaded module ``mexec`` whose entry point the bands call are kept."""
+        change the kept ones), the bounds shared (fixed per band size, kept alive by the calls' references);
+        ``args`` (its inputs and outputs) and the loaded module ``mexec`` whose entry point the bands call are kept."""
         cp = _Bands()
         cp.master = cp.last = cp.tables = None
         cp.structs = [type(a).from_buffer_copy(a) for a in st.structs]
         cp.bounds = st.bounds
         cp.calls = [(f, b, ctypes.byref(a)) for (f, b, _), a in zip(st.calls, cp.structs)]
-        self.program._keep.append((st, _arrays_in(args), mexec))
+        self.program._keep.append((_arrays_in(args), mexec))
         self.add(_run_bands, cp.calls, cp, n, workers, dev)
 
 
