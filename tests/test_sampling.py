@@ -722,3 +722,156 @@ def test_dither_sample_matches_numpy_model(device, rng, k, phase):
     assert np.array_equal(out.numpy(), want)
     assert np.array_equal(out_s.numpy(), want)
     assert 0 < want.mean() < 1
+
+
+# -- the plateaus of a whole row (row_plateau_spans, the CPU's rows kernel) ---------------------------------------
+
+from foveawarp.kernels.sampling import row_plateau_spans  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def _row_spans_kernel(frame: wp.array(dtype=FrameParams), spans: wp.array2d(dtype=wp.int32),
+                      row_p: wp.array2d(dtype=float)):
+    y, x = wp.tid()
+    fp = frame[0]
+    w = row_p.shape[1]
+    s = row_plateau_spans(y, w, row_p.shape[0], fp)
+    if x < 4:
+        spans[y, x] = s[x]
+    p = float(-1.0)
+    if x < s[0] or x > s[1]:
+        p = fp.xi
+    elif x >= s[2] and x <= s[3]:
+        p = 1.0
+    row_p[y, x] = p
+
+
+def _row_spans(device, w, h, fov, gaze, cfg, min_probability=None):
+    fast, slow, fp = _both_ways(device, w, h, fov, gaze, cfg, min_probability=min_probability)
+    cam = fw.Camera(fov_y_deg=fov)
+    stage = SamplingStage(w, h, cfg, device=device)
+    stage.set_frame(_synthetic_gbuffer(w, h, device), cam, gaze, 0, moving=False, first_frame=True,
+                    min_probability=min_probability)
+    spans = wp.zeros((h, 4), dtype=wp.int32, device=device)
+    row_p = wp.zeros((h, w), dtype=float, device=device)
+    wp.launch(_row_spans_kernel, dim=(h, w), inputs=[stage.frame_params], outputs=[spans, row_p], device=device)
+    return row_p.numpy(), slow, spans.numpy(), fp
+
+
+def _plateau_angles(fp):
+    """(lo, hi) in degrees: the pixels' own plateau tests' angles, from their float32 tangents (-1: off)."""
+    lo = math.degrees(math.atan(math.sqrt(fp["tan2_fovea"]))) if fp["tan2_fovea"] >= 0.0 else None
+    hi = math.degrees(math.atan(math.sqrt(fp["tan2_floor"]))) if fp["tan2_floor"] >= 0.0 else None
+    return lo, hi
+
+
+@pytest.mark.parametrize("fov", [20.0, 60.0, 110.0, 170.0])
+@pytest.mark.parametrize("gaze", [(80.0, 45.0), (3.0, 88.0), (-40.0, 45.0), (80.0, -300.0), (400.0, 500.0)])
+def test_row_plateau_spans_hold_the_pixels_values(device, fov, gaze):
+    """The CPU rows kernel's per-row plateaus (``row_plateau_spans``): every pixel they classify has the value
+    ``pixel_probability`` and eq. 2 give it (bit for bit), and lies beyond the plateau test's angle by the
+    independent NumPy float64 eccentricity; they classify every pixel more than two and a half pixels' angle beyond it
+    (the spans are in use, not empty), and no pixel of a row outside the spans."""
+    w, h = 160, 90
+    cfg = fw.Config().with_(foveation={"fovea_deg": 5.0, "falloff_deg": 12.0})
+    row_p, slow, spans, fp = _row_spans(device, w, h, fov, gaze, cfg)
+    cl = row_p >= 0.0
+    assert np.array_equal(row_p[cl], slow[cl])
+    e = ref_eccentricity(w, h, gaze, fov)
+    lo, hi = _plateau_angles(fp)
+    # two and a half pixels at the centre of the view (the widest pixel there), in degrees: the spans give up one
+    m = 2.5 * math.degrees(math.atan(2.0 * math.tan(math.radians(fov) / 2.0) / h))
+    floor = row_p == fp["xi"]
+    fovea = row_p == 1.0
+    if hi is None:
+        assert not floor.any()
+    else:
+        assert np.all(e[floor] > hi)
+        if (e > hi + m).any():
+            assert floor[e > hi + m].all()
+    if lo is None:
+        assert not fovea.any()
+    else:
+        assert np.all(e[fovea] < lo)
+        if (e < lo - m).any():
+            assert fovea[e < lo - m].all()
+    if fov == 60.0 and gaze == (80.0, 45.0):  # both spans are in use here
+        assert (e > hi + m).mean() > 0.2 and (e < lo - m).any()
+
+
+def test_row_plateau_spans_off_when_the_plateaus_are(device):
+    """No fovea and, with a shallow MAR line, a floor beyond 89 degrees or none: the spans classify no pixel
+    where the pixels' own tests have no plateau, and any they classify has the formula's value."""
+    cfg = fw.Config().with_(foveation={"fovea_deg": 0.0, "falloff_deg": None, "mar_slope": 0.001})
+    row_p, slow, spans, fp = _row_spans(device, 96, 64, 170.0, (48.0, 32.0), cfg)
+    assert fp["row_cos2_fovea"] < 0.0
+    if fp["row_cos2_floor"] < 0.0:
+        assert np.all(row_p < 0.0)
+    cl = row_p >= 0.0
+    assert np.array_equal(row_p[cl], slow[cl])
+
+
+@settings(max_examples=40, deadline=None)
+@given(gx=st.floats(-1e6, 1e6), gy=st.floats(-1e6, 1e6), fov=st.floats(1.0, 179.0), m=st.floats(0.001, 1.0),
+       b=st.floats(0.001, 1.0), xi=st.floats(0.0, 1.0), fovea=st.floats(0.0, 180.0),
+       falloff=st.one_of(st.none(), st.floats(0.01, 180.0)), boost=st.one_of(st.none(), st.floats(0.0, 1.0)),
+       w=st.integers(1, 40), h=st.integers(1, 40))
+def test_row_plateau_spans_property(gx, gy, fov, m, b, xi, fovea, falloff, boost, w, h):
+    """Any gaze (far off screen included), field of view, MAR line, floor, fovea, falloff and image size: a pixel
+    the spans classify has the value of the formula."""
+    cfg = fw.Config().with_(foveation={"mar_slope": m, "mar_fovea_deg": b, "min_probability": xi,
+                                       "fovea_deg": fovea, "falloff_deg": falloff})
+    row_p, slow, spans, fp = _row_spans("cpu", w, h, fov, (gx, gy), cfg, min_probability=boost)
+    cl = row_p >= 0.0
+    assert np.array_equal(row_p[cl], slow[cl])
+
+
+from foveawarp.kernels.sampling import velocity_may_raise  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def _velocity_term_kernel(v: wp.array(dtype=wp.vec2), inv: wp.array(dtype=float), s: wp.array(dtype=float),
+                          may: wp.array(dtype=wp.int32), raised: wp.array(dtype=float)):
+    i = wp.tid()
+    may[i] = velocity_may_raise(v[i], inv[i], s[i])
+    raised[i] = wp.max(s[i], wp.min(wp.length(v[i]) * inv[i], 1.0))
+
+
+def _velocity_term(device, v, inv, s):
+    n = len(s)
+    may = wp.zeros(n, dtype=wp.int32, device=device)
+    raised = wp.zeros(n, dtype=float, device=device)
+    wp.launch(_velocity_term_kernel, dim=n,
+              inputs=[wp.array(np.asarray(v, np.float32), dtype=wp.vec2, device=device),
+                      wp.array(np.asarray(inv, np.float32), dtype=float, device=device),
+                      wp.array(np.asarray(s, np.float32), dtype=float, device=device)],
+              outputs=[may, raised], device=device)
+    return may.numpy(), raised.numpy()
+
+
+def test_velocity_skip_only_where_the_term_cannot_win(device, rng):
+    """``velocity_may_raise`` returns 0 only where max(s, min(|v| inv, 1)) is s (the term's square root is then
+    skipped): around the boundary |v| inv = s within a few ulps, and for tiny, huge and non-finite inputs. Most
+    terms well below s are skipped, and a term above s never is (NumPy float64 |v| inv against s)."""
+    n = 20000
+    s = rng.uniform(1e-3, 1.0, n).astype(np.float32)
+    inv = np.float32(1.0 / 32.0) * np.ones(n, np.float32)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    # |v| inv = s (1 + eps), eps from -1e-5 to 1e-5 and a wide spread
+    eps = np.where(rng.random(n) < 0.5, rng.uniform(-1e-5, 1e-5, n), rng.uniform(-0.9, 2.0, n))
+    r = s.astype(np.float64) * (1.0 + eps) / inv.astype(np.float64)
+    v = np.stack([r * np.cos(ang), r * np.sin(ang)], -1).astype(np.float32)
+    extra_v = [(0.0, 0.0), (1e-30, 0.0), (1e30, 1e30), (np.inf, 0.0), (np.nan, 1.0), (3.0, 4.0), (3.0, 4.0),
+               (1e-20, 1e-20)]
+    extra_s = [0.0, 1e-12, 0.5, 0.5, 0.5, 0.0, np.nan, 1e-9]
+    v = np.concatenate([v, np.asarray(extra_v, np.float32)])
+    s = np.concatenate([s, np.asarray(extra_s, np.float32)])
+    inv = np.concatenate([inv, np.full(len(extra_s), 1.0 / 32.0, np.float32)])
+    may, raised = _velocity_term(device, v, inv, s)
+    skipped = may == 0
+    same = (raised == s) | (np.isnan(raised) & np.isnan(s))
+    assert np.all(same[skipped])
+    term = np.hypot(v[:, 0].astype(np.float64), v[:, 1].astype(np.float64)) * inv.astype(np.float64)
+    assert np.all(may[term > s.astype(np.float64) * (1 + 1e-6)] == 1)
+    low = term[:n] < s[:n].astype(np.float64) * 0.999
+    assert skipped[:n][low].mean() == 1.0 and low.mean() > 0.1

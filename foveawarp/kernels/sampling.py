@@ -79,6 +79,10 @@ class FrameParams:
     # the pixels they classify get exactly the value the formula gives; -1 disables a test.
     tan2_fovea: float
     tan2_floor: float
+    # the same plateaus for whole rows (row_plateau_spans, the CPU's rows kernel): cos^2 of cones ROW_CUSHION_DEG
+    # inside the two angles above (float64); -1 disables a span
+    row_cos2_fovea: wp.float64
+    row_cos2_floor: wp.float64
 
 
 # -- geometry -----------------------------------------------------------------------------------------------
@@ -99,6 +103,13 @@ def angle_deg(a: wp.vec3, b: wp.vec3) -> float:
 # how far inside eq. 2's plateau boundaries the arc-tangent-free classification stays (degrees): far above the
 # float error of either computation (~1e-5 deg), far below anything a sample map could show
 ECC_MARGIN_DEG = 1.0e-3
+# how far inside those angles the plateaus of a whole row (row_plateau_spans) stay, on top of a pixel at each end
+# (degrees): the float32 tests of the pixels it classifies are ~1e-5 deg off the exact angle, and its float64
+# root finding far less
+ROW_CUSHION_DEG = 1.0e-2
+# a row's plateaus are found only for gazes within this many pixels of the screen (larger plane coordinates are
+# left to the pixels' own tests)
+ROW_GAZE_LIMIT_PX = 1.0e5
 
 
 @wp.func
@@ -192,6 +203,114 @@ def pixel_probability(x: int, y: int, w: int, h: int, sp: SamplingParams, fp: Fr
             return fp.xi
     e = wp.degrees(wp.atan2(wp.sqrt(c2), d))
     return foveation_prob(e, sp.mar_slope, sp.mar_fovea_deg, fp.w_min_deg, fp.w_far_deg, fp.xi, sp.fovea_deg)
+
+
+@wp.func
+def cone_row_span(cos2: wp.float64, gu: wp.float64, gv: wp.float64, vy: wp.float64) -> wp.vec3d:
+    """Where the image-plane row (u, vy, 1) crosses the cone of directions within angle a (cos2 = cos^2 a,
+    a < 90 deg) of g = (gu, gv, 1): (lo, hi, state) with the row's points at angle <= a exactly those with
+    lo <= u <= hi (state 1; lo or hi may be infinite), none (state 0), or not found (state -1: a near-degenerate
+    quadratic, left to the pixels' own tests).
+
+    angle(p, g) <= a  <=>  g.p > 0 and (g.p)^2 >= cos2 |g|^2 |p|^2, a quadratic q(u) <= 0 on the row; the cone's
+    forward half (g.p > 0) meets the row in one interval (the cone is convex), the backward half is dropped."""
+    G = gu * gu + gv * gv + wp.float64(1.0)
+    L = gv * vy + wp.float64(1.0)  # g.p = gu u + L
+    qa = cos2 * G - gu * gu
+    qb = wp.float64(-2.0) * gu * L
+    qc = cos2 * G * (vy * vy + wp.float64(1.0)) - L * L
+    inf = wp.float64(1.0e300)
+    if not (wp.abs(qa) > wp.float64(1.0e-9) * cos2 * G):  # also NaN
+        return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(-1.0))
+    disc = qb * qb - wp.float64(4.0) * qa * qc
+    if qa > wp.float64(0.0):
+        if disc < wp.float64(0.0):
+            return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))  # q > 0 on the whole row
+    elif not (disc > wp.float64(0.0)):
+        return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(-1.0))
+    sq = wp.sqrt(disc)
+    # the two roots without cancellation
+    qq = wp.float64(-0.5) * (qb + wp.where(qb < wp.float64(0.0), -sq, sq))
+    r1 = wp.float64(0.0)
+    r2 = wp.float64(0.0)
+    if qq != wp.float64(0.0):
+        r1 = qq / qa
+        r2 = qc / qq
+    lo = wp.min(r1, r2)
+    hi = wp.max(r1, r2)
+    if qa > wp.float64(0.0):
+        # q <= 0 on [lo, hi]: one half of the cone (the row's crossing of the plane g.p = 0 has q > 0)
+        if gu * (wp.float64(0.5) * (lo + hi)) + L > wp.float64(0.0):
+            return wp.vec3d(lo, hi, wp.float64(1.0))
+        return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    # q <= 0 outside (lo, hi): a ray in each half; gu != 0 here (qa < 0), and g.p grows with u when gu > 0
+    if gu > wp.float64(0.0):
+        return wp.vec3d(hi, inf, wp.float64(1.0))
+    return wp.vec3d(-inf, lo, wp.float64(1.0))
+
+
+@wp.func
+def span_pixel(u: wp.float64, u0: wp.float64, du: wp.float64, w: int) -> wp.float64:
+    """The pixel coordinate x (centres at integers) of plane coordinate u, clamped to [-4, w + 4]."""
+    return wp.clamp((u - u0) / du, wp.float64(-4.0), wp.float64(w + 4))
+
+
+@wp.func
+def row_plateau_spans(y: int, w: int, h: int, fp: FrameParams) -> wp.vec4i:
+    """Row y's pixels whose probability is a plateau of eq. 2, found once for the row: (f0, f1, v0, v1) with
+    every pixel x < f0 or x > f1 at p = xi and every pixel v0 <= x <= v1 at p = 1 (the values
+    ``pixel_probability`` gives them); the pixels in between are left to it. No span: (0, w - 1, 0, -1).
+
+    The spans come from the cones ``FrameParams.row_cos2_floor`` / ``row_cos2_fovea`` (ROW_CUSHION_DEG inside the
+    pixels' own plateau tests, which in turn lie ECC_MARGIN_DEG inside eq. 2's boundaries), solved in float64
+    (``cone_row_span``) and narrowed by one more pixel at each end. A pixel counted in a span is thus at least
+    ROW_CUSHION_DEG beyond its plateau test's angle, far more than that test's float32 error: the test returns the
+    plateau, and so would eq. 2 itself. Gazes more than ROW_GAZE_LIMIT_PX off the screen get no spans."""
+    f0 = int(0)
+    f1 = w - 1
+    v0 = int(0)
+    v1 = int(-1)
+    gx = fp.gaze[0]
+    gy = fp.gaze[1]
+    fw = float(w)
+    fh = float(h)
+    if not (wp.abs(gx) < ROW_GAZE_LIMIT_PX and wp.abs(gy) < ROW_GAZE_LIMIT_PX):  # also NaN
+        return wp.vec4i(f0, f1, v0, v1)
+    if fp.row_cos2_floor < wp.float64(0.0) and fp.row_cos2_fovea < wp.float64(0.0):
+        return wp.vec4i(f0, f1, v0, v1)
+    t = wp.float64(fp.tan_half_fov_y)
+    sx = t * wp.float64(w) / wp.float64(h)
+    gu = (wp.float64(2.0) * wp.float64(gx) / wp.float64(w) - wp.float64(1.0)) * sx
+    gv = (wp.float64(1.0) - wp.float64(2.0) * wp.float64(gy) / wp.float64(h)) * t
+    vy = (wp.float64(1.0) - wp.float64(2.0) * (wp.float64(y) + wp.float64(0.5)) / wp.float64(h)) * t
+    du = wp.float64(2.0) * sx / wp.float64(w)  # u of pixel x is u0 + x du
+    u0 = (wp.float64(1.0) / wp.float64(w) - wp.float64(1.0)) * sx
+    if fp.row_cos2_floor >= wp.float64(0.0):
+        sp = cone_row_span(fp.row_cos2_floor, gu, gv, vy)
+        if sp[2] == wp.float64(0.0):
+            f0 = w  # the whole row lies beyond the floor's cone
+            f1 = -1
+        elif sp[2] > wp.float64(0.0):
+            f0 = int(wp.floor(span_pixel(sp[0], u0, du, w) - wp.float64(1.0)))
+            f1 = int(wp.ceil(span_pixel(sp[1], u0, du, w) + wp.float64(1.0)))
+    if fp.row_cos2_fovea >= wp.float64(0.0):
+        sp = cone_row_span(fp.row_cos2_fovea, gu, gv, vy)
+        if sp[2] > wp.float64(0.0):
+            v0 = int(wp.ceil(span_pixel(sp[0], u0, du, w) + wp.float64(1.0)))
+            v1 = int(wp.floor(span_pixel(sp[1], u0, du, w) - wp.float64(1.0)))
+    return wp.vec4i(f0, f1, v0, v1)
+
+
+@wp.func
+def velocity_may_raise(v: wp.vec2, inv_velocity_px: float, s: float) -> int:
+    """0 when the V term min(|v| inv_velocity_px, 1) cannot exceed ``s`` > 0, so that max(s, V) = s: the squared
+    test |v|^2 inv^2 < s^2 (1 - 2^-18) in float32, whose rounding (each of its products, and the length's square
+    root and product, within half an ulp) is far inside that margin; 1 otherwise (also for a non-finite or
+    tiny s, or a non-finite |v|^2). Skips the square root where the term cannot win: the same max."""
+    if s >= 1.0e-10:
+        if (v[0] * v[0] + v[1] * v[1]) * (inv_velocity_px * inv_velocity_px) < (s * s) * 0.9999961853027344:
+            return 0
+    return 1
 
 
 @wp.func
@@ -379,16 +498,23 @@ def frame_setup_kernel(
     # eq. 2's plateaus (pixel_probability): inside fovea_deg p = 1; beyond e_floor, where
     # 1 - (m e + b - w_min) / w_far falls to xi, p = xi (and e > fovea_deg there too)
     f.tan2_fovea = -1.0
+    f.row_cos2_fovea = wp.float64(-1.0)
     lo = fovea_deg - ECC_MARGIN_DEG
     if lo > 0.0 and lo < 89.0:
         t = wp.tan(wp.radians(lo))
         f.tan2_fovea = t * t
+        if lo > ROW_CUSHION_DEG:
+            c = wp.cos(wp.float64(lo - ROW_CUSHION_DEG) * wp.float64(wp.pi / 180.0))
+            f.row_cos2_fovea = c * c
     f.tan2_floor = -1.0
+    f.row_cos2_floor = wp.float64(-1.0)
     e_floor = ((1.0 - xi) * f.w_far_deg + f.w_min_deg - mar_fovea_deg) / mar_slope
     hi = wp.max(e_floor, fovea_deg) + ECC_MARGIN_DEG
     if hi > 0.0 and hi < 89.0:
         t = wp.tan(wp.radians(hi))
         f.tan2_floor = t * t
+        c = wp.cos(wp.float64(hi + ROW_CUSHION_DEG) * wp.float64(wp.pi / 180.0))
+        f.row_cos2_floor = c * c
     out[0] = f
 
 
@@ -533,85 +659,103 @@ def tile_counts_sum_kernel(tile_counts: wp.array2d(dtype=wp.vec2i), accumulate: 
     num_cache_hits[0] = nc
 
 
-@wp.func
-def sampling_map_pixel(
-    x: int,
-    y: int,
-    sp: SamplingParams,
-    fp: FrameParams,
-    ranks: wp.array2d(dtype=wp.int32),
-    lab: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    depth: wp.array2d(dtype=float),
-    hit: wp.array2d(dtype=wp.uint8),
-    position: wp.array2d(dtype=wp.vec3),
-    reproj_uv: wp.array2d(dtype=wp.vec2),
-    prev_dist: wp.array2d(dtype=float),
-    depth_prev: wp.array2d(dtype=float),
-    valid_prev: wp.array2d(dtype=wp.uint8),
-    maps_only: int,
-    face: wp.array2d(dtype=wp.int32),
-    face_lab: wp.array(dtype=wp.vec3),
-    lab_by_face: int,
-    out_probability: wp.array2d(dtype=float),
-    out_saliency: wp.array2d(dtype=float),
-    out_sample: wp.array2d(dtype=wp.uint8),
-    out_cache_hit: wp.array2d(dtype=wp.uint8),
-    out_prev_index: wp.array2d(dtype=wp.int32),
-    shift: int,
-):
-    """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it); ``shift``: the pixel's
-    tile's ``tile_rank_shift``, or -1 (computed when the pixel needs it)."""
-    w = depth.shape[1]
-    h = depth.shape[0]
-    # (y, x) is a pixel: the unchecked loads and stores of kernels/load.py for the per-pixel values
-    hit_px = load_u8(hit, y, x)
-    uv = load_vec2(reproj_uv, y, x)
-    p = float(1.0)
-    s = float(1.0)
-    if sp.foveation != 0:
-        p = pixel_probability(x, y, w, h, sp, fp)
-        s = p
-        # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
-        # remaining terms cannot change it (the fovea skips them). The terms' inputs are read as soon as p < 1
-        # (not after the previous term), so their loads do not wait on each other; each term still enters
-        # only while s < 1, as the equation has it.
-        ga = float(0.0)
-        gn = float(0.0)
-        v = wp.vec2(0.0, 0.0)
-        if p < 1.0:
-            if sp.use_albedo != 0:
-                if lab_by_face != 0:
-                    ga = sobel_lab_by_face(face, face_lab, x, y)
+def _make_sampling_pixel(rows: bool):
+    """``sampling_map_pixel``: the fused per-pixel pass, for the pixel kernel (CUDA) or the CPU's rows kernel
+    (``rows``: it also takes the row's plateau value ``p_row`` and skips the V term's square root where the term
+    cannot raise the saliency, ``velocity_may_raise``; the same values, tests compare the two kernels)."""
+
+    @wp.func
+    def sampling_map_pixel(
+        x: int,
+        y: int,
+        sp: SamplingParams,
+        fp: FrameParams,
+        ranks: wp.array2d(dtype=wp.int32),
+        lab: wp.array2d(dtype=wp.vec3),
+        normal: wp.array2d(dtype=wp.vec3),
+        depth: wp.array2d(dtype=float),
+        hit: wp.array2d(dtype=wp.uint8),
+        position: wp.array2d(dtype=wp.vec3),
+        reproj_uv: wp.array2d(dtype=wp.vec2),
+        prev_dist: wp.array2d(dtype=float),
+        depth_prev: wp.array2d(dtype=float),
+        valid_prev: wp.array2d(dtype=wp.uint8),
+        maps_only: int,
+        face: wp.array2d(dtype=wp.int32),
+        face_lab: wp.array(dtype=wp.vec3),
+        lab_by_face: int,
+        out_probability: wp.array2d(dtype=float),
+        out_saliency: wp.array2d(dtype=float),
+        out_sample: wp.array2d(dtype=wp.uint8),
+        out_cache_hit: wp.array2d(dtype=wp.uint8),
+        out_prev_index: wp.array2d(dtype=wp.int32),
+        shift: int,
+        p_row: float,
+    ):
+        """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it); ``shift``: the pixel's
+        tile's ``tile_rank_shift``, or -1 (computed when the pixel needs it); ``p_row``: the pixel's eq. 2 probability
+        when its row's plateau spans hold it (``row_plateau_spans``), or -1 (computed here)."""
+        w = depth.shape[1]
+        h = depth.shape[0]
+        # (y, x) is a pixel: the unchecked loads and stores of kernels/load.py for the per-pixel values
+        hit_px = load_u8(hit, y, x)
+        uv = load_vec2(reproj_uv, y, x)
+        p = float(1.0)
+        s = float(1.0)
+        if sp.foveation != 0:
+            if wp.static(rows):
+                if p_row >= 0.0:
+                    p = p_row
                 else:
-                    ga = sobel_vec3(lab, x, y)
-            if sp.use_normal != 0:
-                gn = sobel_vec3(normal, x, y)
-            if hit_px != wp.uint8(0) and fp.use_velocity != 0:
-                v = saliency_velocity(fp, position, y, x, uv, float(x) + 0.5, float(y) + 0.5)
-        if sp.use_albedo != 0 and s < 1.0:
-            s = wp.max(s, wp.min(sp.albedo_gain * ga, 1.0))
-        if sp.use_normal != 0 and s < 1.0:
-            s = wp.max(s, wp.min(sp.normal_gain * gn, 1.0))
-        if hit_px != wp.uint8(0):
-            if fp.use_velocity != 0 and s < 1.0:
-                s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
-            if fp.dof_on != 0:
-                s = s * dof_factor(load_f32(depth, y, x), fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
-        s = wp.clamp(s, fp.xi, 1.0)
-        if nan_f32(s):  # a bit test (kernels/fpbits.py)
-            s = 1.0
-    if maps_only != 0:
-        out_probability[y, x] = p
-        out_saliency[y, x] = s
-        return
-    store_u8(out_sample, y, x, dither_sample_shifted(s, x, y, w, h, ranks, sp, fp.rot, fp.phase, shift))
-    idx = int(-1)
-    if fp.do_cache != 0:
-        idx = cache_lookup(uv, load_f32(prev_dist, y, x), hit_px, load_f32(depth, y, x), depth_prev, valid_prev,
-                           sp.depth_eps_rel)
-    store_i32(out_prev_index, y, x, idx)
-    store_u8(out_cache_hit, y, x, wp.where(idx >= 0, wp.uint8(1), wp.uint8(0)))
+                    p = pixel_probability(x, y, w, h, sp, fp)
+            else:
+                p = pixel_probability(x, y, w, h, sp, fp)
+            s = p
+            # thesis eq. 3: F = max(dA, dN, V, p) * F_DoF, each term normalized to [0, 1]; once the max is 1 the
+            # remaining terms cannot change it (the fovea skips them). The terms' inputs are read as soon as p < 1
+            # (not after the previous term), so their loads do not wait on each other; each term still enters
+            # only while s < 1, as the equation has it.
+            ga = float(0.0)
+            gn = float(0.0)
+            v = wp.vec2(0.0, 0.0)
+            if p < 1.0:
+                if sp.use_albedo != 0:
+                    if lab_by_face != 0:
+                        ga = sobel_lab_by_face(face, face_lab, x, y)
+                    else:
+                        ga = sobel_vec3(lab, x, y)
+                if sp.use_normal != 0:
+                    gn = sobel_vec3(normal, x, y)
+                if hit_px != wp.uint8(0) and fp.use_velocity != 0:
+                    v = saliency_velocity(fp, position, y, x, uv, float(x) + 0.5, float(y) + 0.5)
+            if sp.use_albedo != 0 and s < 1.0:
+                s = wp.max(s, wp.min(sp.albedo_gain * ga, 1.0))
+            if sp.use_normal != 0 and s < 1.0:
+                s = wp.max(s, wp.min(sp.normal_gain * gn, 1.0))
+            if hit_px != wp.uint8(0):
+                if wp.static(rows):
+                    if fp.use_velocity != 0 and s < 1.0 and velocity_may_raise(v, sp.inv_velocity_px, s) != 0:
+                        s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
+                elif fp.use_velocity != 0 and s < 1.0:
+                    s = wp.max(s, wp.min(wp.length(v) * sp.inv_velocity_px, 1.0))
+                if fp.dof_on != 0:
+                    s = s * dof_factor(load_f32(depth, y, x), fp.focus_m, sp.sigma1_m, sp.sigma2_m, sp.dof_floor)
+            s = wp.clamp(s, fp.xi, 1.0)
+            if nan_f32(s):  # a bit test (kernels/fpbits.py)
+                s = 1.0
+        if maps_only != 0:
+            out_probability[y, x] = p
+            out_saliency[y, x] = s
+            return
+        store_u8(out_sample, y, x, dither_sample_shifted(s, x, y, w, h, ranks, sp, fp.rot, fp.phase, shift))
+        idx = int(-1)
+        if fp.do_cache != 0:
+            idx = cache_lookup(uv, load_f32(prev_dist, y, x), hit_px, load_f32(depth, y, x), depth_prev, valid_prev,
+                               sp.depth_eps_rel)
+        store_i32(out_prev_index, y, x, idx)
+        store_u8(out_cache_hit, y, x, wp.where(idx >= 0, wp.uint8(1), wp.uint8(0)))
+
+    return sampling_map_pixel
 
 
 def _make_sampling_map(rows: bool):
@@ -620,6 +764,8 @@ def _make_sampling_map(rows: bool):
     over its rows and then ``tile_guarantee`` on its tiles, writing the sum of their (samples, cache hits) to
     ``tile_counts[ty, 0]`` ((tiles_y, 1) vec2i) for ``tile_counts_sum_kernel``: the map and the tile pass in one
     launch, with the same values as the two; the pixel kernel does not touch ``tile_counts``)."""
+
+    sampling_map_pixel = _make_sampling_pixel(rows)
 
     # CUDA: no grid-stride loop and at most 48 registers per thread (sm_90: 64 uncapped, 72 with the grid-stride
     # loop; 48 still spills nothing): 5 blocks of 256 threads per SM instead of 3 (occupancy 62% instead of 37%)
@@ -668,19 +814,30 @@ def _make_sampling_map(rows: bool):
             fp = frame[0]
             k = sp.block
             y1 = wp.min(ty * k + k, depth.shape[0])
+            w = depth.shape[1]
             for y in range(ty * k, y1):
+                # the row's eq. 2 plateaus are found once for the row (row_plateau_spans)
+                spans = wp.vec4i(0, w - 1, 0, -1)
+                if sp.foveation != 0:
+                    spans = row_plateau_spans(y, w, depth.shape[0], fp)
                 # a tile's rank shift is computed once per row of it, as x enters the tile
                 shift = int(0)
                 tx = int(-1)
                 next_tile = int(0)
-                for x in range(depth.shape[1]):
+                for x in range(w):
                     if x == next_tile:
                         tx += 1
                         next_tile += k
                         shift = tile_rank_shift(tx, ty, sp, fp.rot)
+                    p_row = float(-1.0)
+                    if x < spans[0] or x > spans[1]:
+                        p_row = fp.xi
+                    elif x >= spans[2] and x <= spans[3]:
+                        p_row = 1.0
                     sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv,
                                        prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift)
+                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift,
+                                       p_row)
             if maps_only == 0:
                 c = wp.vec2i(0, 0)
                 for tx in range(sp.tiles_x):
@@ -691,7 +848,7 @@ def _make_sampling_map(rows: bool):
             y += row0  # band offset (foveawarp.parallel)
             sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, position, reproj_uv,
                                prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, -1)
+                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, -1, -1.0)
 
     return sampling_map
 
