@@ -216,16 +216,28 @@ def main(argv=None):
     payload["scaling_scene"] = args.scaling_scene
     oversplit = []
     if dev.is_cpu and tmax > 1 and args.oversplit:
-        # bands per thread at the most threads (parallel.OVERSPLIT): load balance against Python per band
+        # bands per thread at the most threads (parallel.OVERSPLIT): load balance against the cost of a band. A
+        # loop's replayed body keeps the bands it was recorded with, so each value gets its own foveated and
+        # full-resolution (policy "full") loops, recorded while it is set; the loops are then timed in turn
         default = parallel.OVERSPLIT
-        fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
+        loops = {}
         for k in [int(v) for v in args.oversplit.split(",")]:
             parallel.OVERSPLIT = k
-            m = interleaved({"fov": (fl, False)}, frames, warmup, rounds)
-            oversplit.append({"oversplit": k, "threads": tmax, "foveated_ms": m["fov"]["median_ms"],
-                              "foveated_best_ms": m["fov"]["best_ms"]})
-            print("oversplit", oversplit[-1], flush=True)
+            for name, policy in (("fov", "foveated"), ("ref", "full")):
+                fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy=policy, cpu_threads=tmax)
+                frame_ms(fl, max(warmup, 3), False)
+                loops[(k, name)] = (fl, False)
         parallel.OVERSPLIT = default
+        m = interleaved(loops, frames, warmup, rounds)
+        sc0 = loops[next(iter(loops))][0].scene
+        for k in [int(v) for v in args.oversplit.split(",")]:
+            fo, re_ = m[(k, "fov")], m[(k, "ref")]
+            oversplit.append({"oversplit": k, "threads": tmax, "foveated_ms": fo["median_ms"],
+                              "foveated_best_ms": fo["best_ms"], "reference_ms": re_["median_ms"],
+                              "reference_best_ms": re_["best_ms"],
+                              "reference_over_foveated": re_["median_ms"] / fo["median_ms"],
+                              "foveated_body": loops[(k, "fov")][0].render(sc0.camera_at(0.0)).stats["graph"]})
+            print("oversplit", oversplit[-1], flush=True)
     payload["oversplit_sweep"] = oversplit
     variants = []
     if dev.is_cpu and tmax > 1:
@@ -336,7 +348,8 @@ def main(argv=None):
     if oversplit:
         md += (f"\n### Bands per thread (parallel.OVERSPLIT; default at {tmax} threads: "
                f"{parallel.bands_per_thread(tmax)}) at {tmax} threads\n\n")
-        md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms"])
+        md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms", "reference_ms",
+                                     "reference_best_ms", "reference_over_foveated", "foveated_body"])
     if variants:
         md += f"\n### Frame variants at {tmax} threads ({args.scaling_scene})\n\n"
         md += md_table(variants, ["variant", "threads", "foveated_ms", "foveated_best_ms"])
