@@ -11,7 +11,7 @@ import warp as wp
 from .gbuffer import surface_albedo
 from .order import tile_order_pixel
 from .rng import cosine_hemisphere, pixel_rng
-from .tonemap import tonemap_rgb
+from .tonemap import pow_inv22_row, tonemap_linear_rgb, tonemap_rgb
 
 
 @wp.struct
@@ -308,7 +308,9 @@ def _make_shade_full(mode: str, max_registers=None, suffix: str = ""):
                 shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out,
                             out_stoch)
                 if to_display != 0:
-                    display[y, x] = tonemap_rgb(out[y, x], exposure, white)
+                    display[y, x] = tonemap_linear_rgb(out[y, x], exposure, white)
+            if to_display != 0:
+                pow_inv22_row(display, y)  # the row's display gamma, one vectorized loop (the same values)
         elif wp.static(tiles):
             p = tile_order_pixel(wp.tid() + row0, out.shape[1], wlog2)  # band offset: a range of threads
             x = p[0]

@@ -25,7 +25,7 @@ import warp as wp
 from .fpbits import finite_vec3
 from .jfa import RTILE, finite_or_zero
 from .load import load_i32, load_u8, load_vec3, store_vec3
-from .tonemap import tonemap_rgb
+from .tonemap import pow_inv22_row, tonemap_linear_rgb, tonemap_rgb
 
 
 @wp.func
@@ -142,14 +142,20 @@ def sibson_gather_pixel(
     to_display: int,
     color_out: wp.array2d(dtype=wp.vec3),
     display: wp.array2d(dtype=wp.vec3),
+    gamma_later: int,
 ):
-    """Bounded Sibson gather at pixel (x, y) (``sibson_gather_kernel`` documents it)."""
+    """Bounded Sibson gather at pixel (x, y) (``sibson_gather_kernel`` documents it); ``gamma_later`` != 0: the
+    display value is stored before its gamma (``tonemap_linear_rgb``), which the rows kernel applies to the whole
+    row afterwards (``pow_inv22_row``)."""
     # (y, x) is a pixel and every tile index below lies in the tile grid: the unchecked loads (kernels/load.py)
     if load_u8(mask, y, x) != wp.uint8(0):  # a seed keeps its color
         c = finite_or_zero(load_vec3(color_in, y, x))
         store_vec3(color_out, y, x, c)
         if to_display != 0:
-            store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
+            if gamma_later != 0:
+                store_vec3(display, y, x, tonemap_linear_rgb(c, exposure, white))
+            else:
+                store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
         return
     # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc ...
     rw = wp.min(window, isqrt(max_r2[0]))
@@ -164,7 +170,10 @@ def sibson_gather_pixel(
     c = disc_mean(vor, r2, x, y, rw, loc)
     store_vec3(color_out, y, x, c)
     if to_display != 0:
-        store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
+        if gamma_later != 0:
+            store_vec3(display, y, x, tonemap_linear_rgb(c, exposure, white))
+        else:
+            store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
 
 
 
@@ -195,12 +204,14 @@ def _make_sibson_gather(rows: bool):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             for x in range(mask.shape[1]):
                 sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white,
-                                    to_display, color_out, display)
+                                    to_display, color_out, display, 1)
+            if to_display != 0:
+                pow_inv22_row(display, y)  # the row's display gamma, one vectorized loop
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)
             sibson_gather_pixel(x, y, mask, vor, r2, tile_r2, color_in, window, max_r2, exposure, white, to_display,
-                                color_out, display)
+                                color_out, display, 0)
 
     return sibson_gather
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import warp as wp
 
 from .. import parallel
-from ..kernels.tonemap import tonemap_kernel
+from ..kernels.tonemap import tonemap_kernel, tonemap_rows_kernel
 
 __all__ = ["TonemapStage"]
 
@@ -19,5 +19,6 @@ class TonemapStage:
 
     def run(self, hdr, out) -> None:
         sc = self.config
-        parallel.launch(tonemap_kernel, dim=(self.height, self.width), inputs=[hdr, float(sc.exposure),
-                        float(sc.white_point)], outputs=[out], device=self.device)
+        # on the CPU a thread per row, the row's display gamma one vectorized loop (the same values)
+        parallel.launch_rows(tonemap_kernel, tonemap_rows_kernel, (self.height, self.width),
+                             inputs=[hdr, float(sc.exposure), float(sc.white_point)], outputs=[out], device=self.device)
