@@ -7,7 +7,7 @@ import warp as wp
 
 from foveawarp.kernels.tonemap import pow_inv22, pow_inv22_row, tonemap_linear_rgb, tonemap_rgb
 
-K64 = np.float64(np.float32(1.0 / 2.2))  # the exponent as Warp passes it: float32(1 / 2.2)
+K64 = np.float64(np.float32(1.0) / np.float32(2.2))  # the exponent of wp.pow(t, 1.0 / 2.2): a float32 division
 
 
 @wp.kernel(enable_backward=False)

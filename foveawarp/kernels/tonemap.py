@@ -18,14 +18,16 @@ def hable(x: float) -> float:
 
 
 # -- the display gamma, t^(1 / 2.2) ------------------------------------------------------------------------------
-# On CUDA: powf(t, float(1 / 2.2)), as wp.pow. On the CPU: the same power, correctly rounded, by an algorithm of
+# The exponent is 1.0f / 2.2f as float32 arithmetic gives it (0x3ee8ba2e = 0.454545438289642333984375, one ulp below
+# float32(1 / 2.2)): the value the tone map has always used (``wp.pow(t, 1.0 / 2.2)`` divides at run time in float32).
+# On CUDA: powf(t, that exponent), as wp.pow. On the CPU: the same power, correctly rounded, by an algorithm of
 # double-precision operations only, without a library call, so that a row of values is one vectorized loop
 # (pow_inv22_row): t = 2^e m with m in [sqrt(1/2), sqrt(2)); ln m = 2 atanh(s) with s = (m - 1) / (m + 1),
 # |s| <= 0.172, by its odd series to s^19; y = (e + ln m / ln 2) / 2.2; 2^y = 2^n e^(f ln 2) with n the integer
 # nearest y, by the Taylor series of e^x to x^12 (|x| <= 0.347), scaled by 2^n through the exponent bits. The
 # relative error before the final rounding to float32 is below 1e-12, so the result is the float32 nearest the
 # exact power but where that lies within 1e-12 of a rounding midpoint (tests: against float64 NumPy, rounded).
-# glibc's powf, which the CPU called before, is not correctly rounded: it differs from this in ~0.07% of values,
+# The libm powf the CPU called before is not correctly rounded: it differs from this in a small fraction of values,
 # by one unit in the last place.
 
 _POW_INV22_LAMBDA = """
@@ -62,7 +64,7 @@ _POW_INV22_LAMBDA = """
         const double s2x = s + s;
         const double lnm = s2x * p;
         const double l2 = __builtin_fma(lnm, 1.4426950408889634, ed);
-        const double y = l2 * (double)0.45454545454545453f;
+        const double y = l2 * 0.454545438289642333984375;  // the exponent below, exactly
         // n = the integer nearest y (|y| < 70): 1.5 * 2^52 added and taken away rounds it
         const double nb = y + 6755399441055744.0;
         const double n = nb - 6755399441055744.0;
@@ -100,7 +102,7 @@ _POW_INV22_LAMBDA = """
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
-    const float k = 0.45454545454545453;
+    const float k = 0.454545438289642333984375f;  // the exponent below, exactly
     return wp::pow(t, k);
 #else
 """ + _POW_INV22_LAMBDA + """
@@ -108,7 +110,7 @@ _POW_INV22_LAMBDA = """
 #endif
 """)
 def pow_inv22(t: float) -> float:
-    """t^(1/2.2), with t^(1/2.2) meaning float(1 / 2.2) as the exponent: ``wp.pow(t, 1.0 / 2.2)`` on CUDA, the correctly
+    """t^(1/2.2), the exponent 1.0f / 2.2f in float32: ``wp.pow(t, 1.0 / 2.2)`` on CUDA, the correctly
     rounded power on the CPU (see the comment above; powf's values for zeros, infinities, NaN and negative t)."""
     ...
 
