@@ -272,8 +272,6 @@ def row_plateau_spans(y: int, w: int, h: int, fp: FrameParams) -> wp.vec4i:
     v1 = int(-1)
     gx = fp.gaze[0]
     gy = fp.gaze[1]
-    fw = float(w)
-    fh = float(h)
     if not (wp.abs(gx) < ROW_GAZE_LIMIT_PX and wp.abs(gy) < ROW_GAZE_LIMIT_PX):  # also NaN
         return wp.vec4i(f0, f1, v0, v1)
     if fp.row_cos2_floor < wp.float64(0.0) and fp.row_cos2_fovea < wp.float64(0.0):
