@@ -864,9 +864,15 @@ def test_velocity_skip_only_where_the_term_cannot_win(device, rng):
     extra_v = [(0.0, 0.0), (1e-30, 0.0), (1e30, 1e30), (np.inf, 0.0), (np.nan, 1.0), (3.0, 4.0), (3.0, 4.0),
                (1e-20, 1e-20)]
     extra_s = [0.0, 1e-12, 0.5, 0.5, 0.5, 0.0, np.nan, 1e-9]
+    # an inverse scale whose square is a denormal (a velocity scale of 1.7e22 px, allowed by the config): the
+    # squared test loses its precision there, so it must not skip (|v| inv = 1.05 s below); and a |v|^2 that is a
+    # denormal with a huge inverse scale
+    extra_v += [(4.34e18, 0.0), (1.0e-20, 0.0), (1.3e-20, 0.0)]
+    extra_s += [np.float32(2.0 ** -12), 1.1e-10, 1.2e-10]
+    extra_inv = [1.0 / 32.0] * 8 + [5.9069734e-23, 1.0e10, 1.0e10]
     v = np.concatenate([v, np.asarray(extra_v, np.float32)])
     s = np.concatenate([s, np.asarray(extra_s, np.float32)])
-    inv = np.concatenate([inv, np.full(len(extra_s), 1.0 / 32.0, np.float32)])
+    inv = np.concatenate([inv, np.asarray(extra_inv, np.float32)])
     may, raised = _velocity_term(device, v, inv, s)
     skipped = may == 0
     same = (raised == s) | (np.isnan(raised) & np.isnan(s))

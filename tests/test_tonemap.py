@@ -67,6 +67,13 @@ def test_pow_inv22_is_correctly_rounded_on_the_cpu(rng):
     bad = ~_same(got, ref)
     assert not bad.any(), (t[bad][:5], got[bad][:5], ref[bad][:5])
     assert got[t == 0].view(np.uint32).max() == 0  # +0, also for -0
+    # a signalling NaN comes back quieted, as from powf
+    snan = np.array([0x7F800001, 0x7FA00000, 0xFF800001], np.uint32).view(np.float32)
+    a = wp.array(snan, dtype=float, device="cpu")
+    out = wp.zeros_like(a)
+    wp.launch(_pow_kernel, dim=snan.size, inputs=[a], outputs=[out], device="cpu")
+    q = out.numpy()
+    assert np.isnan(q).all() and np.all(q.view(np.uint32) & 0x00400000)
 
 
 @pytest.mark.needs_cuda

@@ -110,6 +110,8 @@ ROW_CUSHION_DEG = 1.0e-2
 # a row's plateaus are found only for gazes within this many pixels of the screen (larger plane coordinates are
 # left to the pixels' own tests)
 ROW_GAZE_LIMIT_PX = 1.0e5
+# the smallest normal float32 (velocity_may_raise: below it a square's relative error is not bounded by an ulp)
+F32_MIN_NORMAL = 1.17549435e-38
 
 
 @wp.func
@@ -303,11 +305,15 @@ def row_plateau_spans(y: int, w: int, h: int, fp: FrameParams) -> wp.vec4i:
 def velocity_may_raise(v: wp.vec2, inv_velocity_px: float, s: float) -> int:
     """0 when the V term min(|v| inv_velocity_px, 1) cannot exceed ``s`` > 0, so that max(s, V) = s: the squared
     test |v|^2 inv^2 < s^2 (1 - 2^-18) in float32, whose rounding (each of its products, and the length's square
-    root and product, within half an ulp) is far inside that margin; 1 otherwise (also for a non-finite or
-    tiny s, or a non-finite |v|^2). Skips the square root where the term cannot win: the same max."""
+    root and product, within an ulp) is far inside that margin; 1 otherwise: also for a non-finite or tiny s, a
+    non-finite |v|^2, and a |v|^2 or inv^2 below the smallest normal float (where the square's relative error is no
+    longer small; |v|^2 = 0 is exact and skips). Skips the square root where the term cannot win: the same max."""
     if s >= 1.0e-10:
-        if (v[0] * v[0] + v[1] * v[1]) * (inv_velocity_px * inv_velocity_px) < (s * s) * 0.9999961853027344:
-            return 0
+        d2 = v[0] * v[0] + v[1] * v[1]
+        i2 = inv_velocity_px * inv_velocity_px
+        if i2 >= F32_MIN_NORMAL and (d2 >= F32_MIN_NORMAL or d2 == 0.0):
+            if d2 * i2 < (s * s) * 0.9999961853027344:
+                return 0
     return 1
 
 

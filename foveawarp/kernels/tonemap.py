@@ -90,11 +90,12 @@ _POW_INV22_LAMBDA = """
         __builtin_memcpy(&sc, &sbits, 8);
         const double r = q * sc;
         const float rf = (float)r;
-        // powf's answers outside (0, inf): +-0 -> +0, +-inf -> +inf, NaN -> NaN, finite t < 0 -> NaN; t = 1
+        // powf's answers outside (0, inf): +-0 -> +0, +-inf -> +inf, NaN -> NaN (quieted, as powf does), finite
+        // t < 0 -> NaN; t = 1
         // needs no case (e = 0, m = 1: exactly 1)
         const float inf = __builtin_inff();
-        const float other = tf == 0.0f ? 0.0f : (tf != tf ? tf : ((tf == inf || tf == -inf) ? inf
-                                                                                            : __builtin_nanf("")));
+        const float other = tf == 0.0f ? 0.0f : (tf != tf ? tf + tf : ((tf == inf || tf == -inf) ? inf
+                                                                                                 : __builtin_nanf("")));
         return (tf > 0.0f && tf < inf) ? rf : other;
     };
 """
