@@ -127,6 +127,15 @@ def disc_mean(vor: wp.array2d(dtype=wp.vec3), r2: wp.array2d(dtype=wp.int32), x:
 
 
 @wp.func
+def display_value(c: wp.vec3, exposure: float, white: float, gamma_later: int) -> wp.vec3:
+    """The tone-mapped display value of ``c``, or (``gamma_later`` != 0) its linear curve, whose gamma the rows
+    kernel applies to the whole row afterwards (``pow_inv22_row``)."""
+    if gamma_later != 0:
+        return tonemap_linear_rgb(c, exposure, white)
+    return tonemap_rgb(c, exposure, white)
+
+
+@wp.func
 def sibson_gather_pixel(
     x: int,
     y: int,
@@ -152,10 +161,7 @@ def sibson_gather_pixel(
         c = finite_or_zero(load_vec3(color_in, y, x))
         store_vec3(color_out, y, x, c)
         if to_display != 0:
-            if gamma_later != 0:
-                store_vec3(display, y, x, tonemap_linear_rgb(c, exposure, white))
-            else:
-                store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
+            store_vec3(display, y, x, display_value(c, exposure, white, gamma_later))
         return
     # q reaches p only if |p - q|^2 <= r_q^2 <= max_r2: clip the window to that disc ...
     rw = wp.min(window, isqrt(max_r2[0]))
@@ -170,10 +176,7 @@ def sibson_gather_pixel(
     c = disc_mean(vor, r2, x, y, rw, loc)
     store_vec3(color_out, y, x, c)
     if to_display != 0:
-        if gamma_later != 0:
-            store_vec3(display, y, x, tonemap_linear_rgb(c, exposure, white))
-        else:
-            store_vec3(display, y, x, tonemap_rgb(c, exposure, white))
+        store_vec3(display, y, x, display_value(c, exposure, white, gamma_later))
 
 
 
