@@ -148,3 +148,38 @@ def test_tonemap_stage_rows_kernel_equals_the_pixel_kernel(rng):
         with parallel.cpu_threads(n):
             TonemapStage(sc, w, h, "cpu").run(hdr, out)
         assert out.numpy().tobytes() == want.numpy().tobytes()
+
+
+def _hable64(x):
+    """The Hable curve in float64, written independently of the kernel: x (p x + q) / (r x^2 + s x + t), and its
+    limit p / r where x^2 would overflow."""
+    a, b, c, d, e, f = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
+    x = np.asarray(x, np.float64)
+    big = x > 1e150
+    xs = np.where(big, 1.0, x)
+    val = xs * (a * (f - e) * xs + b * (f * c - e)) / (f * a * xs * xs + f * b * xs + f * d * f)
+    return np.where(big, (f - e) / f, val)
+
+
+@pytest.mark.parametrize("white", [11.2, 1.0e-3, 1.0e17, 1.0e25, 3.0e38])
+def test_tonemap_huge_radiance_and_white_point(device, white):
+    """Radiance up to float max (and exposures that push it past float max) maps to the curve's limit, white for
+    a finite white point, not to 0 (x^2 overflowed to inf / inf before); a white point beyond float32's square
+    root no longer blackens the image. Against the float64 curve (1e-5 relative) and the display gamma."""
+    vals = np.array([0.0, 1e-3, 0.3, 1.0, 11.2, 1e3, 1e9, 1e17, 1e18, 2e18, 1e19, 1e20, 1e30, 1e38, 3.4028235e38],
+                    np.float32)
+    c = np.repeat(vals[None, :, None], 3, axis=2).astype(np.float32)
+    for exposure in (2.0, 1e10):
+        cw = wp.array(c, dtype=wp.vec3, device=device)
+        whole = wp.zeros(c.shape[:2], dtype=wp.vec3, device=device)
+        linear = wp.zeros(c.shape[:2], dtype=wp.vec3, device=device)
+        wp.launch(_tonemap_both_kernel, dim=c.shape[:2], inputs=[cw, exposure, white, whole, linear], device=device)
+        lin = linear.numpy()[0, :, 0]
+        x = vals.astype(np.float64) * np.float64(np.float32(exposure))
+        want = np.clip(_hable64(x) / _hable64(np.float64(np.float32(white))), 0.0, 1.0)
+        assert np.all(np.isfinite(lin)) and np.all(np.isfinite(whole.numpy()))
+        np.testing.assert_allclose(lin, want, rtol=1e-5, atol=1e-7, err_msg=f"exposure {exposure}, white {white}")
+        if white < 1e17:
+            # a finite white point: the brightest radiance is white
+            assert lin[-1] == 1.0 and lin[-2] == 1.0
+        np.testing.assert_allclose(whole.numpy()[0, :, 0], np.power(lin.astype(np.float64), K64), rtol=3e-7, atol=0)
