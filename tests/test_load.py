@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 import warp as wp
 
 from foveawarp.kernels.load import (load1_i32, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
-                                   nine_equal_i32, nine_equal_vec3, store1_i32, store1_vec3, store_f32, store_i32,
+                                   nine_equal_i32, nine_equal_mask64_i32, nine_equal_mask64_vec3, nine_equal_vec3,
+                                   store1_i32, store1_vec3, store_f32, store_i32,
                                    store_u8, store_vec2i, store_vec3)
 
 
@@ -231,3 +232,71 @@ def test_nine_equal_tests_answer_zero_on_cuda():
     oi = wp.full((4, 5), 7, dtype=wp.int32, device="cuda:0")
     wp.launch(_nine_equal, dim=(4, 5), inputs=[a3, ai], outputs=[o3, oi], device="cuda:0")
     assert (o3.numpy() == 0).all() and (oi.numpy() == 0).all()
+
+
+@wp.kernel(enable_backward=False)
+def _nine_equal_masks(a3: wp.array2d(dtype=wp.vec3), ai: wp.array2d(dtype=wp.int32), o3: wp.array2d(dtype=wp.int32),
+                      oi: wp.array2d(dtype=wp.int32)):
+    # a thread per row: each 64-pixel mask unpacked into the row, the bits past the row must be 0
+    y = wp.tid()
+    w = o3.shape[1]
+    for x0 in range(0, w + 64, 64):
+        m3 = nine_equal_mask64_vec3(a3, y, x0)
+        mi = nine_equal_mask64_i32(ai, y, x0)
+        for i in range(64):
+            b3 = int((m3 >> wp.uint64(i)) & wp.uint64(1))
+            bi = int((mi >> wp.uint64(i)) & wp.uint64(1))
+            if x0 + i < w:
+                o3[y, x0 + i] = b3
+                oi[y, x0 + i] = bi
+            elif b3 != 0 or bi != 0:
+                o3[y, 0] = -1  # a bit past the row
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(1, 6), w=st.integers(1, 200), levels=st.integers(1, 3),
+       strided=st.booleans(), flat_rows=st.booleans())
+def test_nine_equal_masks_against_numpy(seed, h, w, levels, strided, flat_rows):
+    """The 64-pixel masks of the same tests (the sampling rows kernel's) against the NumPy reference, bit for bit,
+    over widths of one to four masks (chunk edges, the last partial chunk, widths 1 and 2 with no interior column),
+    +0 / -0 and NaN among the values, long flat runs (``flat_rows``: one value per row band), and strided views
+    (all 0)."""
+    rng = np.random.default_rng(seed)
+    pal3 = np.array([[0.0, 0.0, 1.0], [-0.0, 0.0, 1.0], [np.nan, 0.0, 0.0], [0.5, 0.25, -1.0]], np.float32)
+    if flat_rows:
+        idx = np.repeat(rng.integers(0, levels + 1, size=(h * 2, 1)), w * 2, axis=1)
+        idx[rng.random(idx.shape) < 0.03] = levels  # a few odd pixels in the runs
+    else:
+        idx = rng.integers(0, levels + 1, size=(h * 2, w * 2))
+    big3 = pal3[idx]
+    bigi = (idx - 1).astype(np.int32)
+    a3 = wp.array(big3, dtype=wp.vec3, device="cpu")
+    ai = wp.array(bigi, dtype=wp.int32, device="cpu")
+    if strided:
+        a3, ai, n3, ni = a3[::2, ::2], ai[::2, ::2], big3[::2, ::2], bigi[::2, ::2]
+    else:
+        a3, ai, n3, ni = a3[:h, :w], ai[:h, :w], big3[:h, :w], bigi[:h, :w]
+    o3 = wp.zeros(ni.shape, dtype=wp.int32, device="cpu")
+    oi = wp.zeros(ni.shape, dtype=wp.int32, device="cpu")
+    wp.launch(_nine_equal_masks, dim=ni.shape[0], inputs=[a3, ai], outputs=[o3, oi], device="cpu")
+    np.testing.assert_array_equal(o3.numpy(), _nine_equal_reference(np.ascontiguousarray(n3), not strided))
+    np.testing.assert_array_equal(oi.numpy(), _nine_equal_reference(np.ascontiguousarray(ni), not strided))
+
+
+@pytest.mark.parametrize("w", [1, 2, 3, 63, 64, 65, 66, 130, 200])
+@pytest.mark.parametrize("value", [(0.0, 0.0, 1.0), (-0.0, 0.0, 1.0), (np.nan, 0.0, 0.0), (0.0, np.inf, 0.0)])
+def test_nine_equal_masks_on_one_value(w, value):
+    """An image of one value: every interior column passes (the chunk edges at 63/64/65 included), except a NaN
+    value, which never passes (its float compares are false); the integer mask of a constant image passes too."""
+    h = 3
+    n3 = np.broadcast_to(np.array(value, np.float32), (h, w, 3)).copy()
+    ni = np.full((h, w), 7, np.int32)
+    o3 = wp.zeros((h, w), dtype=wp.int32, device="cpu")
+    oi = wp.zeros((h, w), dtype=wp.int32, device="cpu")
+    wp.launch(_nine_equal_masks, dim=h, inputs=[wp.array(n3, dtype=wp.vec3, device="cpu"),
+                                               wp.array(ni, device="cpu")], outputs=[o3, oi], device="cpu")
+    interior = np.zeros((h, w), np.int32)
+    interior[:, 1:w - 1] = 1
+    np.testing.assert_array_equal(oi.numpy(), interior)
+    np.testing.assert_array_equal(o3.numpy(), 0 * interior if np.isnan(value).any() else interior)
+    np.testing.assert_array_equal(o3.numpy(), _nine_equal_reference(n3, True))

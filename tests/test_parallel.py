@@ -574,7 +574,16 @@ def test_row_kernels_equal_pixel_kernels(monkeypatch, config, scene):
     shading, temporal resolve, Sibson gather) against the per-pixel kernels CUDA launches, run on the CPU
     (``parallel.ROW_KERNELS = False``): whole moving-camera frames, foveated and reference, byte for byte, at
     1 and 3 threads. CI has no GPU: this is where the per-pixel kernels' frame path is checked."""
-    size = (53, 37)  # partial tiles on both edges
+    _rows_equal_pixels(monkeypatch, config, scene, (53, 37))  # partial tiles on both edges
+
+
+def test_row_kernels_equal_pixel_kernels_wide(monkeypatch):
+    """The same at 150 pixels wide: the sampling rows kernel's Sobel masks cover 64 pixels each (two whole and a
+    partial one per row, ``nine_equal_mask64_*``)."""
+    _rows_equal_pixels(monkeypatch, fw.Config(), "cornell", (150, 29))
+
+
+def _rows_equal_pixels(monkeypatch, config, scene, size):
     rows = _frame_state(1, config, scene, size)
     assert any(a.any() for a in rows)
     monkeypatch.setattr(parallel, "ROW_KERNELS", False)

@@ -173,3 +173,74 @@ def nine_equal_i32(a: wp.array2d(dtype=wp.int32), y: int, x: int) -> int:
     """1 when pixel (x, y) is inside the image's interior columns and its 3x3 neighbourhood (rows clamped) holds
     nine equal values; 0 otherwise (including always on CUDA and wherever the test does not apply)."""
     ...
+
+
+# -- the same tests for 64 pixels of a row at once (the CPU's sampling rows kernel) ------------------------------
+# Bit i of the mask: pixel (x0 + i, y) passes the nine-equal test above (bitwise-equal taps, rows clamped, an
+# interior column; for vec3 also a non-NaN centre). Each pixel's test is branch-free over contiguous rows, so the
+# compiler runs the loop in SIMD lanes; the bytes are then packed into the mask. A pixel whose bit is 0 is left to
+# the per-pixel test, which answers the same for it, so a bit may only be 1 where that test gives 1.
+
+_MASK64 = """
+#if defined(__CUDA_ARCH__)
+    return 0;
+#else
+    const int W = a.shape[1], H = a.shape[0];
+    if (a.strides[1] != {size} || y < 0 || y >= H) return 0;
+    const int ym = y > 0 ? y - 1 : 0;
+    const int yp = y < H - 1 ? y + 1 : H - 1;
+    const int lo = x0 > 1 ? x0 : 1;
+    const int hi = x0 + 63 < W - 2 ? x0 + 63 : W - 2;
+    unsigned char fl[64];
+    for (int i = 0; i < 64; ++i) fl[i] = 0;
+    const {word}* r0 = (const {word}*)((const char*)a.data + (size_t)ym * (size_t)a.strides[0]);
+    const {word}* r1 = (const {word}*)((const char*)a.data + (size_t)y * (size_t)a.strides[0]);
+    const {word}* r2 = (const {word}*)((const char*)a.data + (size_t)yp * (size_t)a.strides[0]);
+{pre}
+    for (int x = lo; x <= hi; ++x) {
+{body}
+    }
+    unsigned long long m = 0;
+#if defined(__BMI2__)
+    for (int i = 0; i < 8; ++i) {
+        unsigned long long v;
+        __builtin_memcpy(&v, fl + 8 * i, 8);
+        m |= (unsigned long long)__builtin_ia32_pext_di(v, 0x0101010101010101ULL) << (8 * i);
+    }
+#else
+    for (int i = 0; i < 64; ++i) m |= (unsigned long long)fl[i] << i;
+#endif
+    return m;
+#endif
+"""
+
+_MASK64_I32 = _MASK64.replace("{size}", "4").replace("{word}", "int").replace("{pre}", "").replace("{body}", """
+        const int c = r1[x];
+        fl[x - x0] = (unsigned char)((r0[x - 1] == c) & (r0[x] == c) & (r0[x + 1] == c) & (r1[x - 1] == c)
+                                     & (r1[x + 1] == c) & (r2[x - 1] == c) & (r2[x] == c) & (r2[x + 1] == c));""")
+
+_MASK64_VEC3 = _MASK64.replace("{size}", "12").replace("{word}", "unsigned int").replace("{pre}", """
+    // each float word of the pixels lo..hi against its 8 neighbours' same word (3 words apart), non-NaN: one
+    // unit-stride loop; a pixel passes when its 3 words do
+    unsigned char eq[192];
+    const int j0 = 3 * lo, j1 = 3 * hi + 2;
+    for (int j = j0; j <= j1; ++j) {
+        const unsigned int c = r1[j];
+        eq[j - 3 * x0] = (unsigned char)(((c & 0x7fffffffu) <= 0x7f800000u) & (r0[j - 3] == c) & (r0[j] == c)
+                                         & (r0[j + 3] == c) & (r1[j - 3] == c) & (r1[j + 3] == c)
+                                         & (r2[j - 3] == c) & (r2[j] == c) & (r2[j + 3] == c));
+    }""").replace("{body}", """
+        fl[x - x0] = (unsigned char)(eq[3 * (x - x0)] & eq[3 * (x - x0) + 1] & eq[3 * (x - x0) + 2]);""")
+
+
+@wp.func_native(_MASK64_I32)
+def nine_equal_mask64_i32(a: wp.array2d(dtype=wp.int32), y: int, x0: int) -> wp.uint64:
+    """Bit i: ``nine_equal_i32(a, y, x0 + i)`` for the 64 pixels from ``x0`` (0 past the row, and always on CUDA)."""
+    ...
+
+
+@wp.func_native(_MASK64_VEC3)
+def nine_equal_mask64_vec3(a: wp.array2d(dtype=wp.vec3), y: int, x0: int) -> wp.uint64:
+    """Bit i: ``nine_equal_vec3(a, y, x0 + i)`` for the 64 pixels from ``x0`` (0 past the row, and always on
+    CUDA)."""
+    ...

@@ -20,7 +20,8 @@ import warp as wp
 from .camera import CameraParams, camera_project
 from .fpbits import nan_f32
 from .gbuffer import NO_REPROJ, reproj_velocity
-from .load import load_f32, load_i32, load_u8, load_vec2, load_vec3, store_i32, store_u8
+from .load import (load_f32, load_i32, load_u8, load_vec2, load_vec3, nine_equal_mask64_i32, nine_equal_mask64_vec3,
+                   store_i32, store_u8)
 from .reproject import cache_lookup
 from .saliency import dof_factor, sobel_lab_by_face, sobel_vec3
 
@@ -695,10 +696,13 @@ def _make_sampling_pixel(rows: bool):
         out_prev_index: wp.array2d(dtype=wp.int32),
         shift: int,
         p_row: float,
+        flat: int,
     ):
         """The fused per-pixel pass at pixel (x, y) (``sampling_map_kernel`` documents it); ``shift``: the pixel's
         tile's ``tile_rank_shift``, or -1 (computed when the pixel needs it); ``p_row``: the pixel's eq. 2 probability
-        when its row's plateau spans hold it (``row_plateau_spans``), or -1 (computed here)."""
+        when its row's plateau spans hold it (``row_plateau_spans``), or -1 (computed here); ``flat`` (the rows
+        kernel; 0 elsewhere): bit 0 set when the face's 3x3 taps are all equal, bit 1 when the normal's are
+        (``nine_equal_mask64_*``), whose gradients are then 0 without their per-pixel tests."""
         w = depth.shape[1]
         h = depth.shape[0]
         # (y, x) is a pixel: the unchecked loads and stores of kernels/load.py for the per-pixel values
@@ -725,10 +729,11 @@ def _make_sampling_pixel(rows: bool):
             if p < 1.0:
                 if sp.use_albedo != 0:
                     if lab_by_face != 0:
-                        ga = sobel_lab_by_face(face, face_lab, x, y)
+                        if (flat & 1) == 0:
+                            ga = sobel_lab_by_face(face, face_lab, x, y)
                     else:
                         ga = sobel_vec3(lab, x, y)
-                if sp.use_normal != 0:
+                if sp.use_normal != 0 and (flat & 2) == 0:
                     gn = sobel_vec3(normal, x, y)
                 if hit_px != wp.uint8(0) and fp.use_velocity != 0:
                     v = saliency_velocity(fp, position, y, x, uv, float(x) + 0.5, float(y) + 0.5)
@@ -828,11 +833,24 @@ def _make_sampling_map(rows: bool):
                 shift = int(0)
                 tx = int(-1)
                 next_tile = int(0)
+                # the Sobel terms' nine-equal tests, 64 pixels at a time (nine_equal_mask64_*)
+                want_face = sp.foveation != 0 and sp.use_albedo != 0 and lab_by_face != 0
+                want_normal = sp.foveation != 0 and sp.use_normal != 0
+                mf = wp.uint64(0)
+                mn = wp.uint64(0)
                 for x in range(w):
+                    if (x & 63) == 0:
+                        if want_face:
+                            mf = nine_equal_mask64_i32(face, y, x)
+                        if want_normal:
+                            mn = nine_equal_mask64_vec3(normal, y, x)
                     if x == next_tile:
                         tx += 1
                         next_tile += k
                         shift = tile_rank_shift(tx, ty, sp, fp.rot)
+                    flat = int(mf & wp.uint64(1)) | (int(mn & wp.uint64(1)) << 1)
+                    mf = mf >> wp.uint64(1)
+                    mn = mn >> wp.uint64(1)
                     p_row = float(-1.0)
                     if x < spans[0] or x > spans[1]:
                         p_row = fp.xi
@@ -841,7 +859,7 @@ def _make_sampling_map(rows: bool):
                     sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv,
                                        prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
                                        out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift,
-                                       p_row)
+                                       p_row, flat)
             if maps_only == 0:
                 c = wp.vec2i(0, 0)
                 for tx in range(sp.tiles_x):
@@ -852,7 +870,7 @@ def _make_sampling_map(rows: bool):
             y += row0  # band offset (foveawarp.parallel)
             sampling_map_pixel(x, y, sp, frame[0], ranks, lab, normal, depth, hit, position, reproj_uv,
                                prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, -1, -1.0)
+                               out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, -1, -1.0, 0)
 
     return sampling_map
 

@@ -5,10 +5,11 @@ import warp as wp
 from .fpbits import finite_f32
 
 
-# above this the curve is its limit (a (f - e)) / (f a) (its terms in 1/x are below 1e-17 of it, far under a
-# float32 ulp): the quadratic form below would square x, which overflows float32 past ~1.8e19 and gave inf / inf
-# (a radiance of 1e38, or one that the exposure took past float max, came out black, not white; a white point
-# above it made every pixel black)
+# the curve's input is clamped to this: beyond it the curve equals its limit (a (f - e)) / (f a) to far under a
+# float32 ulp (its terms in 1/x are below 1e-17 of it), and the quadratic form below squares x, which overflows
+# float32 past ~1.8e19 and gave inf / inf (a radiance of 1e38, or one that the exposure took past float max, came
+# out black, not white; a white point above it made every pixel black). A min, not a branch: the CPU's rows
+# kernels keep their straight-line code.
 HABLE_LIMIT_X = wp.constant(1.0e18)
 
 
@@ -20,8 +21,7 @@ def hable(x: float) -> float:
     d = 0.20
     e = 0.02
     f = 0.30
-    if x > HABLE_LIMIT_X:  # the curve's limit (infinity too)
-        return (f * a - e * a) / (f * a)
+    x = wp.min(x, HABLE_LIMIT_X)  # the curve's limit beyond it (infinity too)
     # ((x(ax + cb) + de) / (x(ax + b) + df)) - e/f over one denominator, so that hable(0) is exactly 0
     return x * (f * (a * x + c * b) - e * (a * x + b)) / (f * (x * (a * x + b) + d * f))
 
