@@ -686,8 +686,12 @@ class FrameLoop:
         if sparse:
             self._sparse_body(smap, strategy)
             return
+        # the CPU's rows kernels with deterministic shading: the sampling pass runs in the launch that shades and
+        # resolves (each tile row sampled just before its rows are shaded), unless timing wants the two apart
+        sample_in_resolve = (foveated and not refresh and not self.timing and self._shade_in_resolve(strategy)
+                             and parallel.use_row_kernels(self.device))
         with self._stage("sampling", foveated):
-            if foveated:
+            if foveated and not sample_in_resolve:
                 # the cache test's previous depth and valid mask: the temporal history's, as last resolved
                 self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
                                      face_lab=self.dscene.face_lab)  # Lab albedo by face: no cube roots
@@ -710,11 +714,17 @@ class FrameLoop:
         with self._stage("temporal", foveated):
             if foveated:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
+                srows = None
+                if sample_in_resolve:
+                    srows = self.sampling.rows_pass_args(self.gbuffer, depth_prev=self.temporal.depth,
+                                                         valid_prev=self.temporal.filled, face_lab=self.dscene.face_lab)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   background=cfg.shading.background, **self._resolve_kind(),
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
-                                  count=self.reorder.count if listed else None)
+                                  count=self.reorder.count if listed else None, sampling=srows)
+                if sample_in_resolve:
+                    self.sampling.sum_row_counts()
         with self._stage("reconstruct", foveated):
             if foveated:
                 sc = cfg.shading

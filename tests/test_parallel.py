@@ -967,3 +967,26 @@ def test_record_refuses_unseen_work_and_accepts_call_forms(case):
                 wp.utils.array_sum(a)
         assert prog.problem is not None and ("__array_interface__" in prog.problem or "warp.utils" in prog.problem)
     assert wp.launch.__module__.startswith("warp") and not parallel.recording_active()
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_sampling_in_the_resolve_launch_equals_separate_launches(threads):
+    """The CPU frame without timing runs the sampling pass inside the shading and resolve launch
+    (``sample_shade_resolve_rows_kernel``); with ``timing=True`` (stage times wanted) the two stay apart. Whole
+    moving frames, foveated, byte for byte: the image, the sample map, cache hits, previous indices, the sample
+    count, the history."""
+    size = (70, 41)  # partial tiles, more than one 64-pixel mask per row
+    runs = []
+    for timing in (False, True):
+        fl = fw.FrameLoop("cornell", *size, device=DEV, cpu_threads=threads, timing=timing, policy="foveated")
+        out = []
+        for i in range(4):
+            fr = fl.render(fl.scene.camera_at(0.08 * i), gaze_px=(size[0] * (0.3 + 0.1 * i), size[1] * 0.5),
+                           time=0.08 * i)
+            out += [fr.numpy().copy(), fr.sampling_map.numpy().copy(), fl.sampling.cache_hit.numpy().copy(),
+                    fl.sampling.prev_index.numpy().copy(), fl.sampling.num_samples.numpy().copy(),
+                    fl.sampling.num_cache_hits.numpy().copy(), fl.temporal.color.numpy().copy(),
+                    fl.temporal.filled.numpy().copy()]
+        runs.append(out)
+    for i, (a, b) in enumerate(zip(*runs)):
+        assert a.tobytes() == b.tobytes(), i

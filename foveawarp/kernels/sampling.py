@@ -767,6 +767,84 @@ def _make_sampling_pixel(rows: bool):
     return sampling_map_pixel
 
 
+_sampling_pixel_rows = _make_sampling_pixel(True)
+
+
+@wp.func
+def sampling_tile_row(
+    ty: int,
+    sp: SamplingParams,
+    frame: wp.array(dtype=FrameParams),
+    ranks: wp.array2d(dtype=wp.int32),
+    lab: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    hit: wp.array2d(dtype=wp.uint8),
+    position: wp.array2d(dtype=wp.vec3),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
+    depth_prev: wp.array2d(dtype=float),
+    valid_prev: wp.array2d(dtype=wp.uint8),
+    maps_only: int,
+    face: wp.array2d(dtype=wp.int32),
+    face_lab: wp.array(dtype=wp.vec3),
+    lab_by_face: int,
+    out_probability: wp.array2d(dtype=float),
+    out_saliency: wp.array2d(dtype=float),
+    out_sample: wp.array2d(dtype=wp.uint8),
+    out_cache_hit: wp.array2d(dtype=wp.uint8),
+    out_prev_index: wp.array2d(dtype=wp.int32),
+    tile_counts: wp.array2d(dtype=wp.vec2i),
+):
+    """``sampling_rows_kernel``'s work for tile row ``ty`` (its ``block`` pixel rows, then the tile guarantee of its
+    tiles and their counts into ``tile_counts[ty, 0]``): also run by the CPU's fused launch of the sampling pass with
+    the masked shading and resolve (``kernels/temporal.py``)."""
+    fp = frame[0]
+    k = sp.block
+    y1 = wp.min(ty * k + k, depth.shape[0])
+    w = depth.shape[1]
+    for y in range(ty * k, y1):
+        # the row's eq. 2 plateaus are found once for the row (row_plateau_spans)
+        spans = wp.vec4i(0, w - 1, 0, -1)
+        if sp.foveation != 0:
+            spans = row_plateau_spans(y, w, depth.shape[0], fp)
+        # a tile's rank shift is computed once per row of it, as x enters the tile
+        shift = int(0)
+        tx = int(-1)
+        next_tile = int(0)
+        # the Sobel terms' nine-equal tests, 64 pixels at a time (nine_equal_mask64_*)
+        want_face = sp.foveation != 0 and sp.use_albedo != 0 and lab_by_face != 0
+        want_normal = sp.foveation != 0 and sp.use_normal != 0
+        mf = wp.uint64(0)
+        mn = wp.uint64(0)
+        for x in range(w):
+            if (x & 63) == 0:
+                if want_face:
+                    mf = nine_equal_mask64_i32(face, y, x)
+                if want_normal:
+                    mn = nine_equal_mask64_vec3(normal, y, x)
+            if x == next_tile:
+                tx += 1
+                next_tile += k
+                shift = tile_rank_shift(tx, ty, sp, fp.rot)
+            flat = int(mf & wp.uint64(1)) | (int(mn & wp.uint64(1)) << 1)
+            mf = mf >> wp.uint64(1)
+            mn = mn >> wp.uint64(1)
+            p_row = float(-1.0)
+            if x < spans[0] or x > spans[1]:
+                p_row = fp.xi
+            elif x >= spans[2] and x <= spans[3]:
+                p_row = 1.0
+            _sampling_pixel_rows(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv, prev_dist,
+                                 depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face, out_probability,
+                                 out_saliency, out_sample, out_cache_hit, out_prev_index, shift, p_row, flat)
+    if maps_only == 0:
+        c = wp.vec2i(0, 0)
+        for tx in range(sp.tiles_x):
+            c += tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
+        tile_counts[ty, 0] = c
+
+
 def _make_sampling_map(rows: bool):
     """``sampling_map_kernel`` (a thread per pixel, CUDA) or ``sampling_rows_kernel`` (the CPU: a thread per row
     of ``block``-row tiles, launched over ``tiles_y`` in bands by ``foveawarp.parallel``, that runs the pixel pass
@@ -819,52 +897,9 @@ def _make_sampling_map(rows: bool):
         miss has no surface depth or motion).
         """
         if wp.static(rows):
-            ty = wp.tid() + row0  # band offset (foveawarp.parallel)
-            fp = frame[0]
-            k = sp.block
-            y1 = wp.min(ty * k + k, depth.shape[0])
-            w = depth.shape[1]
-            for y in range(ty * k, y1):
-                # the row's eq. 2 plateaus are found once for the row (row_plateau_spans)
-                spans = wp.vec4i(0, w - 1, 0, -1)
-                if sp.foveation != 0:
-                    spans = row_plateau_spans(y, w, depth.shape[0], fp)
-                # a tile's rank shift is computed once per row of it, as x enters the tile
-                shift = int(0)
-                tx = int(-1)
-                next_tile = int(0)
-                # the Sobel terms' nine-equal tests, 64 pixels at a time (nine_equal_mask64_*)
-                want_face = sp.foveation != 0 and sp.use_albedo != 0 and lab_by_face != 0
-                want_normal = sp.foveation != 0 and sp.use_normal != 0
-                mf = wp.uint64(0)
-                mn = wp.uint64(0)
-                for x in range(w):
-                    if (x & 63) == 0:
-                        if want_face:
-                            mf = nine_equal_mask64_i32(face, y, x)
-                        if want_normal:
-                            mn = nine_equal_mask64_vec3(normal, y, x)
-                    if x == next_tile:
-                        tx += 1
-                        next_tile += k
-                        shift = tile_rank_shift(tx, ty, sp, fp.rot)
-                    flat = int(mf & wp.uint64(1)) | (int(mn & wp.uint64(1)) << 1)
-                    mf = mf >> wp.uint64(1)
-                    mn = mn >> wp.uint64(1)
-                    p_row = float(-1.0)
-                    if x < spans[0] or x > spans[1]:
-                        p_row = fp.xi
-                    elif x >= spans[2] and x <= spans[3]:
-                        p_row = 1.0
-                    sampling_map_pixel(x, y, sp, fp, ranks, lab, normal, depth, hit, position, reproj_uv,
-                                       prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
-                                       out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, shift,
-                                       p_row, flat)
-            if maps_only == 0:
-                c = wp.vec2i(0, 0)
-                for tx in range(sp.tiles_x):
-                    c += tile_guarantee(ty, tx, ranks, sp, frame, out_sample, out_cache_hit)
-                tile_counts[ty, 0] = c
+            sampling_tile_row(wp.tid() + row0, sp, frame, ranks, lab, normal, depth, hit, position, reproj_uv,
+                              prev_dist, depth_prev, valid_prev, maps_only, face, face_lab, lab_by_face,
+                              out_probability, out_saliency, out_sample, out_cache_hit, out_prev_index, tile_counts)
         else:
             y, x = wp.tid()
             y += row0  # band offset (foveawarp.parallel)

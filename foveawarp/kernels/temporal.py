@@ -11,7 +11,7 @@ import warp as wp
 from .gbuffer import NO_REPROJ, reproj_velocity
 from .load import (load1_i32, load1_vec3, load_f32, load_u8, load_vec2, load_vec3, store1_i32, store1_vec3,
                    store_f32, store_u8)
-from .sampling import FrameParams
+from .sampling import FrameParams, SamplingParams, sampling_tile_row
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
 # bilinear fractions closer than this (pixels) to a pixel centre snap to it
@@ -400,6 +400,49 @@ def stoch_box_list_kernel(
     box_hi[y, x] = hi
 
 
+@wp.func
+def shade_resolve_row(
+    y: int,
+    sp: ShadeParams,
+    pos: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    tp: TemporalParams,
+    sample_map: wp.array2d(dtype=wp.uint8),
+    hit: wp.array2d(dtype=wp.uint8),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
+    moved: wp.array2d(dtype=wp.uint8),
+    fresh: wp.array2d(dtype=wp.vec3),
+    fresh_stoch: wp.array2d(dtype=wp.vec3),
+    depth_prev: wp.array2d(dtype=float),
+    normal_prev: wp.array(dtype=wp.vec3),
+    meta_prev: wp.array(dtype=wp.int32),
+    color_prev: wp.array(dtype=wp.vec3),
+    stoch_prev: wp.array(dtype=wp.vec3),
+    out_color: wp.array(dtype=wp.vec3),
+    out_filled: wp.array2d(dtype=wp.uint8),
+    out_depth: wp.array2d(dtype=float),
+    out_normal: wp.array(dtype=wp.vec3),
+    out_meta: wp.array(dtype=wp.int32),
+    out_stoch: wp.array(dtype=wp.vec3),
+):
+    """Row ``y`` of ``shade_resolve_rows_kernel``: each sampled pixel shaded into ``fresh`` / ``fresh_stoch``, then
+    every pixel resolved. A pixel's resolve reads its own sample flag and fresh value only."""
+    for x in range(out_filled.shape[1]):
+        if sample_map[y, x] != wp.uint8(0):
+            shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, fresh,
+                        fresh_stoch)
+        _resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, moved, fresh,
+                       fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
+                       out_filled, out_depth, out_normal, out_meta, out_stoch, fresh, fresh)
+
+
 # a module of its own: only the CPU launches it, so CUDA never compiles it (in the temporal module it cost every CUDA
 # build of that module an sm_90 kernel of 232 registers)
 @wp.kernel(enable_backward=False, module="unique")
@@ -439,15 +482,77 @@ def shade_resolve_rows_kernel(
     ``shade_masked_rows_kernel`` does), then every pixel of the row is resolved (``resolve_rows_kernel``). The
     deterministic resolve reads ``fresh`` at its own pixel only, so each pixel's inputs are final when it is
     resolved, and the values are those of the two launches (tests compare whole frames)."""
-    y = wp.tid() + row0  # band offset (foveawarp.parallel)
+    shade_resolve_row(wp.tid() + row0, spa[0], pos, face_albedo, face, lights, area_lights, face_emission, tp,
+                      sample_map, hit, normal, depth, reproj_uv, prev_dist, moved, fresh, fresh_stoch, depth_prev,
+                      normal_prev, meta_prev, color_prev, stoch_prev, out_color, out_filled, out_depth, out_normal,
+                      out_meta, out_stoch)
+
+
+# the CPU's sampling pass, masked shading and deterministic resolve in one launch over rows of tiles (a module of its
+# own, like the kernel above: CUDA never builds it)
+@wp.kernel(enable_backward=False, module="unique")
+def sample_shade_resolve_rows_kernel(
+    s_params: SamplingParams,
+    s_frame: wp.array(dtype=FrameParams),
+    s_ranks: wp.array2d(dtype=wp.int32),
+    s_lab: wp.array2d(dtype=wp.vec3),
+    s_position: wp.array2d(dtype=wp.vec3),
+    s_depth_prev: wp.array2d(dtype=float),
+    s_valid_prev: wp.array2d(dtype=wp.uint8),
+    s_face_lab: wp.array(dtype=wp.vec3),
+    s_lab_by_face: int,
+    s_dummy: wp.array2d(dtype=float),
+    s_cache_hit: wp.array2d(dtype=wp.uint8),
+    s_prev_index: wp.array2d(dtype=wp.int32),
+    s_tile_counts: wp.array2d(dtype=wp.vec2i),
+    spa: wp.array(dtype=ShadeParams),
+    pos: wp.array2d(dtype=wp.vec3),
+    face_albedo: wp.array(dtype=wp.vec3),
+    face: wp.array2d(dtype=wp.int32),
+    lights: wp.array(dtype=LightParams),
+    area_lights: wp.array(dtype=AreaLightParams),
+    face_emission: wp.array(dtype=wp.vec3),
+    tp: TemporalParams,
+    sample_map: wp.array2d(dtype=wp.uint8),
+    hit: wp.array2d(dtype=wp.uint8),
+    normal: wp.array2d(dtype=wp.vec3),
+    depth: wp.array2d(dtype=float),
+    reproj_uv: wp.array2d(dtype=wp.vec2),
+    prev_dist: wp.array2d(dtype=float),
+    moved: wp.array2d(dtype=wp.uint8),
+    fresh: wp.array2d(dtype=wp.vec3),
+    fresh_stoch: wp.array2d(dtype=wp.vec3),
+    depth_prev: wp.array2d(dtype=float),
+    normal_prev: wp.array(dtype=wp.vec3),
+    meta_prev: wp.array(dtype=wp.int32),
+    color_prev: wp.array(dtype=wp.vec3),
+    stoch_prev: wp.array(dtype=wp.vec3),
+    out_color: wp.array(dtype=wp.vec3),
+    out_filled: wp.array2d(dtype=wp.uint8),
+    out_depth: wp.array2d(dtype=float),
+    out_normal: wp.array(dtype=wp.vec3),
+    out_meta: wp.array(dtype=wp.int32),
+    out_stoch: wp.array(dtype=wp.vec3),
+    row0: int,
+):
+    """Tile row ``wp.tid() + row0``: ``sampling_rows_kernel``'s frame pass (``sampling_tile_row``: the sample map,
+    cache test and tile guarantee of its ``block`` rows, writing ``sample_map``) and then
+    ``shade_resolve_rows_kernel``'s work on the same rows, which read only their own pixels' sample flags: the
+    values of the two launches, without the second pass over the rows (its G-buffer reads then find the rows in
+    this core's cache) or the wait between the launches. The sampling pass reads ``s_depth_prev`` /
+    ``s_valid_prev`` (the history the resolve reads, which it does not write) and the G-buffer; ``s_*`` are its
+    arguments that the resolve does not share."""
+    ty = wp.tid() + row0  # band offset (foveawarp.parallel)
+    sampling_tile_row(ty, s_params, s_frame, s_ranks, s_lab, normal, depth, hit, s_position, reproj_uv, prev_dist,
+                      s_depth_prev, s_valid_prev, 0, face, s_face_lab, s_lab_by_face, s_dummy, s_dummy, sample_map,
+                      s_cache_hit, s_prev_index, s_tile_counts)
     sp = spa[0]
-    for x in range(out_filled.shape[1]):
-        if sample_map[y, x] != wp.uint8(0):
-            shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, fresh,
-                        fresh_stoch)
-        _resolve_pixel(x, y, tp, sample_map, hit, normal, depth, reproj_uv, prev_dist, moved, fresh,
-                       fresh_stoch, depth_prev, normal_prev, meta_prev, color_prev, stoch_prev, out_color,
-                       out_filled, out_depth, out_normal, out_meta, out_stoch, fresh, fresh)
+    k = s_params.block
+    for y in range(ty * k, wp.min(ty * k + k, out_filled.shape[0])):
+        shade_resolve_row(y, sp, pos, face_albedo, face, lights, area_lights, face_emission, tp, sample_map, hit,
+                          normal, depth, reproj_uv, prev_dist, moved, fresh, fresh_stoch, depth_prev, normal_prev,
+                          meta_prev, color_prev, stoch_prev, out_color, out_filled, out_depth, out_normal, out_meta,
+                          out_stoch)
 
 
 @wp.func

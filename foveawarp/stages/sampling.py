@@ -347,12 +347,49 @@ class SamplingStage:
         """
         w, h = self.width, self.height
         g, dev = self._check_gbuffer(gbuffer), self.device
-        dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
-        vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         rows = parallel.use_row_kernels(dev)
         if not rows:  # the rows path's count sum writes the counters
             self.num_samples.zero_()
             self.num_cache_hits.zero_()
+        args = self._frame_args(g, depth_prev, valid_prev, face_lab)
+        outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index]
+        if rows:
+            # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum over the
+            # tile rows' sums
+            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=[*outs, self._row_counts],
+                            device=dev, min_band_items=1)
+            self.sum_row_counts()
+            return
+        outs.append(self.tile_counts)
+        parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
+        launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
+                         self.num_samples, self.num_cache_hits, dev, self.tile_counts)
+
+    def rows_pass_args(self, gbuffer, depth_prev=None, valid_prev=None, face_lab=None) -> tuple:
+        """(tile rows, arguments) of ``launch``'s frame pass for a CPU kernel that runs it over rows of tiles
+        itself (``sample_shade_resolve_rows_kernel``: the pass and the masked shading and resolve in one launch;
+        ``TemporalStage.run(sampling=...)``): the arguments that kernel takes before its shading ones (see its
+        ``s_*`` parameters), after the checks and the Lab prepass ``launch`` makes. The caller launches it, then
+        calls :meth:`sum_row_counts`. CPU rows kernels only (``parallel.use_row_kernels``)."""
+        if not parallel.use_row_kernels(self.device):
+            raise ValueError(f"rows_pass_args needs the CPU's rows kernels (parallel.use_row_kernels), got device "
+                             f"{self.device}")
+        a = self._frame_args(self._check_gbuffer(gbuffer), depth_prev, valid_prev, face_lab)
+        # (params, frame, ranks, lab, [normal, depth, hit], position, [reproj_uv, prev_dist], depth_prev,
+        # valid_prev, [maps_only, face], face_lab, lab_by_face): those the shading does not share
+        return self.tiles[0], [a[0], a[1], a[2], a[3], a[7], a[10], a[11], a[14], a[15], self._dummy_map,
+                               self.cache_hit, self.prev_index, self._row_counts]
+
+    def sum_row_counts(self) -> None:
+        """The one-thread sum of the rows pass's tile-row counts into ``num_samples`` and ``num_cache_hits``."""
+        self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
+                         device=self.device)
+
+    def _frame_args(self, g, depth_prev, valid_prev, face_lab) -> list:
+        """The frame pass's arguments up to ``lab_by_face`` (checked; the Lab prepass launched when needed)."""
+        w, h, dev = self.width, self.height, self.device
+        dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
+        vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
         by_face = 0
         table = self._no_face_lab
         if face_lab is not None:
@@ -364,21 +401,8 @@ class SamplingStage:
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
-        args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.position,
+        return [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.position,
                 g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
-        outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index]
-        if rows:
-            # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum over the
-            # tile rows' sums
-            parallel.launch(sampling_rows_kernel, dim=self.tiles[0], inputs=args, outputs=[*outs, self._row_counts],
-                            device=dev, min_band_items=1)
-            self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
-                             device=dev)
-            return
-        outs.append(self.tile_counts)
-        parallel.launch(sampling_map_kernel, dim=(h, w), inputs=args, outputs=outs, device=dev)
-        launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
-                         self.num_samples, self.num_cache_hits, dev, self.tile_counts)
 
     def _lab_array(self) -> wp.array:
         if tuple(self.lab.shape) != (self.height, self.width):

@@ -16,6 +16,7 @@ from ..kernels.temporal import (
     resolve_stoch_boxed_kernel,
     resolve_stoch_kernel,
     resolve_stoch_rows_kernel,
+    sample_shade_resolve_rows_kernel,
     shade_resolve_rows_kernel,
     stoch_box_list_kernel,
 )
@@ -190,7 +191,8 @@ class TemporalStage:
         return not stochastic and parallel.use_row_kernels(self.device)
 
     def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
-            background=(0.0, 0.0, 0.0), shade=None, work=None, count=None, samples: int = 1) -> None:
+            background=(0.0, 0.0, 0.0), shade=None, work=None, count=None, samples: int = 1,
+            sampling=None) -> None:
         """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
@@ -209,6 +211,10 @@ class TemporalStage:
             shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
                 ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
                 ``shade.masked`` (its parameters as last uploaded); one pass over the image instead of two.
+            sampling: with ``shade``: None, or ``SamplingStage.rows_pass_args(...)`` of the stage whose
+                ``sample_map`` this is: its frame pass then runs in the same launch too, each tile row's just
+                before the row's shading and resolve (``sample_shade_resolve_rows_kernel``; the caller then calls
+                ``SamplingStage.sum_row_counts``). The G-buffer must be the one the sampling pass was set up with.
             work, count: the flat list of the traced pixels (``ReorderStage.work`` / ``count``: indices y * W + x
                 of every nonzero ``sample_map`` pixel, ``count[0]`` of them) or None. With stochastic shading on
                 CUDA the clip boxes are then gathered by a launch over the list (a thread per traced pixel),
@@ -227,19 +233,24 @@ class TemporalStage:
         if (work is None) != (count is None):
             raise ValueError(f"work and count must be given together (ReorderStage.work and .count), got "
                              f"{type(work).__name__} and {type(count).__name__}")
+        if sampling is not None and shade is None:
+            raise ValueError("sampling (SamplingStage.rows_pass_args) needs shade: the fused launch shades and "
+                             "resolves the rows it samples, got shade=None")
         if shade is not None:
             pos, _, face_albedo, face, _, lights, area_lights, face_emission = shade.inputs(gbuffer)
-            parallel.launch(
-                shade_resolve_rows_kernel, self.height,
-                inputs=[shade.params_dev, pos, face_albedo, face, lights, area_lights, face_emission,
-                        self.params(use_history=use_history, stochastic=False, background=background), sample_map,
-                        g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved, fresh, fresh_stoch,
-                        self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
-                        self._stoch[prev]],
-                outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur],
-                         self._meta[cur], self._stoch[cur]],
-                device=self.device, min_band_items=max(1, -(-parallel.MIN_ITEMS_PER_BAND // self.width)),
-            )
+            args = [shade.params_dev, pos, face_albedo, face, lights, area_lights, face_emission,
+                    self.params(use_history=use_history, stochastic=False, background=background), sample_map,
+                    g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved, fresh, fresh_stoch,
+                    self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev], self._stoch[prev]]
+            outs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
+                    self._stoch[cur]]
+            if sampling is not None:
+                tile_rows, s_args = sampling
+                parallel.launch(sample_shade_resolve_rows_kernel, tile_rows, inputs=[*s_args, *args], outputs=outs,
+                                device=self.device, min_band_items=1)
+            else:
+                parallel.launch(shade_resolve_rows_kernel, self.height, inputs=args, outputs=outs, device=self.device,
+                                min_band_items=max(1, -(-parallel.MIN_ITEMS_PER_BAND // self.width)))
             self.swap()
             return
         tp = self.params(use_history=use_history, stochastic=stochastic, background=background, samples=samples)
