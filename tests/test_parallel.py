@@ -990,3 +990,23 @@ def test_sampling_in_the_resolve_launch_equals_separate_launches(threads):
         runs.append(out)
     for i, (a, b) in enumerate(zip(*runs)):
         assert a.tobytes() == b.tobytes(), i
+
+
+def test_sampling_in_the_resolve_launch_refuses_wrong_buffers():
+    """``TemporalStage.run(sampling=...)`` names the mistakes that would race or write the wrong map: no shading
+    stage, another sample map than the sampling stage's, and a cache-test history that the resolve writes."""
+    w, h = 40, 24
+    fl = fw.FrameLoop("cornell", w, h, device=DEV, cpu_threads=1, timing=False, policy="foveated")
+    fl.render(fl.scene.camera_at(0.0))
+    fl.render(fl.scene.camera_at(0.05))  # the stages have a frame set up
+    t, s, g = fl.temporal, fl.sampling, fl.gbuffer
+    good = s.rows_pass_args(g, depth_prev=t.depth, valid_prev=t.filled, face_lab=fl.dscene.face_lab)
+    with pytest.raises(ValueError, match="needs shade"):
+        t.run(s.sample_map, g, fl.radiance, fl.radiance_stoch, sampling=good)
+    other = wp.zeros((h, w), dtype=wp.uint8, device=DEV)
+    with pytest.raises(ValueError, match="sample_map must be"):
+        t.run(other, g, fl.radiance, fl.radiance_stoch, shade=fl.shade, sampling=good)
+    cur = 1 - t._cur
+    bad = s.rows_pass_args(g, depth_prev=t._depth[cur], valid_prev=t.filled, face_lab=fl.dscene.face_lab)
+    with pytest.raises(ValueError, match="must not be the history"):
+        t.run(s.sample_map, g, fl.radiance, fl.radiance_stoch, shade=fl.shade, sampling=bad)

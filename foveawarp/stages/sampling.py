@@ -366,11 +366,12 @@ class SamplingStage:
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)
 
     def rows_pass_args(self, gbuffer, depth_prev=None, valid_prev=None, face_lab=None) -> tuple:
-        """(tile rows, arguments) of ``launch``'s frame pass for a CPU kernel that runs it over rows of tiles
-        itself (``sample_shade_resolve_rows_kernel``: the pass and the masked shading and resolve in one launch;
-        ``TemporalStage.run(sampling=...)``): the arguments that kernel takes before its shading ones (see its
-        ``s_*`` parameters), after the checks and the Lab prepass ``launch`` makes. The caller launches it, then
-        calls :meth:`sum_row_counts`. CPU rows kernels only (``parallel.use_row_kernels``)."""
+        """(tile rows, arguments, ``sample_map``) of ``launch``'s frame pass for a CPU kernel that runs it over rows
+        of tiles itself (``sample_shade_resolve_rows_kernel``: the pass and the masked shading and resolve in one
+        launch; ``TemporalStage.run(sampling=...)``): the arguments that kernel takes before its shading ones (see
+        its ``s_*`` parameters), after the checks and the Lab prepass ``launch`` makes, and the map the pass must
+        write. The caller launches it, then calls :meth:`sum_row_counts`. CPU rows kernels only
+        (``parallel.use_row_kernels``)."""
         if not parallel.use_row_kernels(self.device):
             raise ValueError(f"rows_pass_args needs the CPU's rows kernels (parallel.use_row_kernels), got device "
                              f"{self.device}")
@@ -378,7 +379,7 @@ class SamplingStage:
         # (params, frame, ranks, lab, [normal, depth, hit], position, [reproj_uv, prev_dist], depth_prev,
         # valid_prev, [maps_only, face], face_lab, lab_by_face): those the shading does not share
         return self.tiles[0], [a[0], a[1], a[2], a[3], a[7], a[10], a[11], a[14], a[15], self._dummy_map,
-                               self.cache_hit, self.prev_index, self._row_counts]
+                               self.cache_hit, self.prev_index, self._row_counts], self.sample_map
 
     def sum_row_counts(self) -> None:
         """The one-thread sum of the rows pass's tile-row counts into ``num_samples`` and ``num_cache_hits``."""

@@ -245,7 +245,14 @@ class TemporalStage:
             outs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
                     self._stoch[cur]]
             if sampling is not None:
-                tile_rows, s_args = sampling
+                tile_rows, s_args, s_map = sampling
+                # the pass must write the map the resolve reads, and must read a history this launch does not write
+                if s_map is not sample_map:
+                    raise ValueError("sampling: the SamplingStage's sample_map must be the sample_map given here "
+                                     "(the fused launch writes it and resolves from it)")
+                if s_args[5] is self._depth[cur] or s_args[6] is self._filled[cur]:
+                    raise ValueError("sampling: the cache test's depth_prev / valid_prev must not be the history "
+                                     "this resolve writes (TemporalStage.depth / .filled before the run are right)")
                 parallel.launch(sample_shade_resolve_rows_kernel, tile_rows, inputs=[*s_args, *args], outputs=outs,
                                 device=self.device, min_band_items=1)
             else:
