@@ -44,6 +44,8 @@ __all__ = [
 #   "colors must hold finite real numbers, got nan at index (2, 3, 0)"
 
 _REPR = reprlib.Repr()
+# the largest finite float32: the bound of the values the kernels hold in float32 where larger ones would overflow
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 _REPR.maxstring = 60
 _REPR.maxother = 60
 
@@ -397,8 +399,10 @@ class ShadingConfig:
         check_int_range("ShadingConfig.ao_lanes", self.ao_lanes, 1, 16)
         check_int_range("ShadingConfig.area_light_samples", self.area_light_samples, 1, 256)
         check_choice("ShadingConfig.indirect", self.indirect, ("none", "lighttree"))
-        check_range("ShadingConfig.exposure", self.exposure, 0.0, None, lo_open=True)
-        check_range("ShadingConfig.white_point", self.white_point, 0.0, None, lo_open=True)
+        # at most float32's largest value: the kernels hold them in float32 (an exposure that became inf there made
+        # every black pixel inf * 0 = NaN)
+        check_range("ShadingConfig.exposure", self.exposure, 0.0, FLOAT32_MAX, lo_open=True)
+        check_range("ShadingConfig.white_point", self.white_point, 0.0, FLOAT32_MAX, lo_open=True)
         check_int_range("ShadingConfig.seed", self.seed, 0, 2**31 - 1)
         check_bool("ShadingConfig.shadows", self.shadows)
 

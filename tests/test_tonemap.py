@@ -161,7 +161,7 @@ def _hable64(x):
     return np.where(big, (f - e) / f, val)
 
 
-@pytest.mark.parametrize("white", [11.2, 1.0e-3, 1.0e17, 1.0e25, 3.0e38])
+@pytest.mark.parametrize("white", [11.2, 1.0e-3, 6.1538372e7, 1.0e10, 1.0e17, 1.0e18, 1.0e25, 3.0e38])
 def test_tonemap_huge_radiance_and_white_point(device, white):
     """Radiance up to float max (and exposures that push it past float max) maps to the curve's limit, white for
     a finite white point, not to 0 (x^2 overflowed to inf / inf before); a white point beyond float32's square
@@ -179,7 +179,20 @@ def test_tonemap_huge_radiance_and_white_point(device, white):
         want = np.clip(_hable64(x) / _hable64(np.float64(np.float32(white))), 0.0, 1.0)
         assert np.all(np.isfinite(lin)) and np.all(np.isfinite(whole.numpy()))
         np.testing.assert_allclose(lin, want, rtol=1e-5, atol=1e-7, err_msg=f"exposure {exposure}, white {white}")
-        if white < 1e17:
-            # a finite white point: the brightest radiance is white
-            assert lin[-1] == 1.0 and lin[-2] == 1.0
+        if white <= 1e18:
+            # a white point the curve reaches: radiance beyond 1e18 (exposed) is exactly white, also for the white
+            # points where the float32 curve's rounding lies above its value at 1e18 (6.15e7 the highest of them)
+            assert np.all(lin[x > 1e18] == 1.0), lin
         np.testing.assert_allclose(whole.numpy()[0, :, 0], np.power(lin.astype(np.float64), K64), rtol=3e-7, atol=0)
+
+
+def test_tonemap_config_bounds_to_float32():
+    """An exposure or white point beyond float32's largest value is refused by name (the kernels hold them in
+    float32: an exposure that became inf there turned black pixels into inf * 0 = NaN); float32's largest is
+    accepted."""
+    import foveawarp as fw
+
+    for name in ("exposure", "white_point"):
+        with pytest.raises(ValueError, match=f"ShadingConfig.{name} must be in"):
+            fw.ShadingConfig(**{name: 1e39})
+        fw.ShadingConfig(**{name: float(np.finfo(np.float32).max)})

@@ -5,12 +5,15 @@ import warp as wp
 from .fpbits import finite_f32
 
 
-# the curve's input is clamped to this: beyond it the curve equals its limit (a (f - e)) / (f a) to far under a
-# float32 ulp (its terms in 1/x are below 1e-17 of it), and the quadratic form below squares x, which overflows
-# float32 past ~1.8e19 and gave inf / inf (a radiance of 1e38, or one that the exposure took past float max, came
-# out black, not white; a white point above it made every pixel black). A min, not a branch: the CPU's rows
-# kernels keep their straight-line code.
+# beyond HABLE_LIMIT_X the curve equals its limit (a (f - e)) / (f a) = 0.9333... to far under a float32 ulp (its
+# terms in 1/x are below 1e-17 of it), and the quadratic form below squares x, which overflows float32 past ~1.8e19
+# and gave inf / inf (a radiance of 1e38, or one that the exposure took past float max, came out black, not white;
+# a white point above it made every pixel black). There the curve takes HABLE_TOP: 10 float32 ulps above the limit
+# and 6 above the largest value the float32 formula gives on [0, 1e18] (0x3f6eeef3, at x = 6.15e7, on the CPU), so
+# that radiance beyond 1e18 maps to exactly 1 for any white point up to 1e18 (the formula's rounding wobbles by a few
+# ulps near its limit). Selects, not branches: the CPU's rows kernels keep their straight-line code.
 HABLE_LIMIT_X = wp.constant(1.0e18)
+HABLE_TOP = wp.constant(0.9333339333534241)  # float32 0x3f6eeef9
 
 
 @wp.func
@@ -21,9 +24,10 @@ def hable(x: float) -> float:
     d = 0.20
     e = 0.02
     f = 0.30
-    x = wp.min(x, HABLE_LIMIT_X)  # the curve's limit beyond it (infinity too)
+    big = x > HABLE_LIMIT_X  # (infinity too)
+    x = wp.min(x, HABLE_LIMIT_X)
     # ((x(ax + cb) + de) / (x(ax + b) + df)) - e/f over one denominator, so that hable(0) is exactly 0
-    return x * (f * (a * x + c * b) - e * (a * x + b)) / (f * (x * (a * x + b) + d * f))
+    return wp.where(big, HABLE_TOP, x * (f * (a * x + c * b) - e * (a * x + b)) / (f * (x * (a * x + b) + d * f)))
 
 
 # -- the display gamma, t^(1 / 2.2) ------------------------------------------------------------------------------
