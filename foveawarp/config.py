@@ -370,8 +370,9 @@ class ShadingConfig:
         area_light_samples: shadow rays per area light, in [1, 256].
         indirect: "none" or "lighttree" (one-bounce indirect from the light quad-tree, see IndirectConfig).
         background: linear RGB radiance of rays that miss, each channel >= 0.
-        exposure: linear scale before tone mapping, > 0.
-        white_point: Uncharted 2 linear white point, > 0.
+        exposure: linear scale before tone mapping, in (0, float32 max].
+        white_point: Uncharted 2 linear white point, in (0, float32 max]; radiance beyond ~1e18 after the exposure
+            maps to the curve's limit (white for any white point up to 1e18).
         seed: base seed of the per-pixel random streams (AO and area-light samples).
     """
 

@@ -216,8 +216,8 @@ field(fw.ShadingConfig, "ao_radius_rel", "(0.0, 10.0]", [0.0, 11.0])
 field(fw.ShadingConfig, "ao_lanes", "[1, 16]", [0, -1, 17], kind="int")
 field(fw.ShadingConfig, "area_light_samples", "[1, 256]", [0, 300], kind="int")
 field(fw.ShadingConfig, "indirect", "'lighttree'", kind="choice")
-for n in ("exposure", "white_point"):
-    field(fw.ShadingConfig, n, "(0.0, inf]", [0.0, -2.0])
+for n in ("exposure", "white_point"):  # bounded by float32's largest value (the kernels hold them in float32)
+    field(fw.ShadingConfig, n, "(0.0, 3.4028234663852886e+38]", [0.0, -2.0, 1e39])
 field(fw.ShadingConfig, "seed", "[0, 2147483647]", [-1, 2**31], kind="int")
 field(fw.ShadingConfig, "shadows", "True or False", kind="bool")
 for n in ("ambient", "background"):
