@@ -690,11 +690,13 @@ class FrameLoop:
         # resolves (each tile row sampled just before its rows are shaded), unless timing wants the two apart
         sample_in_resolve = (foveated and not refresh and not self.timing and self._shade_in_resolve(strategy)
                              and parallel.use_row_kernels(self.device))
+        # the cache test's previous depth and valid mask: the temporal history's, as last resolved; the Lab albedo by
+        # face (no cube roots)
+        pass_inputs = dict(depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
+                           face_lab=self.dscene.face_lab)
         with self._stage("sampling", foveated):
             if foveated and not sample_in_resolve:
-                # the cache test's previous depth and valid mask: the temporal history's, as last resolved
-                self.sampling.launch(self.gbuffer, depth_prev=self.temporal.depth, valid_prev=self.temporal.filled,
-                                     face_lab=self.dscene.face_lab)  # Lab albedo by face: no cube roots
+                self.sampling.launch(self.gbuffer, **pass_inputs)
                 if refresh:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
@@ -716,8 +718,7 @@ class FrameLoop:
                 listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 srows = None
                 if sample_in_resolve:
-                    srows = self.sampling.rows_pass_args(self.gbuffer, depth_prev=self.temporal.depth,
-                                                         valid_prev=self.temporal.filled, face_lab=self.dscene.face_lab)
+                    srows = self.sampling.rows_pass_args(self.gbuffer, **pass_inputs)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
                                   background=cfg.shading.background, **self._resolve_kind(),
                                   shade=self.shade if shade_in_resolve else None,

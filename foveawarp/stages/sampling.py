@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 import warp as wp
@@ -153,6 +153,16 @@ def _eye(name: str, v) -> wp.vec3:
 
 
 # -- stage -----------------------------------------------------------------------------------------------------
+
+
+class RowsPass(NamedTuple):
+    """``SamplingStage.rows_pass_args``: the frame pass for a kernel that runs it over rows of tiles itself."""
+
+    tile_rows: int
+    args: list  # the sample_shade_resolve_rows_kernel's s_* arguments
+    sample_map: wp.array  # what the pass writes
+    depth_prev: wp.array  # the history its cache test reads
+    valid_prev: wp.array
 
 
 class SamplingStage:
@@ -351,7 +361,9 @@ class SamplingStage:
         if not rows:  # the rows path's count sum writes the counters
             self.num_samples.zero_()
             self.num_cache_hits.zero_()
-        args = self._frame_args(g, depth_prev, valid_prev, face_lab)
+        dp, vp, table, by_face = self._frame_inputs(g, depth_prev, valid_prev, face_lab)
+        args = [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.position,
+                g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
         outs = [self._dummy_map, self._dummy_map, self.sample_map, self.cache_hit, self.prev_index]
         if rows:
             # the map and the tile pass in one launch over rows of tiles, then the one-thread count sum over the
@@ -365,29 +377,30 @@ class SamplingStage:
         launch_tile_pass(self.ranks, self.params, self.frame_params, self.tiles, self.sample_map, self.cache_hit,
                          self.num_samples, self.num_cache_hits, dev, self.tile_counts)
 
-    def rows_pass_args(self, gbuffer, depth_prev=None, valid_prev=None, face_lab=None) -> tuple:
-        """(tile rows, arguments, ``sample_map``) of ``launch``'s frame pass for a CPU kernel that runs it over rows
-        of tiles itself (``sample_shade_resolve_rows_kernel``: the pass and the masked shading and resolve in one
-        launch; ``TemporalStage.run(sampling=...)``): the arguments that kernel takes before its shading ones (see
-        its ``s_*`` parameters), after the checks and the Lab prepass ``launch`` makes, and the map the pass must
-        write. The caller launches it, then calls :meth:`sum_row_counts`. CPU rows kernels only
-        (``parallel.use_row_kernels``)."""
+    def rows_pass_args(self, gbuffer, depth_prev=None, valid_prev=None, face_lab=None) -> "RowsPass":
+        """``launch``'s frame pass, for a CPU kernel that runs it over rows of tiles itself
+        (``sample_shade_resolve_rows_kernel``: the pass and the masked shading and resolve in one launch;
+        ``TemporalStage.run(sampling=...)``), after the checks and the Lab prepass ``launch`` makes: a
+        :class:`RowsPass` with the tile rows, the arguments that kernel takes before its shading ones (its ``s_*``
+        parameters), the map the pass must write and the history its cache test reads. The caller launches it, then
+        calls :meth:`sum_row_counts`. CPU rows kernels only (``parallel.use_row_kernels``)."""
         if not parallel.use_row_kernels(self.device):
             raise ValueError(f"rows_pass_args needs the CPU's rows kernels (parallel.use_row_kernels), got device "
                              f"{self.device}")
-        a = self._frame_args(self._check_gbuffer(gbuffer), depth_prev, valid_prev, face_lab)
-        # (params, frame, ranks, lab, [normal, depth, hit], position, [reproj_uv, prev_dist], depth_prev,
-        # valid_prev, [maps_only, face], face_lab, lab_by_face): those the shading does not share
-        return self.tiles[0], [a[0], a[1], a[2], a[3], a[7], a[10], a[11], a[14], a[15], self._dummy_map,
-                               self.cache_hit, self.prev_index, self._row_counts], self.sample_map
+        dp, vp, table, by_face = self._frame_inputs(self._check_gbuffer(gbuffer), depth_prev, valid_prev, face_lab)
+        # the pass's arguments that the shading does not share (it passes the G-buffer's itself)
+        args = [self.params, self.frame_params, self.ranks, self.lab, gbuffer.position, dp, vp, table, by_face,
+                self._dummy_map, self.cache_hit, self.prev_index, self._row_counts]
+        return RowsPass(self.tiles[0], args, self.sample_map, dp, vp)
 
     def sum_row_counts(self) -> None:
         """The one-thread sum of the rows pass's tile-row counts into ``num_samples`` and ``num_cache_hits``."""
         self._sum_launch(1, inputs=[self._row_counts, 0], outputs=[self.num_samples, self.num_cache_hits],
                          device=self.device)
 
-    def _frame_args(self, g, depth_prev, valid_prev, face_lab) -> list:
-        """The frame pass's arguments up to ``lab_by_face`` (checked; the Lab prepass launched when needed)."""
+    def _frame_inputs(self, g, depth_prev, valid_prev, face_lab) -> tuple:
+        """(depth_prev, valid_prev, Lab table, lab_by_face) of the frame pass, checked (the Lab prepass launched
+        when needed)."""
         w, h, dev = self.width, self.height, self.device
         dp = self.depth_prev if depth_prev is None else self._check_prev("depth_prev", depth_prev, wp.float32)
         vp = self.valid_prev if valid_prev is None else self._check_prev("valid_prev", valid_prev, wp.uint8)
@@ -402,8 +415,7 @@ class SamplingStage:
             by_face, table = 1, face_lab
         elif self._lab_on:
             parallel.launch(lab_kernel, dim=(h, w), inputs=[g.albedo], outputs=[self._lab_array()], device=dev)
-        return [self.params, self.frame_params, self.ranks, self.lab, g.normal, g.depth, g.hit, g.position,
-                g.reproj_uv, g.prev_dist, dp, vp, 0, g.face, table, by_face]
+        return dp, vp, table, by_face
 
     def _lab_array(self) -> wp.array:
         if tuple(self.lab.shape) != (self.height, self.width):

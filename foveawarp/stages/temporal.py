@@ -211,8 +211,8 @@ class TemporalStage:
             shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
                 ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
                 ``shade.masked`` (its parameters as last uploaded); one pass over the image instead of two.
-            sampling: with ``shade``: None, or ``SamplingStage.rows_pass_args(...)`` of the stage whose
-                ``sample_map`` this is: its frame pass then runs in the same launch too, each tile row's just
+            sampling: with ``shade``: None, or the ``RowsPass`` of ``SamplingStage.rows_pass_args(...)`` of the
+                stage whose ``sample_map`` this is: its frame pass then runs in the same launch too, each tile row's just
                 before the row's shading and resolve (``sample_shade_resolve_rows_kernel``; the caller then calls
                 ``SamplingStage.sum_row_counts``). The G-buffer must be the one the sampling pass was set up with.
             work, count: the flat list of the traced pixels (``ReorderStage.work`` / ``count``: indices y * W + x
@@ -245,16 +245,15 @@ class TemporalStage:
             outs = [self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur], self._meta[cur],
                     self._stoch[cur]]
             if sampling is not None:
-                tile_rows, s_args, s_map = sampling
                 # the pass must write the map the resolve reads, and must read a history this launch does not write
-                if s_map is not sample_map:
+                if sampling.sample_map is not sample_map:
                     raise ValueError("sampling: the SamplingStage's sample_map must be the sample_map given here "
                                      "(the fused launch writes it and resolves from it)")
-                if s_args[5] is self._depth[cur] or s_args[6] is self._filled[cur]:
+                if sampling.depth_prev is self._depth[cur] or sampling.valid_prev is self._filled[cur]:
                     raise ValueError("sampling: the cache test's depth_prev / valid_prev must not be the history "
                                      "this resolve writes (TemporalStage.depth / .filled before the run are right)")
-                parallel.launch(sample_shade_resolve_rows_kernel, tile_rows, inputs=[*s_args, *args], outputs=outs,
-                                device=self.device, min_band_items=1)
+                parallel.launch(sample_shade_resolve_rows_kernel, sampling.tile_rows, inputs=[*sampling.args, *args],
+                                outputs=outs, device=self.device, min_band_items=1)
             else:
                 parallel.launch(shade_resolve_rows_kernel, self.height, inputs=args, outputs=outs, device=self.device,
                                 min_band_items=max(1, -(-parallel.MIN_ITEMS_PER_BAND // self.width)))
