@@ -2,7 +2,9 @@
 
 Part ``lists``: the shading pass alone (``ShadeStage.list``, 8 AO rays) over the foveated frame's list; the same
 list thinned to every 2nd and 4th entry; a uniform random choice of as many surface pixels (in the same tile
-order); the list of every surface pixel; and the full-frame shading. A list whose time barely falls when it is
+order); as many surface pixels packed around the gaze (the nearest to it, in the same tile order); the foveated
+list shuffled; the list of every surface pixel; and the full-frame shading. ``fov_time_share`` /
+``fov_pixel_share``: the foveated list's part of the all-surface list's time / of its pixels. A list whose time barely falls when it is
 thinned is bound by one thread's chain of rays, not by the rays' throughput (what ``ShadingConfig.ao_lanes``
 answers). ``--lanes`` sets the AO lanes of the list launches (1: one thread per pixel, the form the study first
 measured); ``--split`` whether the list's light sources are shaded apart from its AO pass (``ShadeStage.split_direct``:
@@ -91,11 +93,26 @@ def part_lists(fw, scene, w, h, dev, t_ms, lanes: int, frames: int, split=None) 
     mk = wp.array(pick.reshape(h, w), dtype=wp.uint8, device=dev)
     loop.reorder.run(mk)  # the same tile order as the foveated list
     res["uniform_list_ms"] = list_ms(loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])])
+    # as many surface pixels, the nearest to the last frame's gaze (Chebyshev distance, ties in raster order), in
+    # the tile order: the foveated list's content without its thinning towards the periphery
+    gx, gy = gaze_path(frames - 1, 30, w, h)
+    ys, xs = np.divmod(surface, w)
+    cheb = np.maximum(np.abs(xs + 0.5 - gx), np.abs(ys + 0.5 - gy))
+    pick[:] = 0
+    pick[surface[np.argsort(cheb, kind="stable")[:n]]] = 1
+    loop.reorder.run(wp.array(pick.reshape(h, w), dtype=wp.uint8, device=dev))
+    res["gaze_dense_list_ms"] = list_ms(loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])])
+    # the foveated list in a random order: what the tile order is worth
+    res["fov_shuffled_ms"] = list_ms(fov[np.random.default_rng(2).permutation(n)])
     loop.reorder.run(wp.array(hit.astype(np.uint8), dtype=wp.uint8, device=dev))
     res["all_hits_list_ms"] = list_ms(loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])])
     res["full_ms"] = t_ms(lambda: st.full(g, rad, rs))
     res["fov_ns_per_px"] = res["fov_list_ms"] / max(n, 1) * 1e6
     res["all_hits_ns_per_px"] = res["all_hits_list_ms"] / max(res["n_hit"], 1) * 1e6
+    # the list's share of the frame's shading work: its time over the all-surface list's, against its share of
+    # the surface pixels (a list as dear per pixel as the whole frame has equal shares)
+    res["fov_time_share"] = res["fov_list_ms"] / res["all_hits_list_ms"] if res["all_hits_list_ms"] > 0 else 0.0
+    res["fov_pixel_share"] = n / max(res["n_hit"], 1)
     return res
 
 
@@ -202,6 +219,7 @@ def main(argv=None):
                 rows.append({"scene": name, "size": f"{w}x{h}", "part": "lists", "lanes": r["lanes"], "split": r["split"],
                              "list": r["n_list"], "fov": r["fov_list_ms"], "every2": r["fov_every2_ms"],
                              "every4": r["fov_every4_ms"], "uniform": r["uniform_list_ms"],
+                             "gaze_dense": r["gaze_dense_list_ms"], "shuffled": r["fov_shuffled_ms"],
                              "all_hits": r["all_hits_list_ms"], "full": r["full_ms"]})
                 print(rows[-1], flush=True)
             if "caps" in parts:

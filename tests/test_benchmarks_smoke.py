@@ -299,7 +299,9 @@ def test_list_shading_quick(tmp_path):
     assert 0 < lists["n_list"] < lists["n_px"] and lists["n_hit"] <= lists["n_px"] and lists["lanes"] == 4
     assert lists["split"] is False  # the CPU's default: no list split
     assert all(lists[k] > 0 for k in ("fov_list_ms", "fov_every2_ms", "fov_every4_ms", "uniform_list_ms",
-                                      "all_hits_list_ms", "full_ms"))
+                                      "gaze_dense_list_ms", "fov_shuffled_ms", "all_hits_list_ms", "full_ms"))
+    assert lists["fov_pixel_share"] == lists["n_list"] / lists["n_hit"]
+    assert lists["fov_time_share"] == lists["fov_list_ms"] / lists["all_hits_list_ms"]
     assert (ao["shading"], default["shading"]) == ("ao8", "default")
     assert sum(k.startswith("shade_ao_list_kernel_") for k in ao) == 4
     assert not any(k.startswith("shade_ao_list_kernel_") for k in default)
