@@ -4,11 +4,13 @@ Part ``lists``: the shading pass alone (``ShadeStage.list``, 8 AO rays) over the
 list thinned to every 2nd and 4th entry; a uniform random choice of as many surface pixels (in the same tile
 order); as many surface pixels packed around the gaze (the nearest to it, in the same tile order); the foveated
 list shuffled; the list of every surface pixel; and the full-frame shading. ``fov_time_share`` /
-``fov_pixel_share``: the foveated list's part of the all-surface list's time / of its pixels. A list whose time barely falls when it is
-thinned is bound by one thread's chain of rays, not by the rays' throughput (what ``ShadingConfig.ao_lanes``
-answers). ``--lanes`` sets the AO lanes of the list launches (1: one thread per pixel, the form the study first
-measured); ``--split`` whether the list's light sources are shaded apart from its AO pass (``ShadeStage.split_direct``:
-"auto" the package's rule, "on", "off"; each record says what ran in ``split``).
+``fov_pixel_share``: the foveated list's part of the all-surface list's time / of its pixels. A list whose time
+barely falls when it is thinned is bound by one thread's chain of rays, not by the rays' throughput (what
+``ShadingConfig.ao_lanes`` answers). ``--lanes`` sets the AO lanes of the list launches (1: one thread per pixel,
+the form the study first measured); ``--split`` whether the list's light sources are shaded apart from its AO pass
+(``ShadeStage.split_direct``: "auto" the package's rule, "on", "off"; each record says what ran in ``split``).
+``gaze_dense_max_px`` / ``fov_max_px``: how far (Chebyshev, pixels) the gaze-packed / foveated list reaches from the
+last frame's gaze.
 
 Part ``caps``: CUDA register caps (``cuda_max_registers``) of the shading kernels: each variant is the package's
 kernel function compiled again with another cap ("nocap": none) and timed alone on the same frame, its output
@@ -101,7 +103,15 @@ def part_lists(fw, scene, w, h, dev, t_ms, lanes: int, frames: int, split=None) 
     pick[:] = 0
     pick[surface[np.argsort(cheb, kind="stable")[:n]]] = 1
     loop.reorder.run(wp.array(pick.reshape(h, w), dtype=wp.uint8, device=dev))
-    res["gaze_dense_list_ms"] = list_ms(loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])])
+    packed = loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])]
+    res["gaze_dense_n"] = int(packed.size)
+
+    def reach(idx):  # the farthest listed pixel from the gaze (Chebyshev, pixel centres)
+        return float(np.maximum(np.abs(idx % w + 0.5 - gx), np.abs(idx // w + 0.5 - gy)).max(initial=0.0))
+
+    # the n surface pixels nearest the gaze reach no farther than any n surface pixels, the foveated list's included
+    res["gaze_dense_max_px"], res["fov_max_px"] = reach(packed), reach(fov)
+    res["gaze_dense_list_ms"] = list_ms(packed)
     # the foveated list in a random order: what the tile order is worth
     res["fov_shuffled_ms"] = list_ms(fov[np.random.default_rng(2).permutation(n)])
     loop.reorder.run(wp.array(hit.astype(np.uint8), dtype=wp.uint8, device=dev))

@@ -302,6 +302,10 @@ def test_list_shading_quick(tmp_path):
                                       "gaze_dense_list_ms", "fov_shuffled_ms", "all_hits_list_ms", "full_ms"))
     assert lists["fov_pixel_share"] == lists["n_list"] / lists["n_hit"]
     assert lists["fov_time_share"] == lists["fov_list_ms"] / lists["all_hits_list_ms"]
+    # the gaze-packed list: as many pixels as the foveated list (all surface pixels), the nearest to the gaze, so it
+    # reaches no farther from the gaze than the foveated list does
+    assert lists["gaze_dense_n"] == lists["n_list"]
+    assert 0 < lists["gaze_dense_max_px"] <= lists["fov_max_px"]
     assert (ao["shading"], default["shading"]) == ("ao8", "default")
     assert sum(k.startswith("shade_ao_list_kernel_") for k in ao) == 4
     assert not any(k.startswith("shade_ao_list_kernel_") for k in default)
