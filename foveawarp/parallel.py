@@ -36,6 +36,7 @@ import threading
 import weakref
 from typing import Optional, Sequence
 
+import numpy as np
 import warp as wp
 
 try:  # Warp internals for cheap band launches (argument packing once per launch, not once per band)
@@ -435,7 +436,7 @@ def _check_kernel(kernel) -> None:
 
 def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=None, *,
            threads: Optional[int] = None, min_band_items: Optional[int] = None, count=None, per_count: int = 1,
-           max_blocks: int = 0, stream=None) -> None:
+           max_blocks: int = 0, stream=None, block_dim: int = 0) -> None:
     """Launch ``kernel`` (last argument ``row0: int``) over ``dim``; on the CPU split ``dim[0]`` into bands
     run on ``threads`` threads (see the module docstring). ``outputs`` must not include ``row0``.
 
@@ -447,8 +448,10 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     thread blocks, each thread stepping over the ``dim`` indices a grid apart (``wp.launch(max_blocks=...)``): a
     capacity-sized list launch then costs its threads past the count a few instructions each, not a block each.
     ``stream`` (CUDA; None: the device's current stream): the ``wp.Stream`` to launch on; the CPU has none, and
-    ValueError names it if one is given there."""
+    ValueError names it if one is given there. ``block_dim`` (CUDA; 0: Warp's default, 256): threads per block, a
+    multiple of 32 in [32, 1024]; the CPU runs one thread per block whatever it is (checked on every device)."""
     _check_kernel(kernel)
+    block_dim = _check_block_dim(block_dim)
     dims = (int(dim),) if isinstance(dim, int) else tuple(int(d) for d in dim)
     dev = wp.get_device(device)
     inputs, outputs = list(inputs), list(outputs)
@@ -462,7 +465,7 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
                 count=count, per_count=per_count)
         with rec.paused():
             launch(kernel, dim, inputs, outputs, dev, threads=threads, min_band_items=min_band_items, count=count,
-                   per_count=per_count, max_blocks=max_blocks, stream=stream)
+                   per_count=per_count, max_blocks=max_blocks, stream=stream, block_dim=block_dim)
         return
     if stream is not None and not dev.is_cuda:
         raise ValueError(f"stream must be None on the CPU device (CPU launches have no streams), got {stream!r}")
@@ -486,8 +489,9 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
     parts = bands(dims[0], n * bands_per_thread(n), row_items, min_items) if n > 1 else [(0, dims[0])]
     fast = dev.is_cpu and _invoke is not None and FAST_BANDS
     if len(parts) == 1 and not fast:
+        extra = {"block_dim": block_dim} if block_dim and dev.is_cuda else {}
         wp.launch(kernel, dim=dims if len(dims) > 1 else dims[0], inputs=inputs, outputs=[*outputs, 0], device=dev,
-                  max_blocks=int(max_blocks) if dev.is_cuda else 0, stream=stream)
+                  max_blocks=int(max_blocks) if dev.is_cuda else 0, stream=stream, **extra)
         return
     mexec = kernel.module.load(dev, 1)  # compile/load (CPU block_dim 1, as wp.launch) here, not in the bands
     packed = None
@@ -515,6 +519,14 @@ def launch(kernel, dim, inputs: Sequence = (), outputs: Sequence = (), device=No
             wp.launch(kernel, dim=d if len(d) > 1 else d[0], inputs=inputs, outputs=[*outputs, r0], device=dev)
 
     _run_on_team(worker, n, min(n, len(parts)))
+
+
+def _check_block_dim(block_dim) -> int:
+    """``launch``'s ``block_dim``: 0 (Warp's default) or a multiple of 32 in [32, 1024]; ValueError otherwise."""
+    if isinstance(block_dim, (bool, np.bool_)) or not isinstance(block_dim, (int, np.integer)) or not (
+            block_dim == 0 or (32 <= block_dim <= 1024 and block_dim % 32 == 0)):
+        raise ValueError(f"block_dim must be 0 (Warp's default) or a multiple of 32 in [32, 1024], got {block_dim!r}")
+    return int(block_dim)
 
 
 def _run_bands(calls, st, n: int, workers: int, dev) -> None:

@@ -87,6 +87,30 @@ def test_launch_on_a_stream_is_cuda_only():
     assert np.all(out.numpy() == 7.0)
 
 
+@pytest.mark.parametrize("bad", [16, 33, 1056, -32, True, 128.0, "128"])
+def test_launch_block_dim_checked(bad):
+    """``block_dim=``: 0 or a multiple of 32 in [32, 1024], else ValueError naming it and the range, nothing
+    launched (on every device: the CPU ignores a valid one)."""
+    a = wp.zeros((4, 4), dtype=wp.vec3, device="cpu")
+    out = wp.full((4, 4), wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
+    with pytest.raises(ValueError, match=r"block_dim must be 0 \(Warp's default\) or a multiple of 32 in \[32, 1024\]"):
+        parallel.launch(lab_kernel, (4, 4), [a], [out], "cpu", block_dim=bad)
+    assert np.all(out.numpy() == 7.0)
+
+
+def test_launch_block_dim_same_values(device, every_band):
+    """A launch in 32-, 128- or 1024-thread blocks (CUDA; with a grid cap too, so threads take several rows) writes
+    what the default launch writes; on the CPU the bands ignore it."""
+    rng = np.random.default_rng(5)
+    a = wp.array(rng.random((37, 29, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    want = wp.zeros((37, 29), dtype=wp.vec3, device=device)
+    parallel.launch(lab_kernel, (37, 29), [a], [want], device)
+    for bd, mb in ((32, 0), (128, 0), (1024, 0), (32, 3), (128, 2)):
+        out = wp.zeros((37, 29), dtype=wp.vec3, device=device)
+        parallel.launch(lab_kernel, (37, 29), [a], [out], device, block_dim=bd, max_blocks=mb)
+        np.testing.assert_array_equal(out.numpy(), want.numpy())
+
+
 def test_work_list_count(every_band):
     """A work list launched with ``count``: only the live entries are split, the rest stay untouched."""
     loops = {n: fw.FrameLoop("cornell", 24, 16, device=DEV, cpu_threads=n, timing=False, policy="foveated")

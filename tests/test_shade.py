@@ -373,6 +373,57 @@ def test_split_direct_default_rule():
         assert probe.splits() is want, (w, h)
 
 
+def test_ao_launch_shape_rule():
+    """``ShadeStage._ao_launch_shape``: on CUDA blocks of ``AO_BLOCK_DIM`` threads and at most
+    ``AO_THREADS_PER_SM`` threads per SM (whole blocks, at least one per SM); the CPU has no blocks (0, 0)."""
+    from foveawarp.stages.shade import ShadeStage
+
+    loop = fw.FrameLoop(fw.load_scene("cornell"), W, H, config=fw.Config().with_(shading={"ao_samples": 4}),
+                        device="cpu", policy="full")
+    assert loop.shade._ao_launch_shape() == (0, 0)
+
+    class _Cuda:
+        is_cuda = True
+        sm_count = 132
+
+    probe = ShadeStage.__new__(ShadeStage)
+    probe.device = _Cuda()
+    assert (ShadeStage.AO_BLOCK_DIM, ShadeStage.AO_THREADS_PER_SM) == (128, 16384)
+    assert probe._ao_launch_shape() == (128 * 132, 128)
+    for bd, per_sm, want in ((256, 8192, (32 * 132, 256)), (128, 100, (132, 128)), (1024, 16384, (16 * 132, 1024))):
+        probe.AO_BLOCK_DIM, probe.AO_THREADS_PER_SM = bd, per_sm
+        assert probe._ao_launch_shape() == want, (bd, per_sm)
+
+
+@pytest.mark.parametrize("block_dim, threads_per_sm", [(128, 16384), (32, 32), (1024, 1024), (256, 8192)])
+def test_ao_lanes_launch_shape_same_values(device, block_dim, threads_per_sm):
+    """The AO lanes launch in any CUDA block size and grid cap (a grid so small that each thread takes many entry
+    lanes, a grid larger than the list) gives the counts of one thread per pixel tracing every ray, bit for bit
+    (on the CPU the shape is not used: the same check of the lanes)."""
+    scene = fw.load_scene("cornell", area_light=True)
+    cfg = fw.Config().with_(shading={"ao_samples": 8, "ao_lanes": 4})
+    loop = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy="full")
+    one = fw.FrameLoop(scene, W, H, config=cfg.with_(shading={"ao_lanes": 1}), device=device, policy="full")
+    loop.shade.AO_BLOCK_DIM, loop.shade.AO_THREADS_PER_SM = block_dim, threads_per_sm
+    cam = scene.camera_at(0.2)
+    loop.render_reference(cam)
+    one.render_reference(cam)
+    rng = np.random.default_rng(block_dim + threads_per_sm)
+    pick = rng.permutation(W * H)[: W * H // 2].astype(np.int32)
+    work = wp.array(pick, dtype=wp.int32, device=device)
+    count = wp.array([len(pick)], dtype=wp.int32, device=device)
+    res = []
+    for lp in (loop, one):
+        lp.shade.split_direct = False
+        out = wp.array(np.full((H, W, 3), -3.0, np.float32), dtype=wp.vec3, device=device)
+        lp.shade_list(cam, work, count, out)
+        res.append((out.numpy().copy(), lp.radiance_stoch.numpy().copy()))
+    assert loop.shade.ao_lanes() == 4
+    for a, b in zip(*res):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(res[0][0].reshape(-1, 3)[np.setdiff1d(np.arange(W * H), pick)] == -3.0)
+
+
 @pytest.mark.parametrize("split_stochastic", [1, 0])
 def test_split_direct_repeated_pixels_and_no_stochastic_part(device, split_stochastic):
     """The split keeps each list entry's light part apart (per entry, not in the output), so a list that names

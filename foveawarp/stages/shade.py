@@ -58,6 +58,18 @@ class ShadeStage:
     split_direct = None
     SPLIT_MAX_PIXELS = 1920 * 1080
 
+    # CUDA: the AO lanes launch of ``list`` in blocks of AO_BLOCK_DIM threads, at most AO_THREADS_PER_SM threads per SM
+    # (a grid-stride launch: a thread takes an entry lane, then the one a grid later). The other list launches keep
+    # 256-thread blocks and ``_list_blocks``. Measured on the H100 (session 28, ``list-launch-shape-e27-ac1fa8a-
+    # cuda.log``: the foveated list of frame 12 of each camera path, 8 AO rays, three interleaved rounds, the outputs
+    # compared equal): against 256-thread blocks at 8192 threads per SM, the AO pass took 0.90-0.99x the time at
+    # 3840x2160 on bunny, spot, teapot, nefertiti, ogre, city and cornell (at that size a 4-lane list of ~8% of the
+    # pixels needs more than 8192 threads per SM, so some threads took two entries), and 0.97-1.02x at 1920x1080.
+    # At 4K 128-thread blocks alone gave 0.97-0.99x, the larger grid with 256-thread blocks 0.93-1.00x
+    # (``list-launch-shape-e26-ac1fa8a-cuda.log``). The other list kernels gained nothing consistent (0.93-1.06x).
+    AO_BLOCK_DIM = 128
+    AO_THREADS_PER_SM = 16384
+
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
@@ -196,9 +208,11 @@ class ShadeStage:
                             inputs=[self.params_dev, work, count, g.position, g.normal, ds.face_albedo, g.face, g.hit,
                                     ds.lights, ds.area_lights],
                             outputs=[*self._light], device=dev, count=count, max_blocks=blocks, stream=side)
+        ao_blocks, ao_block_dim = self._ao_launch_shape()
         parallel.launch(shade_ao_list_kernel, dim=n * lanes,
                         inputs=[self.params_dev, work, count, g.position, g.normal, g.hit, ds.area_lights],
-                        outputs=[part], device=dev, count=count, per_count=lanes, max_blocks=blocks)
+                        outputs=[part], device=dev, count=count, per_count=lanes, max_blocks=ao_blocks,
+                        block_dim=ao_block_dim)
         if split:
             if side is not None:
                 dev.stream.wait_stream(side)  # join
@@ -221,6 +235,15 @@ class ShadeStage:
         if s is None:
             s = self.device.is_cuda and self.width * self.height <= self.SPLIT_MAX_PIXELS
         return bool(s) and self.ao_lanes() >= 2
+
+    def _ao_launch_shape(self) -> tuple:
+        """(max_blocks, block_dim) of ``list``'s AO lanes launch: CUDA blocks of ``AO_BLOCK_DIM`` threads, at most
+        ``AO_THREADS_PER_SM`` threads per SM; (0, 0) on the CPU (bands, no blocks)."""
+        if not self.device.is_cuda:
+            return 0, 0
+        bd = int(self.AO_BLOCK_DIM)
+        sms = max(1, int(getattr(self.device, "sm_count", 0) or 1))
+        return max(1, int(self.AO_THREADS_PER_SM) // bd) * sms, bd
 
     def _list_blocks(self) -> int:
         """CUDA thread blocks of the list launches (``parallel.launch(max_blocks=...)``): 32 per SM, 1.08M threads
