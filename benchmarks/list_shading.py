@@ -159,9 +159,12 @@ def part_caps(fw, scene, w, h, dev, t_ms, variants, frames: int) -> list:
         wlog2 = check_order_width("ShadeStage.order_width", st.order_width) or 0
         res = {"shading": "ao8" if ao else "default", "n_list": int(count.numpy()[0])}
 
+        ao_blocks, ao_block_dim = st._ao_launch_shape()  # the AO lanes launch's own shape, as ShadeStage.list
+
         def run_ao(k):
             wp.launch(k, dim=n * lanes, inputs=[st.params_dev, work, count, g.position, g.normal, g.hit,
-                                                ds.area_lights, part, 0], device=dev, max_blocks=blocks)
+                                                ds.area_lights, part, 0], device=dev, max_blocks=ao_blocks,
+                      **({"block_dim": ao_block_dim} if ao_block_dim else {}))
 
         def run_list(k):
             wp.launch(k, dim=n, inputs=[st.params_dev, work, count, *st.inputs(g), part, lanes, rad, rs, 0],
