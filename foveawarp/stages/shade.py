@@ -67,6 +67,9 @@ class ShadeStage:
     # pixels needs more than 8192 threads per SM, so some threads took two entries), and 0.97-1.02x at 1920x1080.
     # At 4K 128-thread blocks alone gave 0.97-0.99x, the larger grid with 256-thread blocks 0.93-1.00x
     # (``list-launch-shape-e26-ac1fa8a-cuda.log``). The other list kernels gained nothing consistent (0.93-1.06x).
+    # Whole frames: 0.982-1.005x at 4K, 0.987-1.004x at 1080p (``ao-launch-ab-e28-ea4dba8-cuda.log``). The shape
+    # changes no value, so FrameLoop does not key its captured graphs by it: a graph keeps the shape it was captured
+    # with.
     AO_BLOCK_DIM = 128
     AO_THREADS_PER_SM = 16384
 
