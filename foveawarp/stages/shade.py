@@ -245,8 +245,11 @@ class ShadeStage:
         if not self.device.is_cuda:
             return 0, 0
         bd = int(self.AO_BLOCK_DIM)
-        sms = max(1, int(getattr(self.device, "sm_count", 0) or 1))
-        return max(1, int(self.AO_THREADS_PER_SM) // bd) * sms, bd
+        return max(1, int(self.AO_THREADS_PER_SM) // bd) * self._sm_count(), bd
+
+    def _sm_count(self) -> int:
+        """The CUDA device's SM count (1 where the device does not say), which the list launches' grids scale by."""
+        return max(1, int(getattr(self.device, "sm_count", 0) or 1))
 
     def _list_blocks(self) -> int:
         """CUDA thread blocks of the list launches (``parallel.launch(max_blocks=...)``): 32 per SM, 1.08M threads
@@ -257,4 +260,4 @@ class ShadeStage:
         a loop over the live items on a fixed grid (89 registers against 77: two blocks per SM, not three)."""
         if not self.device.is_cuda:
             return 0
-        return 32 * max(1, int(getattr(self.device, "sm_count", 0) or 1))
+        return 32 * self._sm_count()
