@@ -70,6 +70,22 @@ class Camera:
         cached = self.__dict__.get("_basis")
         if cached is not None:
             return cached
+        out = []
+        for v in self._basis_floats():
+            a = np.array(v, dtype=np.float64)
+            a.setflags(write=False)
+            out.append(a)
+        r, u, f = out
+        object.__setattr__(self, "_basis", (r, u, f))
+        return r, u, f
+
+    def _basis_floats(self) -> tuple:
+        """``basis()`` as three 3-tuples of Python floats (the same values), computed once per camera: the
+        per-frame host path (``params``, ``rotation_deg_to``) reads these, not NumPy arrays, whose elements
+        cost a conversion each."""
+        cached = self.__dict__.get("_basis_t")
+        if cached is not None:
+            return cached
         f = _sub3(self.target, self.eye)
         n = _norm3(f)
         f = (f[0] / n, f[1] / n, f[2] / n)
@@ -77,13 +93,7 @@ class Camera:
         n = _norm3(r)
         r = (r[0] / n, r[1] / n, r[2] / n)
         u = _cross3(r, f)
-        out = []
-        for v in (r, u, f):
-            a = np.array(v, dtype=np.float64)
-            a.setflags(write=False)
-            out.append(a)
-        r, u, f = out
-        object.__setattr__(self, "_basis", (r, u, f))
+        object.__setattr__(self, "_basis_t", (r, u, f))
         return r, u, f
 
     @property
@@ -161,26 +171,30 @@ class Camera:
         return float(p[0]), float(p[1])
 
     def params(self, width: int, height: int):
-        """The Warp struct the kernels take."""
-        import warp as wp
-
-        from .kernels.camera import CameraParams
-
+        """The Warp struct the kernels take (made once per camera and size: the per-frame G-buffer launch asks
+        for it, and its host time is on the frame's critical path)."""
+        cache = self.__dict__.get("_params")
+        if cache is not None and type(width) is int and type(height) is int:
+            c = cache.get((width, height))
+            if c is not None:
+                return c
         width, height = _size(width, height)
         cache = self.__dict__.setdefault("_params", {})
         c = cache.get((width, height))
         if c is not None:
             return c
-        r, u, f = self.basis()
-        c = CameraParams()
-        c.eye = wp.vec3(*self.eye)
-        c.right = wp.vec3(*r)
-        c.up = wp.vec3(*u)
-        c.forward = wp.vec3(*f)
+        vec3 = _warp_vec3()
+        r, u, f = self._basis_floats()
+        e = self.eye
+        c = _camera_params_type()()
+        c.eye = vec3(e[0], e[1], e[2])
+        c.right = vec3(r[0], r[1], r[2])
+        c.up = vec3(u[0], u[1], u[2])
+        c.forward = vec3(f[0], f[1], f[2])
         c.tan_half_fov_y = self.tan_half_fov_y
         c.aspect = float(width) / float(height)
-        c.width = int(width)
-        c.height = int(height)
+        c.width = width
+        c.height = height
         cache[(width, height)] = c
         return c
 
@@ -188,10 +202,29 @@ class Camera:
         """Angle in degrees between this camera's view direction and ``other``'s."""
         if not isinstance(other, Camera):
             raise ValueError(f"other must be a foveawarp.Camera, got {show(other)} ({type(other).__name__})")
-        _, _, f0 = self.basis()
-        _, _, f1 = other.basis()
-        d = float(f0[0]) * float(f1[0]) + float(f0[1]) * float(f1[1]) + float(f0[2]) * float(f1[2])
+        f0 = self._basis_floats()[2]
+        f1 = other._basis_floats()[2]
+        d = f0[0] * f1[0] + f0[1] * f1[1] + f0[2] * f1[2]
         return math.degrees(math.acos(max(-1.0, min(1.0, d))))
+
+
+_CAMERA_PARAMS = None
+
+
+def _camera_params_type():
+    """``kernels.camera.CameraParams``, imported on first use (this module does not need Warp otherwise)."""
+    global _CAMERA_PARAMS
+    if _CAMERA_PARAMS is None:
+        from .kernels.camera import CameraParams
+
+        _CAMERA_PARAMS = CameraParams
+    return _CAMERA_PARAMS
+
+
+def _warp_vec3():
+    import warp as wp
+
+    return wp.vec3
 
 
 def _sub3(a, b) -> tuple:

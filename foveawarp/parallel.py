@@ -903,20 +903,29 @@ class Relaunch:
             return
         outs = [*outputs, 0] if self.bands else list(outputs)
         args = [*inputs, *outs]
-        key = (dim, dev, tuple(id(a) if isinstance(a, wp.array) else None for a in args))
-        if self._cmd is None or key != self._key:
+        if not self._replay(dim, dev, args):
             self._cmd = wp.launch(self.kernel, dim=dim, inputs=list(inputs), outputs=outs, device=dev, record_cmd=True)
-            self._key, self._vals = key, list(args)
-        else:
-            vals = self._vals
-            for i, a in enumerate(args):
-                if isinstance(a, wp.array):
-                    continue
-                b = vals[i]
-                # numbers are immutable: an equal one is kept; a struct or vector is re-set every call (the
-                # caller may have changed its fields in place)
-                if type(a) is type(b) and isinstance(a, (int, float)) and a == b:
-                    continue
-                self._cmd.set_param_at_index(i, a)
-                vals[i] = a
+            self._key, self._vals = (dim, dev), list(args)
         self._cmd.launch()
+
+    def _replay(self, dim, dev, args: list) -> bool:
+        """Re-set the recorded command's changed arguments for ``args``, in one pass (this runs before every
+        frame's G-buffer launch, on the frame's critical path); False when it must be recorded anew: none yet,
+        another ``dim`` or device, or an array argument that is not the same object as when recorded (the
+        recorded values hold the arrays, so identity is the test)."""
+        vals = self._vals
+        if self._cmd is None or self._key != (dim, dev) or len(args) != len(vals):
+            return False
+        for i, a in enumerate(args):
+            b = vals[i]
+            if isinstance(a, wp.array) or isinstance(b, wp.array):
+                if a is not b:
+                    return False
+                continue
+            # numbers are immutable: an equal one is kept; a struct or vector is re-set every call (the caller
+            # may have changed its fields in place)
+            if type(a) is type(b) and isinstance(a, (int, float)) and a == b:
+                continue
+            self._cmd.set_param_at_index(i, a)
+            vals[i] = a
+        return True

@@ -119,3 +119,45 @@ def test_basis_and_params_are_cached_per_camera_and_pickle_without_them():
         assert other == cam and hash(other) == hash(cam)
         np.testing.assert_array_equal(other.basis()[2], f)
         assert other.params(64, 48).width == 64
+
+
+@settings(max_examples=40, deadline=None)
+@given(ex=finite, ey=finite, ez=finite, tx=finite, ty=finite, tz=finite, fov=st.floats(5.0, 170.0),
+       w=st.integers(1, 4096), h=st.integers(1, 4096))
+def test_params_fields_against_numpy_basis_and_cache_keys(ex, ey, ez, tx, ty, tz, fov, w, h):
+    """The kernels' struct holds the independent float64 frame rounded to float32, and the cache's fast path
+    (plain ints) never lets a size through that the checked path would refuse."""
+    eye, tgt = (ex, ey, ez), (tx, ty, tz)
+    f = np.subtract(tgt, eye)
+    if not np.linalg.norm(f) > 1e-3 or abs(f[1]) / np.linalg.norm(f) > 0.999:
+        return
+    cam = fw.Camera(eye=eye, target=tgt, fov_y_deg=fov)
+    r, u, fwd = _lookat_np(eye, tgt, cam.up)
+    p = cam.params(w, h)
+    for got, want in ((p.eye, eye), (p.right, r), (p.up, u), (p.forward, fwd)):
+        np.testing.assert_allclose(np.array(got, dtype=np.float64), np.float32(want), rtol=0, atol=1e-6)
+    assert p.width == w and p.height == h
+    assert np.float32(p.aspect) == np.float32(w / h)
+    assert np.float32(p.tan_half_fov_y) == np.float32(math.tan(math.radians(fov) / 2))
+    assert cam.params(np.int64(w), h) is p  # the checked path finds the same entry
+    for bad in ((float(w), h), (w, True), (0, h), (w, 16385)):
+        with pytest.raises(ValueError):
+            cam.params(*bad)
+
+
+@settings(max_examples=60, deadline=None)
+@given(a=st.tuples(finite, finite, finite), b=st.tuples(finite, finite, finite))
+def test_rotation_deg_to_against_numpy(a, b):
+    if not (np.linalg.norm(a) > 1e-3 and np.linalg.norm(b) > 1e-3):
+        return
+    if abs(a[1]) / np.linalg.norm(a) > 0.999 or abs(b[1]) / np.linalg.norm(b) > 0.999:
+        return
+    c0 = fw.Camera(eye=(0.0, 0.0, 0.0), target=a)
+    c1 = fw.Camera(eye=(0.0, 0.0, 0.0), target=b)
+    fa, fb = np.asarray(a) / np.linalg.norm(a), np.asarray(b) / np.linalg.norm(b)
+    want = np.degrees(np.arccos(np.clip(fa @ fb, -1.0, 1.0)))
+    # arccos is ill-conditioned near 0 and 180 degrees: compare through the cosine there
+    got = c0.rotation_deg_to(c1)
+    assert abs(math.cos(math.radians(got)) - math.cos(math.radians(want))) < 1e-12
+    assert 0.0 <= got <= 180.0
+    assert c0.rotation_deg_to(c0) < 1e-5
