@@ -8,7 +8,8 @@ Per scene x resolution:
 * timing, per shading ("default"; "ao8" = 8 AO rays per pixel): the reference is ``FrameLoop(policy="full")``
   (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
   the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
-  after warm-up, the three loops taking turns frame by frame (so clock and load drift hit them alike); per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
+  after warm-up, the three loops taking turns frame by frame in a new (seeded) order every frame (so clock and
+  load drift hit them alike, and no loop always follows the same other one); per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
   shading + indirect) stage times;
 * stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
   reference (256 AO rays), and a moving path with history on and off against the converged reference.
