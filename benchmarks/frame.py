@@ -9,8 +9,9 @@ Per scene x resolution:
   (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
   the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
   after warm-up, the three loops taking turns frame by frame in a new (seeded) order every frame (so clock and
-  load drift hit them alike, and no loop always follows the same other one); per-stage ms from a ``timing=True`` run; ``overhead_ms`` = foveated frame - (G-buffer + traced
-  shading + indirect) stage times;
+  load drift hit them alike, and no loop always follows the same other one); per-stage ms from a ``timing=True`` run;
+  ``overhead_ms`` = foveated frame - (G-buffer + traced shading + indirect) stage times; on CUDA also
+  ``stage_gpu_ms`` and ``overhead_gpu_ms``, the same from a ``timing="gpu"`` run (CUDA-event stage times);
 * stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
   reference (256 AO rays), and a moving path with history on and off against the converged reference.
 * ao quality (part ``aoquality``): the heavy shading's error in motion. Along the same camera path and moving
@@ -224,26 +225,41 @@ def timing(fw, scene, w, h, dev, cfg, n):
     warm = {"full": 8, "foveated": 8, "auto": 2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2}
     med = _timed_interleaved(loops, scene, w, h, n, warm)
     ref_ms, fov_ms, auto_ms = med["full"], med["foveated"], med["auto"]
-    tl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=True, policy="foveated")
-    stages = {}
-    rates = []
-    for i in range(16):
-        t = i / 30.0
-        f = tl.render(scene.camera_at(t), gaze_px=gaze_path(i, 16, w, h), time=t)
-        if i >= 6:
-            rates.append(f.stats["sampling_rate"])
-            for k, v in f.stats.items():
-                if k.startswith("ms_") and k != "ms_frame":
-                    stages.setdefault(k[3:], []).append(v)
-    stage_ms = {k: float(np.median(v)) for k, v in stages.items()}
-    traced = sum(stage_ms.get(k, 0.0) for k in ("gbuffer", "shade", "indirect", "indirect_build"))
+    traced_keys = ("gbuffer", "shade", "indirect", "indirect_build")
+
+    def stage_run(timing_mode):
+        """Median per-stage ms of frames 6-15 of a ``timing=timing_mode`` foveated loop, the mean sampling
+        rate, and the loop."""
+        tl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=timing_mode, policy="foveated")
+        stages, rates = {}, []
+        for i in range(16):
+            t = i / 30.0
+            f = tl.render(scene.camera_at(t), gaze_px=gaze_path(i, 16, w, h), time=t)
+            if i >= 6:
+                rates.append(f.stats["sampling_rate"])
+                for k, v in f.stats.items():
+                    if k.startswith("ms_") and k != "ms_frame":
+                        stages.setdefault(k[3:], []).append(v)
+        return {k: float(np.median(v)) for k, v in stages.items()}, rates, tl
+
+    def overheads(stage_ms):
+        traced = sum(stage_ms.get(k, 0.0) for k in traced_keys)
+        return (float(max(fov_ms - traced, 0.0)),
+                float(sum(v for k, v in stage_ms.items() if k not in traced_keys + ("scene",))))
+
+    stage_ms, rates, tl = stage_run(True)
+    overhead, stage_sum = overheads(stage_ms)
     out.update(ref_ms=ref_ms, fov_ms=fov_ms, auto_ms=auto_ms, auto_path=auto._pol_choice,
-               auto_estimates=dict(auto._pol_est), stage_ms=stage_ms,
-               overhead_ms=float(max(fov_ms - traced, 0.0)),
-               overhead_stage_sum_ms=float(sum(v for k, v in stage_ms.items()
-                                               if k not in ("gbuffer", "shade", "indirect", "indirect_build", "scene"))),
+               auto_estimates=dict(auto._pol_est), stage_ms=stage_ms, overhead_ms=overhead,
+               overhead_stage_sum_ms=stage_sum,
                timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms,
                bvh=[tl.dscene.bvh_constructor, tl.dscene.bvh_leaf_size])  # the tree built (after any fallback)
+    if dev.is_cuda:
+        # the same from CUDA-event stage times (timing="gpu": one synchronization per frame, no per-stage
+        # synchronization inflating the small stages; a stage's host work that overlaps earlier kernels left out)
+        gpu_ms, _, _ = stage_run("gpu")
+        out["stage_gpu_ms"] = gpu_ms
+        out["overhead_gpu_ms"], out["overhead_stage_sum_gpu_ms"] = overheads(gpu_ms)
     return out
 
 
@@ -394,8 +410,10 @@ def main(argv=None):
                                **(aqual if shading == "ao8" and aqual else qual), **tm}
                         records.append(rec)
                         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
-                               if k not in ("stage_ms", "overrides", "auto_estimates")}, flush=True)
+                               if k not in ("stage_ms", "stage_gpu_ms", "overrides", "auto_estimates")}, flush=True)
                         print("   stages", {k: round(v, 3) for k, v in tm["stage_ms"].items()}, flush=True)
+                        if "stage_gpu_ms" in tm:
+                            print("   stages (gpu)", {k: round(v, 3) for k, v in tm["stage_gpu_ms"].items()}, flush=True)
                 if "stochastic" in parts and scene.name.split("+")[0] in args.stochastic_scenes.split(","):
                     st = stochastic(fw, scene, w, h, dev, cfg, min(args.frames, 30), metrics)
                     records.append({**base, "kind": "stochastic", **st})
@@ -409,7 +427,9 @@ def main(argv=None):
     trows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "config": r["config"],
               "shading": r["shading"], "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
               "speedup": r["speedup"], "auto_ms": r["auto_ms"], "auto_path": r["auto_path"],
-              "overhead_ms": r["overhead_ms"]} for r in records if r["kind"] == "timing"]
+              "overhead_ms": r["overhead_ms"], **({"overhead_gpu_ms": r["overhead_gpu_ms"]}
+                                                   if "overhead_gpu_ms" in r else {})}
+             for r in records if r["kind"] == "timing"]
     if arows:
         md += "\n\n" + md_table(arows, list(arows[0]))
     if trows:

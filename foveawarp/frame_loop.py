@@ -52,6 +52,27 @@ class _StageTimer:
         return False
 
 
+class _EventStageTimer:
+    """The GPU time of one stage (``FrameLoop(timing="gpu")`` on CUDA): two CUDA timing events recorded on the loop's
+    stream around the stage's launches, no synchronization; ``FrameLoop._stage_gpu_ms`` reads them after the
+    frame's one synchronization. Nothing is recorded when the stage raises."""
+
+    __slots__ = ("loop", "name", "ev")
+
+    def __init__(self, loop, name: str):
+        self.loop, self.name = loop, name
+
+    def __enter__(self):
+        self.ev = self.loop._stage_event_pair()
+        self.loop.device.stream.record_event(self.ev[0])
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            self.loop.device.stream.record_event(self.ev[1])
+            self.loop._stage_events.append((self.name, self.ev))
+        return False
+
+
 _NO_TIMING = contextlib.nullcontext()
 
 
@@ -78,8 +99,13 @@ class FrameLoop:
         width, height: image size in pixels, each in [1, 16384].
         config: a :class:`Config` (defaults if None).
         device: Warp device ("cpu", "cuda:0", ...) or None for Warp's default.
-        timing: synchronize after each stage and report ``ms_<stage>`` in ``stats`` (slower; off for
-            benchmarks of whole frames, which use CUDA graphs on CUDA).
+        timing: True: synchronize after each stage and report ``ms_<stage>`` in ``stats`` (slower; off for
+            benchmarks of whole frames, which use CUDA graphs on CUDA): each stage's wall time, its host work
+            and launch latency included. "gpu": the same launches, but on CUDA each ``ms_<stage>`` is the GPU
+            time between two CUDA timing events recorded around the stage, with one synchronization at the end
+            of the frame (a stage's time then leaves out the host work that overlaps earlier stages' kernels,
+            and small stages are not inflated by a synchronization each); on the CPU, whose launches are
+            synchronous, "gpu" is the same as True. False: no per-stage times.
         graph: capture the steady-state frame body and replay it: on CUDA as a CUDA graph, on the CPU as a
             recording of its launches (``parallel.record``: the bands run again without the stages' Python).
             None (default): when ``timing`` is False. Ignored (eager launches) when ``timing`` is True.
@@ -130,7 +156,19 @@ class FrameLoop:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self._on_cuda = bool(self.device.is_cuda)
         self._animated = bool(self.scene.is_animated)  # read every frame (a property over the scene's objects)
-        self.timing = check_bool("timing", timing)
+        if isinstance(timing, str):
+            if timing != "gpu":
+                raise ValueError(f"timing must be True, False or 'gpu', got {timing!r}")
+            self.timing = True
+        else:
+            try:
+                self.timing = check_bool("timing", timing)
+            except ValueError:
+                raise ValueError(f"timing must be True, False or 'gpu', got {show(timing)}") from None
+        # timing="gpu" on CUDA: per-stage CUDA events, read after the frame's one synchronization
+        self._timing_gpu = bool(isinstance(timing, str) and self._on_cuda)
+        self._stage_events: list = []  # (stage name, (start, end) events) of this frame, in order
+        self._stage_ev_pool: list = []  # reused event pairs (no allocation per frame once warm)
         self.dscene = DeviceScene(self.scene, self.device)
         w, h, dev = self.width, self.height, self.device
         self.gbuffer = GBuffer(w, h, dev)
@@ -228,7 +266,27 @@ class FrameLoop:
         up to 14 stages, and a generator context manager costs a few microseconds each)."""
         if not (self.timing and active):
             return _NO_TIMING
+        if self._timing_gpu:
+            return _EventStageTimer(self, name)
         return _StageTimer(self, name)
+
+    def _stage_event_pair(self) -> tuple:
+        """The next unused (start, end) pair of CUDA timing events of this frame (made on first use, then reused)."""
+        i = len(self._stage_events)
+        while len(self._stage_ev_pool) <= i:
+            self._stage_ev_pool.append((wp.Event(self.device, enable_timing=True),
+                                        wp.Event(self.device, enable_timing=True)))
+        return self._stage_ev_pool[i]
+
+    def _stage_gpu_ms(self) -> dict:
+        """``ms_<stage>`` of this frame from its stage events (the device synchronized by the caller), summed per
+        name: a stage entered twice in a frame (the head's and the body's part) reports both."""
+        out: dict = {}
+        for name, (e0, e1) in self._stage_events:
+            key = "ms_" + name
+            out[key] = out.get(key, 0.0) + float(wp.get_event_elapsed_time(e0, e1, synchronize=False))
+        self._stage_events = []
+        return out
 
     def _max_t(self, camera: Camera) -> float:
         return self.gbuffer_stage.max_t(camera)
@@ -338,6 +396,7 @@ class FrameLoop:
         gaze = None if gaze_px is None else _check_gaze(gaze_px)
         dof = check_bool("dof", dof)
         self._stats = {}
+        self._stage_events = []
         t0 = _now()
         with self._stage("scene", self._animated):
             self._advance_scene(time)
@@ -369,6 +428,8 @@ class FrameLoop:
         wp.synchronize_device(self.device)
         n = self.width * self.height
         stats = dict(self._stats)
+        if self._timing_gpu:
+            stats.update(self._stage_gpu_ms())
         stats.update(sampling_rate=1.0, cache_hit_rate=0.0, rays_traced=n, frame_index=self.frame_index,
                      ms_frame=(_now() - t0) * 1e3, skipped={})
         self._ref_prev_camera = camera
@@ -393,6 +454,7 @@ class FrameLoop:
         self._ensure_foveated_stages()
         cfg = self.config
         self._stats = {}
+        self._stage_events = []
         skipped: dict = {}
         t0 = _now()
         # -- head: per-frame values ---------------------------------------------------------------------
@@ -533,6 +595,8 @@ class FrameLoop:
         if self.timing:
             wp.synchronize_device(self.device)
             stats["ms_frame"] = (_now() - t0) * 1e3
+            if self._timing_gpu:
+                stats.update(self._stage_gpu_ms())
         if pol_timed:
             wp.synchronize_device(self.device)
             self._pol_ms[mode].append((_now() - t_pol) * 1e3)

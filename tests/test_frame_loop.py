@@ -1,5 +1,7 @@
 """End-to-end FrameLoop: strategies agree, history converges, skips happen when (and only when) they should."""
 
+import math
+
 import numpy as np
 import pytest
 import warp as wp
@@ -419,6 +421,35 @@ def test_timing_reports_only_stages_that_ran(device):
     dof = fw.FrameLoop(scene, W, H, device=device, config=fw.Config().with_(dof={"aperture_m": 0.05}))
     st = dof.render_reference(scene.camera).stats
     assert {"ms_dof", "ms_tonemap"} <= set(st) and "ms_indirect" not in st
+
+
+@pytest.mark.parametrize("shading", ["default", "ao8"])
+def test_gpu_timing_times_the_same_stages_of_the_same_frames(device, shading):
+    """timing="gpu" launches what timing=True launches (the same images, bit for bit) and reports the same
+    ``ms_<stage>`` keys; on CUDA they are CUDA-event spans of disjoint parts of the frame, so they are finite, >= 0
+    and sum to at most the frame's wall time; the events are reused frame after frame (8 AO rays: the list's
+    lights on a second stream at this size, joined inside the shade stage)."""
+    scene = fw.load_scene("cornell")
+    cfg = fw.Config().with_(shading={"ao_samples": 8}) if shading == "ao8" else fw.Config()
+    keys = lambda st: sorted(k for k in st if k.startswith("ms_") and k != "ms_frame")  # noqa: E731
+    for policy in ("foveated", "full"):
+        sync = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy=policy, timing=True)
+        gpu = fw.FrameLoop(scene, W, H, config=cfg, device=device, policy=policy, timing="gpu")
+        assert gpu.timing is True and gpu._timing_gpu == wp.get_device(device).is_cuda
+        pools = []
+        for i in range(4):
+            cam = scene.camera_at(i / 30.0)
+            a, b = sync.render(cam, gaze_px=(40.0, 30.0)), gpu.render(cam, gaze_px=(40.0, 30.0))
+            np.testing.assert_array_equal(a.image.numpy(), b.image.numpy())
+            assert keys(a.stats) == keys(b.stats) and keys(b.stats)
+            ms = [b.stats[k] for k in keys(b.stats)]
+            assert all(math.isfinite(v) and v >= 0.0 for v in ms)
+            assert sum(ms) <= b.stats["ms_frame"] * 1.01 + 0.01
+            assert gpu._stage_events == []
+            pools.append(len(gpu._stage_ev_pool))
+        assert pools[-1] == pools[-2]  # no new events once warm
+        r = gpu.render_reference(scene.camera)
+        assert keys(r.stats) == ["ms_gbuffer", "ms_shade"] and all(r.stats[k] >= 0.0 for k in keys(r.stats))
 
 
 def test_policy_auto_measures_both_paths_and_renders_the_cheaper():

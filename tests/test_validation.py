@@ -609,7 +609,8 @@ arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "device", "or None for the defa
                                                                                         (5, "5")])
 arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "scene", "a scene name or a file path", [(5, "5")],
     param="name_or_path")
-arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "timing", "True or False", [("no", "'no'")])
+arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "timing", "True, False or 'gpu'",
+    [("no", "'no'"), ("GPU", "'GPU'"), (1, "1"), (None, "None")])
 int_arg("FrameLoop", "FrameLoop", fw.FrameLoop, _fl, "cpu_threads", "[1, 1024]", [0, -2, 1025], none_ok=True)
 
 
