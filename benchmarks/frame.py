@@ -188,8 +188,8 @@ def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict, seed: int = 0) -
     right after the same other loop pays for it. With a fixed order (full resolution, foveated, auto) the auto
     loop always followed the foveated one, and its full-resolution frames measured 1.002-1.051x the
     reference's; with shuffled turns the same loops measured 1.000-1.012x, and a second reference loop
-    0.999-1.011x (H100, `auto-order-e31-a251d8e-cuda.log`): the frame after the foveated loop's spends up to
-    ~15 us more host time, the host's caches holding the other loop's state."""
+    0.999-1.011x (H100, `auto-order-e31-a251d8e-cuda.log`): the frame after the foveated loop's usually spends
+    more host time (median +5 us over 32 cases), the host's caches holding the other loop's state."""
     t0_frame = max(warm.values())  # one timeline: each loop's warm-up ends where the timed frames begin
     for name, loop in loops.items():
         for i in range(t0_frame - warm[name], t0_frame):

@@ -104,8 +104,10 @@ class FrameLoop:
             and launch latency included. "gpu": the same launches, but on CUDA each ``ms_<stage>`` is the GPU
             time between two CUDA timing events recorded around the stage, with one synchronization at the end
             of the frame (a stage's time then leaves out the host work that overlaps earlier stages' kernels,
-            and small stages are not inflated by a synchronization each); on the CPU, whose launches are
-            synchronous, "gpu" is the same as True. False: no per-stage times.
+            and small stages are not inflated by a synchronization each; where the host launches a stage's
+            kernels more slowly than the GPU runs them, as in small frames, its span includes the GPU's wait for
+            them); on the CPU, whose launches are synchronous, "gpu" is the same as True. False: no per-stage
+            times.
         graph: capture the steady-state frame body and replay it: on CUDA as a CUDA graph, on the CPU as a
             recording of its launches (``parallel.record``: the bands run again without the stages' Python).
             None (default): when ``timing`` is False. Ignored (eager launches) when ``timing`` is True.
