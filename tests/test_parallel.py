@@ -414,6 +414,39 @@ def test_relaunch_replays_with_changed_arguments(device, bands, rng):
             np.testing.assert_allclose(out.numpy()[0], want, rtol=1e-6, atol=1e-6)
 
 
+@wp.kernel(enable_backward=False)
+def _relaunch_arr_kernel(a: wp.array(dtype=wp.vec3), p: _RelaunchParams, k: int, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = a[i] * p.scale + p.offset + wp.vec3(float(k), 0.0, 0.0)
+
+
+def test_relaunch_recorded_replay_follows_every_change(device):
+    """The recorded replay (bands=False: recorded on every device) against a fresh wp.launch over random call
+    sequences: arrays swapped for other objects (and back), another output, another dim, numbers of another
+    type or value, a struct changed in place or replaced. Each call's output must equal the fresh launch's."""
+    rng = np.random.default_rng(7)
+    n = 29
+    arrs = [wp.array(rng.random((n, 3)).astype(np.float32), dtype=wp.vec3, device=device) for _ in range(3)]
+    outs = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+    ref = wp.zeros(n, dtype=wp.vec3, device=device)
+    rl = parallel.Relaunch(_relaunch_arr_kernel, bands=False)
+    p = _RelaunchParams()
+    for step in range(60):
+        a = arrs[int(rng.integers(3))]
+        o = outs[int(rng.integers(2))]
+        dim = int(rng.choice([n, n - 5, 1]))
+        if rng.random() < 0.5:
+            p = _RelaunchParams()  # a new struct object ...
+        p.scale = float(rng.choice([0.5, 2.0, -1.0]))  # ... or the same one changed in place
+        p.offset = wp.vec3(*(float(v) for v in rng.integers(-3, 4, 3)))
+        k = int(rng.integers(-2, 3))
+        o.zero_()
+        ref.zero_()
+        rl(dim, inputs=[a, p, k], outputs=[o], device=device)
+        wp.launch(_relaunch_arr_kernel, dim=dim, inputs=[a, p, k], outputs=[ref], device=device)
+        np.testing.assert_array_equal(o.numpy(), ref.numpy(), err_msg=f"step {step}")
+
+
 # -- the kept packed arguments and the thread team ------------------------------------------------------------
 
 
