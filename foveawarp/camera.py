@@ -183,10 +183,10 @@ class Camera:
         c = cache.get((width, height))
         if c is not None:
             return c
-        vec3 = _warp_vec3()
+        params_type, vec3 = _warp_types()
         r, u, f = self._basis_floats()
         e = self.eye
-        c = _camera_params_type()()
+        c = params_type()
         c.eye = vec3(e[0], e[1], e[2])
         c.right = vec3(r[0], r[1], r[2])
         c.up = vec3(u[0], u[1], u[2])
@@ -208,23 +208,20 @@ class Camera:
         return math.degrees(math.acos(max(-1.0, min(1.0, d))))
 
 
-_CAMERA_PARAMS = None
+_WARP_TYPES = None
 
 
-def _camera_params_type():
-    """``kernels.camera.CameraParams``, imported on first use (this module does not need Warp otherwise)."""
-    global _CAMERA_PARAMS
-    if _CAMERA_PARAMS is None:
+def _warp_types() -> tuple:
+    """(``kernels.camera.CameraParams``, ``wp.vec3``), imported on first use (this module does not need Warp
+    otherwise) and kept: ``params`` runs before every frame's G-buffer launch."""
+    global _WARP_TYPES
+    if _WARP_TYPES is None:
+        import warp as wp
+
         from .kernels.camera import CameraParams
 
-        _CAMERA_PARAMS = CameraParams
-    return _CAMERA_PARAMS
-
-
-def _warp_vec3():
-    import warp as wp
-
-    return wp.vec3
+        _WARP_TYPES = (CameraParams, wp.vec3)
+    return _WARP_TYPES
 
 
 def _sub3(a, b) -> tuple:

@@ -158,17 +158,12 @@ class FrameLoop:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self._on_cuda = bool(self.device.is_cuda)
         self._animated = bool(self.scene.is_animated)  # read every frame (a property over the scene's objects)
-        if isinstance(timing, str):
-            if timing != "gpu":
-                raise ValueError(f"timing must be True, False or 'gpu', got {timing!r}")
-            self.timing = True
-        else:
-            try:
-                self.timing = check_bool("timing", timing)
-            except ValueError:
-                raise ValueError(f"timing must be True, False or 'gpu', got {show(timing)}") from None
+        gpu_timing = isinstance(timing, str) and timing == "gpu"
+        if not (gpu_timing or isinstance(timing, (bool, np.bool_))):
+            raise ValueError(f"timing must be True, False or 'gpu', got {show(timing)}")
+        self.timing = True if gpu_timing else bool(timing)
         # timing="gpu" on CUDA: per-stage CUDA events, read after the frame's one synchronization
-        self._timing_gpu = bool(isinstance(timing, str) and self._on_cuda)
+        self._timing_gpu = gpu_timing and self._on_cuda
         self._stage_events: list = []  # (stage name, (start, end) events) of this frame, in order
         self._stage_ev_pool: list = []  # reused event pairs (no allocation per frame once warm)
         self.dscene = DeviceScene(self.scene, self.device)
