@@ -6,7 +6,6 @@ from .camera import CameraParams, camera_project, camera_ray_dir
 from .load import load_f32, load_i32, load_vec2, load_vec3, store_vec3
 from .order import tile_order_pixel
 from .packet import PACKET, trace_packet_row
-from .binning import BIN_LOG2, bin_nearest_hit, face_of, face_unit_normal
 
 # reprojection UV of pixels with no previous position (miss, or behind the previous eye)
 NO_REPROJ = -1.0e4
@@ -226,58 +225,6 @@ def _make_gbuffer(mode: str):
                           out_hit, out_reproj, out_prev_dist, out_moved)
 
     return gbuffer
-
-
-@wp.kernel(enable_backward=False)
-def gbuffer_binned_kernel(
-    mesh: wp.uint64,
-    indices: wp.array(dtype=wp.int32),
-    points_prev: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    smooth: wp.array(dtype=wp.uint8),
-    cam: CameraParams,
-    cam_prev: CameraParams,
-    max_t: float,
-    bin_count: wp.array(dtype=wp.int32),
-    bin_faces: wp.array(dtype=wp.int32),
-    cap: int,
-    tiles_x: int,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-    wlog2: int,
-    row0: int,
-):
-    """The G-buffer of the screen bins (kernels/binning.py): thread ``i`` takes pixel ``tile_order_pixel(i, W,
-    wlog2)`` (``wlog2`` 3: each warp's 8 x 4 pixels lie in one 8 x 8 bin) and tests its primary ray against its
-    bin's list, or, where the bin's list overflowed its ``cap``, traces it with ``wp.mesh_query_ray``."""
-    p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
-    x = p[0]
-    y = p[1]
-    if x >= out_depth.shape[1] or y >= out_depth.shape[0]:
-        return
-    px = float(x) + 0.5
-    py = float(y) + 0.5
-    t = (y >> BIN_LOG2) * tiles_x + (x >> BIN_LOG2)
-    n = bin_count[t]
-    if n > cap:
-        trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t, px, py, y, x, out_pos,
-                      out_normal, out_depth, out_face, out_hit, out_reproj, out_prev_dist, out_moved)
-        return
-    d = camera_ray_dir(cam, px, py)
-    r = bin_nearest_hit(mesh, cam.eye, d, max_t, bin_faces, t * cap, n)
-    f = face_of(r[3])
-    fn = wp.vec3(0.0, 0.0, 0.0)
-    if f >= 0:
-        fn = face_unit_normal(mesh, f)
-    write_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t, d, f >= 0, r[0], f, r[1],
-                  r[2], fn, y, x, out_pos, out_normal, out_depth, out_face, out_hit, out_reproj, out_prev_dist,
-                  out_moved)
 
 
 gbuffer_kernel = _make_gbuffer("pixels")

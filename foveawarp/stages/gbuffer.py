@@ -1,5 +1,4 @@
-"""G-buffer stage (ALGORITHMS.md A1): one primary ray per pixel, against the scene BVH or against the triangles
-listed in its 8 x 8-pixel screen bin (``GBufferStage.primary``)."""
+"""G-buffer stage (ALGORITHMS.md A1): one primary ray per pixel against the scene BVH."""
 
 from __future__ import annotations
 
@@ -9,12 +8,8 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
-from ..kernels.binning import BIG_THREADS, BIN, bin_big_triangles_kernel, bin_triangles_kernel
-from ..kernels.gbuffer import gbuffer_binned_kernel, gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
+from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
 from .._util import check_order_width, tile_order_threads
-from ..config import check_choice, check_int_range
-
-PRIMARY_MODES = ("bvh", "bins")
 
 __all__ = ["GBufferStage"]
 
@@ -27,37 +22,10 @@ class GBufferStage:
     # launch, 32 pixels of a row. The same values in every order
     order_width = 8
 
-    def __init__(self, dscene, width: int, height: int, device, *, primary: str = "bvh", bin_cap: int = 64):
-        """``primary``: "bvh" (each ray walks the scene's BVH: ``wp.mesh_query_ray``) or "bins" (each triangle is
-        listed in the 8 x 8-pixel screen bins it can cover, and each ray tests its bin's list: kernels/binning.py;
-        the same hits but for ties between faces at the same distance). ``bin_cap`` in [1, 4096]: triangles a bin's
-        list holds; the pixels of a bin with more are traced through the BVH."""
+    def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
-        self.primary = check_choice("primary", primary, PRIMARY_MODES)
-        self.bin_cap = check_int_range("bin_cap", bin_cap, 1, 4096)
         self._order_key = None  # (type, value) of the order_width the launch was made for
         self._set_order()
-        self._bins = None
-        if self.primary == "bins":
-            tx, ty = -(-width // BIN), -(-height // BIN)
-            nf = max(1, int(dscene.indices.shape[0]) // 3)
-            self._bins = dict(
-                tiles_x=tx, tiles_y=ty, num_faces=nf,
-                count=wp.zeros(tx * ty, dtype=wp.int32, device=device),
-                faces=wp.zeros(tx * ty * self.bin_cap, dtype=wp.int32, device=device),
-                big_count=wp.zeros(1, dtype=wp.int32, device=device),
-                big_faces=wp.zeros(nf, dtype=wp.int32, device=device),
-                groups=256 if wp.get_device(device).is_cuda else 1,
-                dim=tile_order_threads(height, width, 8),
-            )
-
-    def bin_counts(self):
-        """(tiles_y, tiles_x) int32 host copy of the last frame's triangles per screen bin ("bins" mode; reads
-        the device), or None in "bvh" mode. A count above ``bin_cap`` marks a bin traced through the BVH."""
-        if self._bins is None:
-            return None
-        b = self._bins
-        return b["count"].numpy().reshape(b["tiles_y"], b["tiles_x"])
 
     def _set_order(self) -> None:
         """The launch for ``order_width`` (checked), made again when the attribute changed: recorded once on CUDA
@@ -92,28 +60,7 @@ class GBufferStage:
         inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth,
                   camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
         outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, self._wlog2]
-        if self._bins is not None:
-            self._run_bins(inputs, outputs[:-1], camera)
-            return
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
             self._launch(dim=self._dim, inputs=inputs, outputs=outputs, device=self.device)
-
-    def _run_bins(self, inputs, outputs, camera: Camera) -> None:
-        """The "bins" mode: list the triangles in their screen bins, then trace each pixel's ray against its bin."""
-        b, ds, dev = self._bins, self.dscene, self.device
-        cam = inputs[5]
-        b["count"].zero_()
-        b["big_count"].zero_()
-        common = [ds.points, ds.indices, cam, b["tiles_x"], b["tiles_y"], self.bin_cap]
-        # the bin counts are atomics: one thread on the CPU (Warp's CPU atomics are not shared between threads)
-        wp.launch(bin_triangles_kernel, b["num_faces"], inputs=common,
-                  outputs=[b["count"], b["faces"], b["big_count"], b["big_faces"]], device=dev)
-        groups = b["groups"]
-        wp.launch(bin_big_triangles_kernel, dim=groups * BIG_THREADS,
-                  inputs=[*common, groups, b["big_count"], b["big_faces"]], outputs=[b["count"], b["faces"]],
-                  device=dev)
-        parallel.launch(gbuffer_binned_kernel, b["dim"], inputs=[*inputs, b["count"], b["faces"], self.bin_cap,
-                                                                 b["tiles_x"]],
-                        outputs=[*outputs, 3], device=dev)
