@@ -7,10 +7,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import warp as wp
 
-from foveawarp.kernels.load import (load1_i32, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
+from foveawarp.kernels.load import (load1_i32, load1_u8, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
                                    nine_equal_i32, nine_equal_mask64_i32, nine_equal_mask64_vec3, nine_equal_vec3,
                                    store1_i32, store1_vec3, store_f32, store_i32,
-                                   store_u8, store_vec2i, store_vec3)
+                                   store_u8, store_vec2, store_vec2i, store_vec3)
 
 
 @wp.kernel(enable_backward=False)
@@ -117,6 +117,42 @@ def _copy_flat(ai: wp.array(dtype=wp.int32), a3: wp.array(dtype=wp.vec3), idx: w
     i = idx[k]
     store1_i32(oi, i, load1_i32(ai, i))
     store1_vec3(o3, i, load1_vec3(a3, i))
+
+
+@wp.kernel(enable_backward=False)
+def _vec2_store_u8_gather(a2: wp.array2d(dtype=wp.vec2), f8: wp.array(dtype=wp.uint8), idx: wp.array(dtype=wp.int32),
+                          o2: wp.array2d(dtype=wp.vec2), o8: wp.array2d(dtype=wp.uint8)):
+    y, x = wp.tid()
+    store_vec2(o2, y, x, load_vec2(a2, y, x))
+    store_u8(o8, y, x, load1_u8(f8, idx[y * a2.shape[1] + x]))
+
+
+@pytest.mark.parametrize("view", ["contiguous", "strided"])
+def test_vec2_store_and_flat_u8_load(device, view):
+    """``store_vec2`` writes its element of a (possibly strided) view and nothing else; ``load1_u8`` reads the
+    element NumPy indexing reads (the G-buffer's stores and its per-face smooth flags)."""
+    rng = np.random.default_rng(21)
+    H, W = 13, 22
+    sl = (slice(1, None, 2), slice(0, None, 3)) if view == "strided" else (slice(None), slice(None))
+    b2 = rng.normal(size=(H, W, 2)).astype(np.float32)
+    a2 = wp.array(b2, dtype=wp.vec2, device=device)[sl]
+    o2b = wp.array(np.full((H, W, 2), -9.0, np.float32), dtype=wp.vec2, device=device)
+    o8b = wp.array(np.full((H, W), 3, np.uint8), dtype=wp.uint8, device=device)
+    flags = rng.integers(0, 256, size=150, dtype=np.int64).astype(np.uint8)
+    f8 = wp.array(flags, dtype=wp.uint8, device=device)
+    nf = flags
+    if view == "strided":
+        f8, nf = f8[2::5], flags[2::5]
+    h, w = a2.shape
+    idx = rng.integers(0, nf.shape[0], size=h * w).astype(np.int32)
+    wp.launch(_vec2_store_u8_gather, dim=(h, w), inputs=[a2, f8, wp.array(idx, device=device)],
+              outputs=[o2b[sl], o8b[sl]], device=device)
+    e2 = np.full((H, W, 2), -9.0, np.float32)
+    e2[sl] = b2[sl]
+    e8 = np.full((H, W), 3, np.uint8)
+    e8[sl] = nf[idx].reshape(h, w)
+    np.testing.assert_array_equal(o2b.numpy(), e2)
+    np.testing.assert_array_equal(o8b.numpy(), e8)
 
 
 @pytest.mark.parametrize("view", ["contiguous", "strided"])

@@ -3,7 +3,8 @@
 import warp as wp
 
 from .camera import CameraParams, camera_project, camera_ray_dir
-from .load import load_f32, load_i32, load_vec2, load_vec3, store_vec3
+from .load import (load1_i32, load1_u8, load1_vec3, load_f32, load_i32, load_vec2, load_vec3, store_f32, store_i32,
+                   store_u8, store_vec2, store_vec3)
 from .order import tile_order_pixel
 from .packet import PACKET, trace_packet_row
 
@@ -15,18 +16,26 @@ NO_REPROJ = -1.0e4
 def shading_normal(mesh: wp.uint64, face: int, u: float, v: float, face_n: wp.vec3,
                    vnormals: wp.array(dtype=wp.vec3), smooth: wp.array(dtype=wp.uint8),
                    indices: wp.array(dtype=wp.int32)) -> wp.vec3:
+    """The shading normal at barycentrics (u, v) of a hit on ``face``: ``face_n`` (facing the viewer), or on a
+    smooth face the interpolated vertex normals, kept on ``face_n``'s side."""
     n = face_n
     if smooth[face] != wp.uint8(0):
-        i0 = indices[face * 3 + 0]
-        i1 = indices[face * 3 + 1]
-        i2 = indices[face * 3 + 2]
-        s = vnormals[i0] * u + vnormals[i1] * v + vnormals[i2] * (1.0 - u - v)
-        ls = wp.length(s)
-        if ls > 1.0e-12:
-            s = s / ls
-            # keep the interpolated normal on the geometric normal's side
-            if wp.dot(s, face_n) > 0.0:
-                n = s
+        n = smooth_normal(face_n, u, v, vnormals[indices[face * 3 + 0]], vnormals[indices[face * 3 + 1]],
+                          vnormals[indices[face * 3 + 2]])
+    return n
+
+
+@wp.func
+def smooth_normal(face_n: wp.vec3, u: float, v: float, n0: wp.vec3, n1: wp.vec3, n2: wp.vec3) -> wp.vec3:
+    """:func:`shading_normal` of a smooth face with vertex normals n0, n1, n2."""
+    n = face_n
+    s = n0 * u + n1 * v + n2 * (1.0 - u - v)
+    ls = wp.length(s)
+    if ls > 1.0e-12:
+        s = s / ls
+        # keep the interpolated normal on the geometric normal's side
+        if wp.dot(s, face_n) > 0.0:
+            n = s
     return n
 
 
@@ -125,41 +134,46 @@ def write_primary(
     ``face``, ``u``, ``v``, unit ``face_normal``) of ``wp.mesh_query_ray`` (or the packet walk of
     kernels/packet.py, which gives the same)."""
     if result:
+        # face is a face of the mesh and (y, x) an entry of the outputs: the unchecked loads and stores of
+        # kernels/load.py (the same values; the kernel is instruction bound)
         p = cam.eye + d * t
         fn = face_normal
         if wp.dot(fn, d) > 0.0:
             fn = -fn  # face the viewer
-        n = shading_normal(mesh, face, u, v, fn, vnormals, smooth, indices)
-        i0 = indices[face * 3 + 0]
-        i1 = indices[face * 3 + 1]
-        i2 = indices[face * 3 + 2]
+        i0 = load1_i32(indices, face * 3 + 0)
+        i1 = load1_i32(indices, face * 3 + 1)
+        i2 = load1_i32(indices, face * 3 + 2)
+        n = fn
+        if load1_u8(smooth, face) != wp.uint8(0):
+            n = smooth_normal(fn, u, v, load1_vec3(vnormals, i0), load1_vec3(vnormals, i1), load1_vec3(vnormals, i2))
         # the same surface point at the previous frame's vertex positions (object motion)
-        pp = points_prev[i0] * u + points_prev[i1] * v + points_prev[i2] * (1.0 - u - v)
+        pp = load1_vec3(points_prev, i0) * u + load1_vec3(points_prev, i1) * v + load1_vec3(points_prev, i2) * (
+            1.0 - u - v)
         pr = camera_project(cam_prev, pp)
-        out_prev_dist[y, x] = wp.length(pp - cam_prev.eye)
+        store_f32(out_prev_dist, y, x, wp.length(pp - cam_prev.eye))
         # the surface point itself moved (object motion): its lighting may have changed too
         moved = wp.uint8(0)
         if wp.length(pp - p) > 1.0e-6 * t + 1.0e-7:
             moved = wp.uint8(1)
-        out_moved[y, x] = moved
+        store_u8(out_moved, y, x, moved)
         uv = wp.vec2(NO_REPROJ, NO_REPROJ)
         if pr[2] > 0.0:
             uv = wp.vec2(pr[0], pr[1])
-        out_pos[y, x] = p
-        out_normal[y, x] = n
-        out_depth[y, x] = t
-        out_face[y, x] = face
-        out_hit[y, x] = wp.uint8(1)
-        out_reproj[y, x] = uv
+        store_vec3(out_pos, y, x, p)
+        store_vec3(out_normal, y, x, n)
+        store_f32(out_depth, y, x, t)
+        store_i32(out_face, y, x, face)
+        store_u8(out_hit, y, x, wp.uint8(1))
+        store_vec2(out_reproj, y, x, uv)
     else:
-        out_pos[y, x] = wp.vec3(0.0, 0.0, 0.0)
-        out_normal[y, x] = wp.vec3(0.0, 0.0, 0.0)
-        out_depth[y, x] = max_t
-        out_face[y, x] = -1
-        out_hit[y, x] = wp.uint8(0)
-        out_reproj[y, x] = wp.vec2(NO_REPROJ, NO_REPROJ)
-        out_prev_dist[y, x] = 0.0
-        out_moved[y, x] = wp.uint8(0)
+        store_vec3(out_pos, y, x, wp.vec3(0.0, 0.0, 0.0))
+        store_vec3(out_normal, y, x, wp.vec3(0.0, 0.0, 0.0))
+        store_f32(out_depth, y, x, max_t)
+        store_i32(out_face, y, x, -1)
+        store_u8(out_hit, y, x, wp.uint8(0))
+        store_vec2(out_reproj, y, x, wp.vec2(NO_REPROJ, NO_REPROJ))
+        store_f32(out_prev_dist, y, x, 0.0)
+        store_u8(out_moved, y, x, wp.uint8(0))
 
 
 def _make_gbuffer(mode: str):

@@ -93,6 +93,18 @@ def store1_i32(a: wp.array(dtype=wp.int32), i: int, v: int):
     ...
 
 
+@wp.func_native(f"*(wp::vec2*){_ADDR} = v;")
+def store_vec2(a: wp.array2d(dtype=wp.vec2), y: int, x: int, v: wp.vec2):
+    """``a[y, x] = v`` for 0 <= y < H, 0 <= x < W (unchecked)."""
+    ...
+
+
+@wp.func_native(f"return *(const unsigned char*){_ADDR1};")
+def load1_u8(a: wp.array(dtype=wp.uint8), i: int) -> wp.uint8:
+    """``a[i]`` for 0 <= i < N (unchecked)."""
+    ...
+
+
 @wp.func_native(f"*(float*){_ADDR} = v;")
 def store_f32(a: wp.array2d(dtype=float), y: int, x: int, v: float):
     """``a[y, x] = v`` for 0 <= y < H, 0 <= x < W (unchecked)."""
