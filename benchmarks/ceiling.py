@@ -1,0 +1,161 @@
+"""Upper bounds on the foveated frame's speed-up, from measured stage times: what each issue-14 target would need.
+
+Reads the JSON of ``benchmarks/frame.py --parts timing`` (one or more runs) and, optionally, the markdown of
+``benchmarks/ncu_frame.py`` (Nsight Compute: each kernel's DRAM floor). No GPU is used. Per scene, size and shading,
+from the foveated frame's GPU stage times (``stage_gpu_ms``: CUDA events, one synchronization per frame):
+
+* G: the G-buffer (the same kernel in the reference; one primary ray per pixel);
+* F: the fixed passes (``overhead_stage_sum_gpu_ms``: sampling, compaction, temporal resolve, Voronoi + Sibson);
+* rate: the sampling rate; ref: the reference frame's time.
+
+Bounds on ref / foveated time:
+
+* **A, traced shading free**: ref / (G + F). The target is out of reach while the G-buffer and the fixed passes
+  cost what they do, however cheap the traced pixels' shading becomes.
+* **B, fixed passes at their DRAM floor and traced shading free**: ref / (G + F_floor), with F_floor the summed
+  Nsight DRAM floors (bytes moved / copy bandwidth) of the fixed-pass kernels of the same scene, size and shading
+  (where the markdown has them). Out of reach while the passes move the bytes they move.
+* **C, the list at the full frame's per-pixel shading cost**: ref / (G + F + rate * (ref - G)): the traced pixels
+  shaded as cheaply per pixel as the reference shades every pixel (its frame less its G-buffer).
+
+The targets (issue 14, H100): default shading >= 1.0x everywhere and >= 1.5x on city and bunny at 3840x2160;
+8 AO rays (``ao8``) >= 3x at 3840x2160 and >= 2.5x at 1920x1080 on city, bunny and the meshes of ../shared/scenes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+MESHES = ("spot", "teapot", "nefertiti", "ogre")
+# kernels of the foveated frame that are not fixed passes (Nsight markdown)
+_NOT_FIXED = ("gbuffer", "shade_", "set_shade_params", "ao_", "**all**")
+
+
+def target(scene: str, width: int, shading: str):
+    """The issue's speed-up target for (scene, width, shading), or None where it sets none."""
+    if shading == "default":
+        return 1.5 if (scene in ("city", "bunny") and width >= 3840) else 1.0
+    if shading == "ao8" and scene in ("city", "bunny", *MESHES):
+        return 3.0 if width >= 3840 else 2.5
+    return None
+
+
+def ncu_floors(path) -> dict:
+    """{(scene, "WxH", shading): summed DRAM floor ms of the foveated frame's fixed-pass kernels}."""
+    out: dict = {}
+    for line in Path(path).read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 8 or cells[3] != "fov":
+            continue
+        kernel = cells[4]
+        if any(kernel.startswith(p) or p in kernel for p in _NOT_FIXED):
+            continue
+        try:
+            floor = float(cells[7])
+        except ValueError:
+            continue
+        key = (cells[0], cells[1], cells[2])
+        out[key] = out.get(key, 0.0) + floor
+    return out
+
+
+def bounds(rec: dict, floor_ms=None) -> dict:
+    """The bounds A, B (None without a floor) and C of one timing record (see the module docstring)."""
+    g = float(rec["stage_gpu_ms"]["gbuffer"])
+    f = float(rec["overhead_stage_sum_gpu_ms"])
+    ref = float(rec["ref_ms"])
+    rate = float(rec.get("timing_sampling_rate", rec["sampling_rate"]))
+    a = ref / (g + f)
+    b = ref / (g + floor_ms) if floor_ms is not None else None
+    c = ref / (g + f + rate * max(ref - g, 0.0))
+    return {"gbuffer_ms": g, "fixed_ms": f, "rate": rate, "ref_ms": ref, "bound_free_shading": a,
+            "bound_floor_free_shading": b, "bound_list_at_full_cost": c}
+
+
+def analyse(runs: list, floors: dict) -> list:
+    """Rows per (scene, size, shading): the measured speed-ups of each run, the target, and the bounds of each run
+    (median over runs)."""
+    groups: dict = {}
+    for run in runs:
+        for r in run["records"]:
+            if r.get("kind") != "timing" or r.get("config", "default") != "default":
+                continue
+            key = (r["scene"], int(r["width"]), int(r["height"]), r["shading"])
+            groups.setdefault(key, []).append(r)
+    rows = []
+    for (scene, w, h, shading), recs in groups.items():
+        fl = floors.get((scene, f"{w}x{h}", shading))
+        bs = [bounds(r, fl) for r in recs]
+        med = {k: statistics.median([b[k] for b in bs]) if bs[0][k] is not None else None for k in bs[0]}
+        t = target(scene, w, shading)
+        row = {"scene": scene, "width": w, "height": h, "shading": shading, "target": t,
+               "speedups": [float(r["speedup"]) for r in recs],
+               "auto_speedups": [float(r["ref_ms"]) / float(r["auto_ms"]) for r in recs if r.get("auto_ms")],
+               "auto_paths": [r.get("auto_path") for r in recs], **med}
+        if t is not None:
+            met = min(row["speedups"]) >= t
+            if met:
+                verdict = "met"
+            elif t <= 1.0 and row["auto_speedups"] and all(p == "full" for p in row["auto_paths"]):
+                verdict = "the default policy renders full resolution here (auto column)"
+            elif med["bound_free_shading"] < t:
+                verdict = "out of reach: G-buffer + fixed passes alone exceed ref / target"
+            elif med["bound_floor_free_shading"] is not None and med["bound_floor_free_shading"] < t:
+                verdict = "out of reach even with the fixed passes at their DRAM floor"
+            elif med["bound_list_at_full_cost"] < t:
+                verdict = "needs the list cheaper per pixel than shading every pixel"
+            else:
+                verdict = "missed: within the bounds (the list's per-pixel cost and the passes' speed)"
+            row["verdict"] = verdict
+        rows.append(row)
+    rows.sort(key=lambda r: (r["shading"], r["width"], r["scene"]))
+    return rows
+
+
+def markdown(rows: list, sources: list) -> str:
+    def f(v, d=2):
+        return "-" if v is None else f"{v:.{d}f}"
+
+    out = [f"Speed-up bounds from measured GPU stage times ({', '.join(sources)}). A: traced shading free. "
+           "B: also the fixed passes at their Nsight DRAM floor. C: the list at the full frame's per-pixel shading "
+           "cost.", "",
+           "| scene | size | shading | target | measured speed-up (runs) | auto: ref / default policy | G-buffer ms | "
+           "fixed passes ms | rate | A | B | C | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['scene']} | {r['width']}x{r['height']} | {r['shading']} | {f(r['target'], 1)} | "
+                   f"{' / '.join(f'{s:.2f}' for s in r['speedups'])} | "
+                   f"{' / '.join(f'{s:.3f}' for s in r['auto_speedups']) or '-'} | {f(r['gbuffer_ms'], 3)} | "
+                   f"{f(r['fixed_ms'], 3)} | {r['rate']:.3f} | {f(r['bound_free_shading'])} | "
+                   f"{f(r['bound_floor_free_shading'])} | {f(r['bound_list_at_full_cost'])} | "
+                   f"{r.get('verdict', '-')} |")
+    return "\n".join(out) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--timing", nargs="+", required=True, help="frame.py --parts timing JSON files (runs)")
+    p.add_argument("--ncu", default=None, help="ncu_frame.py markdown (DRAM floors), optional")
+    p.add_argument("--name", default="ceiling", help="output file stem")
+    p.add_argument("--out", default=None, help="output folder (default benchmarks/results)")
+    a = p.parse_args(argv)
+    runs = [json.loads(Path(t).read_text()) for t in a.timing]
+    floors = ncu_floors(a.ncu) if a.ncu else {}
+    rows = analyse(runs, floors)
+    out = Path(a.out) if a.out else RESULTS
+    out.mkdir(parents=True, exist_ok=True)
+    sources = [Path(t).name for t in a.timing] + ([Path(a.ncu).name] if a.ncu else [])
+    res = {"benchmark": "ceiling", "sources": sources, "commits": sorted({r.get("commit", "?") for r in runs}),
+           "device": runs[0].get("device_name", runs[0].get("device")), "rows": rows}
+    (out / f"{a.name}.json").write_text(json.dumps(res, indent=1))
+    md = markdown(rows, sources)
+    (out / f"{a.name}.md").write_text(md)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,75 @@
+"""benchmarks/ceiling.py: the speed-up bounds against hand-computed values, the targets, the Nsight floor parsing
+and the verdicts (no GPU: it reads committed JSON)."""
+
+import json
+
+import pytest
+
+from benchmarks import ceiling
+
+
+def _rec(scene="bunny", w=3840, h=2160, shading="ao8", g=1.0, f=1.0, ref=6.0, rate=0.1, fov=2.0, auto=None,
+         path="foveated"):
+    return {"kind": "timing", "config": "default", "scene": scene, "width": w, "height": h, "shading": shading,
+            "stage_gpu_ms": {"gbuffer": g, "shade": 0.5}, "overhead_stage_sum_gpu_ms": f, "ref_ms": ref,
+            "fov_ms": fov, "speedup": ref / fov, "sampling_rate": rate, "timing_sampling_rate": rate,
+            "auto_ms": auto if auto is not None else fov, "auto_path": path, "commit": "abc"}
+
+
+def test_bounds_by_hand():
+    b = ceiling.bounds(_rec(g=1.0, f=1.0, ref=6.0, rate=0.1), floor_ms=0.5)
+    assert b["bound_free_shading"] == pytest.approx(6.0 / 2.0)
+    assert b["bound_floor_free_shading"] == pytest.approx(6.0 / 1.5)
+    assert b["bound_list_at_full_cost"] == pytest.approx(6.0 / (2.0 + 0.1 * 5.0))
+    assert ceiling.bounds(_rec(), None)["bound_floor_free_shading"] is None
+    # a reference cheaper than its G-buffer (timing noise) leaves no shading to scale: C = A
+    b = ceiling.bounds(_rec(g=1.0, f=1.0, ref=0.9), None)
+    assert b["bound_list_at_full_cost"] == pytest.approx(b["bound_free_shading"])
+
+
+def test_targets():
+    assert ceiling.target("bunny", 3840, "default") == 1.5
+    assert ceiling.target("city", 1920, "default") == 1.0
+    assert ceiling.target("cornell", 3840, "default") == 1.0
+    assert ceiling.target("teapot", 3840, "ao8") == 3.0
+    assert ceiling.target("ogre", 1920, "ao8") == 2.5
+    assert ceiling.target("cornell", 3840, "ao8") is None  # the 8-AO-ray targets name city, bunny and the meshes
+
+
+def test_ncu_floor_parsing(tmp_path):
+    md = tmp_path / "ncu.md"
+    md.write_text("header\n\n| scene | size | shading | frame | kernel | ms | B/px | floor ms | x | a | b | c | d |\n"
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+                  "| bunny | 3840x2160 | ao8 | fov | gbuffer_tiles_kernel | 0.7 | 70 | 0.2 | 3 | 1 | 1 | 1 | 72 |\n"
+                  "| bunny | 3840x2160 | ao8 | fov | sampling_map_kernel | 0.3 | 44 | 0.125 | 2 | 1 | 1 | 1 | 48 |\n"
+                  "| bunny | 3840x2160 | ao8 | fov | resolve_stoch_boxed_kernel | 0.33 | 90 | 0.25 | 1.3 | 1 | 1 | 1 | 40 |\n"
+                  "| bunny | 3840x2160 | ao8 | fov | shade_list_kernel | 1.2 | 20 | 0.05 | 20 | 1 | 1 | 1 | 128 |\n"
+                  "| bunny | 3840x2160 | ao8 | fov | **all** | 2.5 | 224 | 0.625 | 4 |  |  |  |  |\n"
+                  "| bunny | 3840x2160 | ao8 | ref | resolve_kernel | 9 | 9 | 9.0 | 1 | 1 | 1 | 1 | 1 |\n")
+    fl = ceiling.ncu_floors(md)
+    assert fl == {("bunny", "3840x2160", "ao8"): pytest.approx(0.375)}  # sampling + resolve, foveated frame only
+
+
+def test_verdicts_and_cli(tmp_path):
+    runs = [{"device_name": "X", "records": [
+        _rec("bunny", shading="ao8", g=1.0, f=1.0, ref=6.0, rate=0.1, fov=2.0),  # 3.0x: met
+        _rec("teapot", shading="ao8", g=1.0, f=1.5, ref=6.0, rate=0.1, fov=3.0),  # A = 2.4 < 3
+        _rec("spot", shading="ao8", g=0.5, f=1.0, ref=6.0, rate=0.2, fov=3.0),  # A = 4, C = 6 / 2.6 < 3
+        _rec("ogre", shading="ao8", g=0.5, f=0.5, ref=6.0, rate=0.05, fov=2.5),  # A = 6, C = 6 / 1.275 > 3
+        _rec("cornell", shading="default", g=0.5, f=1.0, ref=1.0, fov=1.4, auto=1.0, path="full"),
+        _rec("cornell", shading="ao8", g=0.5, f=1.0, ref=3.0, fov=2.0),  # no target
+        {"kind": "quality", "scene": "bunny"},  # ignored
+    ]}]
+    p = tmp_path / "t.json"
+    p.write_text(json.dumps(runs[0]))
+    assert ceiling.main(["--timing", str(p), "--name", "c", "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "c.json").read_text())
+    by = {(r["scene"], r["shading"]): r for r in res["rows"]}
+    assert by[("bunny", "ao8")]["verdict"] == "met"
+    assert by[("teapot", "ao8")]["verdict"].startswith("out of reach: G-buffer")
+    assert by[("spot", "ao8")]["verdict"].startswith("needs the list cheaper")
+    assert by[("ogre", "ao8")]["verdict"].startswith("missed: within the bounds")
+    assert by[("cornell", "default")]["verdict"].startswith("the default policy renders full resolution")
+    assert "verdict" not in by[("cornell", "ao8")]
+    assert by[("cornell", "default")]["auto_speedups"] == [pytest.approx(1.0)]
+    assert (tmp_path / "c.md").read_text().count("\n| ") == 1 + len(by)  # header row + one row each
