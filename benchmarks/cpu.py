@@ -267,7 +267,7 @@ def main(argv=None):
             # the default policy ("auto" with timing=False): its measurement (both paths, a few frames each)
             # runs first, so the timed frames render the path it chose
             fl_auto = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, cpu_threads=tmax)
-            frame_ms(fl_auto, 2 * (fl_auto.POLICY_WARM + fl_auto.POLICY_TIMED) + 1, False)
+            frame_ms(fl_auto, fl_auto.policy_measurement_frames() + 1, False)
             # the same two paths with frame.py's moving gaze (its own loops: a loop's history follows its gaze)
             fl_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
             fl_ref_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",

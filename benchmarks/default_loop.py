@@ -51,7 +51,7 @@ def run_case(scene, w, h, shading, dev, frames, warmup, threads, metric, timing=
     dflt = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)  # the defaults under test
     fov = fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="foveated", **kw)
     ref = fw.FrameLoop(scene, w, h, config=cfg, device=dev, **kw)
-    n_pol = 2 * (dflt.POLICY_WARM + dflt.POLICY_TIMED) if dflt.policy == "auto" else 0
+    n_pol = dflt.policy_measurement_frames() if dflt.policy == "auto" else 0
     total = n_pol + warmup + frames
     t = {"reference": [], "default": [], "foveated": []}
     q = {"default": [], "foveated": []}

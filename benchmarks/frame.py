@@ -222,7 +222,7 @@ def timing(fw, scene, w, h, dev, cfg, n):
     auto = loops["auto"]
     # the auto loop measures both paths over its first frames; its timed frames come after (no re-measurement
     # falls inside them: POLICY_PERIOD is far longer)
-    warm = {"full": 8, "foveated": 8, "auto": 2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2}
+    warm = {"full": 8, "foveated": 8, "auto": auto.policy_measurement_frames() + 2}
     med = _timed_interleaved(loops, scene, w, h, n, warm)
     ref_ms, fov_ms, auto_ms = med["full"], med["foveated"], med["auto"]
     traced_keys = ("gbuffer", "shade", "indirect", "indirect_build")

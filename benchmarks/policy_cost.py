@@ -42,7 +42,7 @@ def _one(sc, w, h, shading, frames, dev, args) -> dict:
         auto = fw.FrameLoop(sc, w, h, policy="auto", **kw)
         loops.append(("auto", auto, False))
         # its first measurement (both paths, warm-up and timed frames) happens before the timed frames
-        frame_ms(auto, 2 * (auto.POLICY_WARM + auto.POLICY_TIMED) + 2, False)
+        frame_ms(auto, auto.policy_measurement_frames() + 2, False)
     times = {name: [] for name, _, _ in loops}
     for i in range(args.warmup + frames):
         k = i % len(loops)

@@ -456,8 +456,10 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     scene = fw.load_scene("cornell")
     loop = fw.FrameLoop(scene, W, H, device="cpu", policy="auto")
     n = loop.POLICY_WARM + loop.POLICY_TIMED
+    m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED
+    assert loop.policy_measurement_frames() == 2 * n + 2 * m
     paths = []
-    for i in range(2 * n + 3):
+    for i in range(2 * n + 2 * m + 3):
         f = loop.render(scene.camera_at(i / 60.0), gaze_px=(48.0, 32.0))
         paths.append(f.stats["policy"]["path"])
         if paths[-1] == "foveated" and i > 0 and paths[-2] == "full":
@@ -468,8 +470,12 @@ def test_policy_auto_measures_both_paths_and_renders_the_cheaper():
     assert paths[:n] == ["foveated"] * n and paths[n:2 * n] == ["full"] * n
     est = f.stats["policy"]
     assert est["foveated_ms"] > 0 and est["full_ms"] > 0
+    # a measurement that is not clear-cut times both paths again, in the other order
+    end = 2 * n if est["blocks"] == 2 else 2 * n + 2 * m
+    if est["blocks"] == 4:
+        assert paths[2 * n:end] == ["full"] * m + ["foveated"] * m
     cheaper = "foveated" if est["foveated_ms"] < (1 - loop.POLICY_MARGIN) * est["full_ms"] else "full"
-    assert paths[2 * n:] == [cheaper] * 3
+    assert paths[end:] == [cheaper] * (len(paths) - end)
     if cheaper == "full":
         assert "cheaper" in f.stats["skipped"]["foveation"] and "ms" in f.stats["skipped"]["foveation"]
 
@@ -522,6 +528,7 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     the frames confirm is kept."""
     scene = fw.load_scene("cornell")
     loop = fw.FrameLoop(scene, 32, 24, device=device, policy="auto", timing=False, cpu_threads=1)
+    loop.POLICY_CLEAR = 0.0  # no confirming blocks: this test is about the check (test_policy_confirms_...)
     sync = lambda: wp.synchronize_device(device)  # noqa: E731 (a frame done before the next: its span is read)
     n = 2 * (loop.POLICY_WARM + loop.POLICY_TIMED)
     for i in range(n + 1):
@@ -564,6 +571,59 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
         sync()
         assert st["path"] == choice and st["rechecks"] == 1
+
+
+def _drive_policy(loop, block_ms):
+    """Run ``loop``'s policy state machine (no rendering) through one measurement, giving each timed frame of
+    the k-th block the time ``block_ms[k]`` (a list per block, cycled). Returns the paths of the frames up to
+    and including the first frame after the decision."""
+    paths, counts = [], {}
+    for i in range(loop.POLICY_PERIOD):
+        path, timed, _ = loop._policy_mode()
+        paths.append(path)
+        if "measured_at_frame" in loop._pol_est:
+            return paths
+        # the block of frame i, from the schedule as it stands after this frame's call
+        ends = np.cumsum([w + t for _, w, t in loop._pol_sched])
+        block = int(np.searchsorted(ends, i, side="right"))
+        assert loop._pol_sched[block][0] == path
+        if timed:
+            k = counts.get(block, 0)
+            loop._pol_ms[path].append(block_ms[block][k % len(block_ms[block])])
+            counts[block] = k + 1
+    raise AssertionError("no decision within a period")
+
+
+@pytest.mark.parametrize("case", ["inflated_full", "clear", "close_kept"])
+def test_policy_confirms_a_close_measurement(case):
+    """A measurement whose paths are not clear-cut (neither POLICY_CLEAR cheaper) times both again in the other
+    order, and each path's estimate is the lower of its two block medians (NumPy, here); a clear-cut one decides
+    after its two blocks. The state machine is driven with set frame times (no rendering)."""
+    loop = fw.FrameLoop("cornell", 16, 8, device="cpu", policy="auto")
+    n = loop.POLICY_WARM + loop.POLICY_TIMED
+    m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED
+    blocks = {
+        # the full path's first block slowed by a transient: alone it would pick foveation (1.0 < 0.95 * 1.2)
+        "inflated_full": [[1.0, 1.02, 0.98], [1.2, 1.25, 1.19], [0.9, 0.91, 0.89], [1.01, 1.0, 1.03]],
+        "clear": [[0.5, 0.52, 0.49], [1.0, 1.01, 0.99]],
+        "close_kept": [[1.0, 1.01, 0.99], [1.2, 1.22, 1.18], [1.21, 1.2, 1.19], [1.3, 1.31, 1.29]],
+    }[case]
+    paths = _drive_policy(loop, blocks)
+    est = loop._pol_est
+    t = loop.POLICY_TIMED
+    meds = [float(np.median([b[k % len(b)] for k in range(t)])) for b in blocks]
+    if case == "clear":
+        assert est["blocks"] == 2 and len(paths) == 2 * n + 1
+        assert paths[:2 * n] == ["foveated"] * n + ["full"] * n
+        fov, full = meds[0], meds[1]
+    else:
+        assert est["blocks"] == 4 and len(paths) == 2 * n + 2 * m + 1
+        assert paths[:2 * n + 2 * m] == ["foveated"] * n + ["full"] * n + ["full"] * m + ["foveated"] * m
+        fov, full = min(meds[0], meds[3]), min(meds[1], meds[2])
+    assert est["foveated_ms"] == pytest.approx(fov) and est["full_ms"] == pytest.approx(full)
+    expect = "foveated" if fov < (1 - loop.POLICY_MARGIN) * full else "full"
+    assert loop._pol_choice == expect and paths[-1] == expect
+    assert expect == {"inflated_full": "full", "clear": "foveated", "close_kept": "foveated"}[case]
 
 
 def test_policy_measurement_length():
