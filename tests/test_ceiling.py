@@ -21,10 +21,12 @@ def test_bounds_by_hand():
     assert b["bound_free_shading"] == pytest.approx(6.0 / 2.0)
     assert b["bound_floor_free_shading"] == pytest.approx(6.0 / 1.5)
     assert b["bound_list_at_full_cost"] == pytest.approx(6.0 / (2.0 + 0.1 * 5.0))
+    assert b["list_cost_per_pixel_vs_full"] == pytest.approx(0.5 / (0.1 * 5.0))  # shade stage 0.5 ms
     assert ceiling.bounds(_rec(), None)["bound_floor_free_shading"] is None
     # a reference cheaper than its G-buffer (timing noise) leaves no shading to scale: C = A
     b = ceiling.bounds(_rec(g=1.0, f=1.0, ref=0.9), None)
     assert b["bound_list_at_full_cost"] == pytest.approx(b["bound_free_shading"])
+    assert b["list_cost_per_pixel_vs_full"] is None
 
 
 def test_targets():
@@ -54,7 +56,8 @@ def test_verdicts_and_cli(tmp_path):
     runs = [{"device_name": "X", "records": [
         _rec("bunny", shading="ao8", g=1.0, f=1.0, ref=6.0, rate=0.1, fov=2.0),  # 3.0x: met
         _rec("teapot", shading="ao8", g=1.0, f=1.5, ref=6.0, rate=0.1, fov=3.0),  # A = 2.4 < 3
-        _rec("spot", shading="ao8", g=0.5, f=1.0, ref=6.0, rate=0.2, fov=3.0),  # A = 4, C = 6 / 2.6 < 3
+        _rec("spot", shading="ao8", g=0.5, f=1.0, ref=6.0, rate=0.2, fov=3.0),  # A = 4, C = 6 / 2.6 < 3, B below
+        _rec("nefertiti", shading="ao8", g=0.5, f=1.0, ref=6.0, rate=0.2, fov=3.0),  # the same without a floor
         _rec("ogre", shading="ao8", g=0.5, f=0.5, ref=6.0, rate=0.05, fov=2.5),  # A = 6, C = 6 / 1.275 > 3
         _rec("cornell", shading="default", g=0.5, f=1.0, ref=1.0, fov=1.4, auto=1.0, path="full"),
         _rec("cornell", shading="ao8", g=0.5, f=1.0, ref=3.0, fov=2.0),  # no target
@@ -62,13 +65,19 @@ def test_verdicts_and_cli(tmp_path):
     ]}]
     p = tmp_path / "t.json"
     p.write_text(json.dumps(runs[0]))
-    assert ceiling.main(["--timing", str(p), "--name", "c", "--out", str(tmp_path)]) == 0
+    # a floor for spot: G + F_floor = 0.5 + 2.0 > 6 / 3, so B < 3 decides before A and C
+    ncu = tmp_path / "ncu.md"
+    ncu.write_text("| spot | 3840x2160 | ao8 | fov | sampling_map_kernel | 1 | 1 | 2.0 | 1 | 1 | 1 | 1 | 1 |\n")
+    assert ceiling.main(["--timing", str(p), "--ncu", str(ncu), "--name", "c", "--out", str(tmp_path)]) == 0
     res = json.loads((tmp_path / "c.json").read_text())
     by = {(r["scene"], r["shading"]): r for r in res["rows"]}
     assert by[("bunny", "ao8")]["verdict"] == "met"
-    assert by[("teapot", "ao8")]["verdict"].startswith("out of reach: G-buffer")
-    assert by[("spot", "ao8")]["verdict"].startswith("needs the list cheaper")
+    assert by[("teapot", "ao8")]["verdict"].startswith("out of reach with today's fixed passes")
+    assert by[("spot", "ao8")]["verdict"].startswith("out of reach: G-buffer + fixed passes at their DRAM floor")
+    assert by[("spot", "ao8")]["bound_floor_free_shading"] == pytest.approx(6.0 / 2.5)
+    assert by[("ogre", "ao8")]["bound_floor_free_shading"] is None
     assert by[("ogre", "ao8")]["verdict"].startswith("missed: within the bounds")
+    assert by[("nefertiti", "ao8")]["verdict"].startswith("needs the list cheaper")
     assert by[("cornell", "default")]["verdict"].startswith("the default policy renders full resolution")
     assert "verdict" not in by[("cornell", "ao8")]
     assert by[("cornell", "default")]["auto_speedups"] == [pytest.approx(1.0)]
