@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,14 +188,23 @@ class Camera:
         r, u, f = self._basis_floats()
         e = self.eye
         c = params_type()
-        c.eye = vec3(e[0], e[1], e[2])
-        c.right = vec3(r[0], r[1], r[2])
-        c.up = vec3(u[0], u[1], u[2])
-        c.forward = vec3(f[0], f[1], f[2])
-        c.tan_half_fov_y = self.tan_half_fov_y
-        c.aspect = float(width) / float(height)
-        c.width = width
-        c.height = height
+        tan, aspect = self.tan_half_fov_y, float(width) / float(height)
+        try:
+            # the struct's 64 bytes in one write (its layout is checked once, _params_layout_ok): a fifth of
+            # the time of Warp's per-field setters, on the frame's critical path; the same float32 values
+            _PARAMS_PACK.pack_into(memoryview(c._ctype).cast("B"), 0, e[0], e[1], e[2], r[0], r[1], r[2], u[0],
+                                   u[1], u[2], f[0], f[1], f[2], tan, aspect, width, height)
+            d = c.__dict__  # the vectors' attributes alias the struct's bytes; the scalars' are Python values
+            d["tan_half_fov_y"], d["aspect"], d["width"], d["height"] = tan, aspect, width, height
+        except OverflowError:  # a value beyond float32's range: Warp's setters (they round it to inf)
+            c.eye = vec3(e[0], e[1], e[2])
+            c.right = vec3(r[0], r[1], r[2])
+            c.up = vec3(u[0], u[1], u[2])
+            c.forward = vec3(f[0], f[1], f[2])
+            c.tan_half_fov_y = tan
+            c.aspect = aspect
+            c.width = width
+            c.height = height
         cache[(width, height)] = c
         return c
 
@@ -211,15 +221,31 @@ class Camera:
 _WARP_TYPES = None
 
 
+# CameraParams as bytes: eye, right, up, forward (float32 x 3 each), tan_half_fov_y, aspect (float32), width,
+# height (int32), little-endian and unpadded; _warp_types checks that the compiled struct has this layout
+_PARAMS_PACK = struct.Struct("<14f2i")
+_PARAMS_FIELDS = (("eye", 0), ("right", 12), ("up", 24), ("forward", 36), ("tan_half_fov_y", 48), ("aspect", 52),
+                  ("width", 56), ("height", 60))
+
+
 def _warp_types() -> tuple:
     """(``kernels.camera.CameraParams``, ``wp.vec3``), imported on first use (this module does not need Warp
-    otherwise) and kept: ``params`` runs before every frame's G-buffer launch."""
+    otherwise) and kept: ``params`` runs before every frame's G-buffer launch. Checks once that the struct's
+    bytes are laid out as ``_PARAMS_PACK`` writes them (else an ImportError names the difference)."""
     global _WARP_TYPES
     if _WARP_TYPES is None:
+        import ctypes
+        import sys
+
         import warp as wp
 
         from .kernels.camera import CameraParams
 
+        ct = type(CameraParams()._ctype)
+        layout = tuple((name, getattr(ct, name).offset) for name, _ in ct._fields_)
+        if layout != _PARAMS_FIELDS or ctypes.sizeof(ct) != _PARAMS_PACK.size or sys.byteorder != "little":
+            raise ImportError(f"CameraParams layout {layout} (size {ctypes.sizeof(ct)}, {sys.byteorder}-endian) is "
+                              f"not the one Camera.params writes: {_PARAMS_FIELDS} (size {_PARAMS_PACK.size})")
         _WARP_TYPES = (CameraParams, wp.vec3)
     return _WARP_TYPES
 

@@ -161,3 +161,52 @@ def test_rotation_deg_to_against_numpy(a, b):
     assert abs(math.cos(math.radians(got)) - math.cos(math.radians(want))) < 1e-12
     assert 0.0 <= got <= 180.0
     assert c0.rotation_deg_to(c0) < 1e-5
+
+
+def _setter_params(cam, w, h):
+    """The kernels' struct built by Warp's per-field setters (what Camera.params did before its one-write
+    path): the reference for the bytes it writes."""
+    import warp as wp
+
+    from foveawarp.kernels.camera import CameraParams
+
+    r, u, f = (tuple(float(v) for v in a) for a in cam.basis())
+    c = CameraParams()
+    c.eye = wp.vec3(*(float(v) for v in cam.eye))
+    c.right = wp.vec3(*r)
+    c.up = wp.vec3(*u)
+    c.forward = wp.vec3(*f)
+    c.tan_half_fov_y = cam.tan_half_fov_y
+    c.aspect = float(w) / float(h)
+    c.width = w
+    c.height = h
+    return c
+
+
+@settings(max_examples=60, deadline=None)
+@given(e=st.tuples(*[st.floats(-1e6, 1e6, allow_nan=False)] * 3), d=st.tuples(*[st.floats(-1, 1)] * 3),
+       fov=st.floats(1.0, 179.0), w=st.integers(1, 16384), h=st.integers(1, 16384),
+       huge=st.sampled_from([0.0, 1e39, -3.5e38, 1e300]))
+def test_params_bytes_equal_the_per_field_setters(e, d, fov, w, h, huge):
+    """Camera.params writes the struct's 64 bytes in one go: the same bytes (and the same Python-side field
+    values) as Warp's setters, float32 rounding included; an eye beyond float32's range (``huge``) takes the
+    setters' path, which rounds it to an infinity."""
+    import ctypes
+
+    eye = (e[0] + huge, e[1], e[2])
+    tgt = (eye[0] + d[0], eye[1] + d[1] + 0.5, eye[2] + d[2])
+    if not np.isfinite(tgt).all():
+        return
+    try:
+        cam = fw.Camera(eye=eye, target=tgt, fov_y_deg=fov)
+    except ValueError:
+        return  # a target too close to the eye, or looking straight up: refused before any struct is made
+    got = cam.params(w, h)
+    want = _setter_params(cam, w, h)
+    assert ctypes.string_at(ctypes.addressof(got._ctype), 64) == ctypes.string_at(ctypes.addressof(want._ctype), 64)
+    for k in ("eye", "right", "up", "forward"):
+        assert list(getattr(got, k)) == list(getattr(want, k))
+    for k in ("tan_half_fov_y", "aspect", "width", "height"):
+        assert getattr(got, k) == getattr(want, k) and type(getattr(got, k)) is type(getattr(want, k))
+    if huge and abs(eye[0]) > 3.5e38:
+        assert math.isinf(got.eye[0])
