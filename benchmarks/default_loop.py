@@ -6,7 +6,8 @@ was with ``timing=True`` before session 14).
 Per scene x size x shading, the three loops take turns frame by frame along the scene's camera path (1/30 s a
 frame) with a moving gaze (``benchmarks/frame.py``'s Lissajous path), each frame synchronized, each loop with its
 own camera objects, the order of the three cycling through all six permutations. The default
-loop's first 24 frames are its policy's measurement (12 foveated, 12 full resolution); then ``--warmup`` frames,
+loop's first ``FrameLoop.policy_measurement_frames()`` frames (42) hold its policy's measurement (12 foveated, 12 full
+resolution, and 9 + 9 more when the two are close); then ``--warmup`` frames,
 then ``--frames`` timed frames, whose medians are reported with the path the default loop took, the policy's
 estimates and the median of the per-frame differences from the reference. Quality of the same timed frames
 against the reference frame of the same camera, time and gaze: PSNR, foveal PSNR (eccentricity <= 5 deg) and (on
@@ -105,7 +106,7 @@ def main(argv=None) -> None:
     p.add_argument("--scenes", default=ALL_SCENES)
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--shadings", default="default,ao8")
-    p.add_argument("--frames", type=int, default=30, help="timed frames per loop (after the policy's 24)")
+    p.add_argument("--frames", type=int, default=30, help="timed frames per loop (after the policy's measurement)")
     p.add_argument("--threads", type=int, default=None, help="CPU threads (default: the usable cores)")
     p.add_argument("--name", default="default-loop")
     p.add_argument("--timing", choices=("default", "on", "off"), default="default",
@@ -137,7 +138,7 @@ def main(argv=None) -> None:
     what = ("every FrameLoop default: timing=True, policy 'auto'" if args.timing == "default" else
             f"FrameLoop defaults but timing={args.timing == 'on'}: policy 'auto'")
     md = (f"## The API example's loop ({what}), {dev.alias}\n\n"
-          f"Medians of {frames} synchronized frames after the policy's 24, the three loops taking turns; PSNR in "
+          f"Medians of {frames} synchronized frames after the policy's measurement, the three loops taking turns; PSNR in "
           f"dB against the reference frame of the same camera, time and gaze ({metric_kind}).\n\n"
           + md_table(flat, cols))
     print(md)

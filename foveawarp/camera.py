@@ -184,14 +184,16 @@ class Camera:
         c = cache.get((width, height))
         if c is not None:
             return c
-        params_type, vec3 = _warp_types()
+        params_type, vec3, packed = _warp_types()
         r, u, f = self._basis_floats()
         e = self.eye
         c = params_type()
         tan, aspect = self.tan_half_fov_y, float(width) / float(height)
         try:
-            # the struct's 64 bytes in one write (its layout is checked once, _params_layout_ok): a fifth of
-            # the time of Warp's per-field setters, on the frame's critical path; the same float32 values
+            if not packed:
+                raise OverflowError  # the compiled struct is not laid out as _PARAMS_PACK writes: the setters
+            # the struct's 64 bytes in one write (its layout checked once by _warp_types): about half the time of
+            # Warp's per-field setters, on the frame's critical path; the same float32 values
             _PARAMS_PACK.pack_into(memoryview(c._ctype).cast("B"), 0, e[0], e[1], e[2], r[0], r[1], r[2], u[0],
                                    u[1], u[2], f[0], f[1], f[2], tan, aspect, width, height)
             d = c.__dict__  # the vectors' attributes alias the struct's bytes; the scalars' are Python values
@@ -228,25 +230,39 @@ _PARAMS_FIELDS = (("eye", 0), ("right", 12), ("up", 24), ("forward", 36), ("tan_
                   ("width", 56), ("height", 60))
 
 
+def _params_layout_ok(ct) -> bool:
+    """Whether the ctypes structure ``ct`` of CameraParams is laid out as ``_PARAMS_PACK`` writes it: the field
+    names and offsets of ``_PARAMS_FIELDS``, four 3-float32 arrays, two float32, two int32, 64 bytes, a
+    little-endian host."""
+    import ctypes
+    import sys
+
+    fields = list(ct._fields_)
+    if tuple((name, getattr(ct, name).offset) for name, _ in fields) != _PARAMS_FIELDS:
+        return False
+    if ctypes.sizeof(ct) != _PARAMS_PACK.size or sys.byteorder != "little":
+        return False
+    kinds = []
+    for _, t in fields:
+        if issubclass(t, ctypes.Array):
+            kinds.append("vec3" if (t._length_ == 3 and t._type_ is ctypes.c_float) else "?")
+        else:
+            kinds.append({ctypes.c_float: "f32", ctypes.c_int32: "i32"}.get(t, "?"))
+    return kinds == ["vec3"] * 4 + ["f32"] * 2 + ["i32"] * 2
+
+
 def _warp_types() -> tuple:
-    """(``kernels.camera.CameraParams``, ``wp.vec3``), imported on first use (this module does not need Warp
-    otherwise) and kept: ``params`` runs before every frame's G-buffer launch. Checks once that the struct's
-    bytes are laid out as ``_PARAMS_PACK`` writes them (else an ImportError names the difference)."""
+    """(``kernels.camera.CameraParams``, ``wp.vec3``, whether ``params`` may write the struct's bytes in one go),
+    imported on first use (this module does not need Warp otherwise) and kept: ``params`` runs before every frame's
+    G-buffer launch. Where the compiled struct's layout differs from ``_PARAMS_PACK``'s (``_params_layout_ok``),
+    ``params`` uses Warp's per-field setters."""
     global _WARP_TYPES
     if _WARP_TYPES is None:
-        import ctypes
-        import sys
-
         import warp as wp
 
         from .kernels.camera import CameraParams
 
-        ct = type(CameraParams()._ctype)
-        layout = tuple((name, getattr(ct, name).offset) for name, _ in ct._fields_)
-        if layout != _PARAMS_FIELDS or ctypes.sizeof(ct) != _PARAMS_PACK.size or sys.byteorder != "little":
-            raise ImportError(f"CameraParams layout {layout} (size {ctypes.sizeof(ct)}, {sys.byteorder}-endian) is "
-                              f"not the one Camera.params writes: {_PARAMS_FIELDS} (size {_PARAMS_PACK.size})")
-        _WARP_TYPES = (CameraParams, wp.vec3)
+        _WARP_TYPES = (CameraParams, wp.vec3, _params_layout_ok(type(CameraParams()._ctype)))
     return _WARP_TYPES
 
 

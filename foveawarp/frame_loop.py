@@ -228,6 +228,10 @@ class FrameLoop:
         # the measurement's blocks (path, untimed, timed frames) in order, and their frames in all
         self._pol_sched = [("foveated", *self._pol_len), ("full", *self._pol_len)]
         self._pol_total = 2 * sum(self._pol_len)
+        self._pol_block = 0  # the schedule's block of the frame _policy_mode last scheduled
+        # the watch's yardsticks: each path's median over all its timed frames (the estimates that decide take the
+        # lower of its blocks' medians, which runs low; the watch's own median of POLICY_WATCH frames does not)
+        self._pol_ref: dict = {}
         # CUDA without timing: the watch reads the GPU span of a frame from two timing events (recorded around its
         # launches, read at the next frame when done: no synchronization), and the measurement records the
         # timed frames' spans too, so that the watch compares spans with spans
@@ -608,9 +612,8 @@ class FrameLoop:
                 stats.update(self._stage_gpu_ms())
         if pol_timed:
             wp.synchronize_device(self.device)
-            self._pol_ms[mode].append((_now() - t_pol) * 1e3)
-            if ev is not None:
-                self._pol_span[mode].append(float(wp.get_event_elapsed_time(ev[0], ev[1], synchronize=False)))
+            self._policy_record(mode, (_now() - t_pol) * 1e3, None if ev is None else
+                                float(wp.get_event_elapsed_time(ev[0], ev[1], synchronize=False)))
         elif pol_watch:
             if ev is not None:  # read at the next frame, if the GPU is done with this one by then
                 self._pol_ev_pending = ev
@@ -642,8 +645,8 @@ class FrameLoop:
         the same cost), until the next measurement. The chosen path's frames are then watched: by wall time where that costs nothing (the
         CPU device, whose launches are synchronous, or ``timing=True``, which synchronizes anyway), else (CUDA
         without timing) by the GPU span between two CUDA timing events of one frame in ``POLICY_WATCH_EVERY``,
-        read at the next frame when the GPU is done with it (never waiting) and compared with the spans of the
-        measurement's timed frames. When
+        read at the next frame when the GPU is done with it (never waiting) and compared with the median of the
+        measurement's timed frames (spans) of the other path, all its blocks pooled. When
         the median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
         or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the next
         measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
@@ -665,7 +668,7 @@ class FrameLoop:
                                                            f"every {self.POLICY_PERIOD} frames")
             self._pol_next_trigger = None
         if f == self._pol_total and len(self._pol_sched) == 2:
-            fov_ms, full_ms = self._policy_estimates(self._pol_ms)
+            fov_ms, full_ms = self._policy_estimates(self._pol_ms)[0]
             lo, hi = sorted((fov_ms, full_ms))
             if not lo < (1.0 - self.POLICY_CLEAR) * hi:
                 # not clear-cut: both paths once more, in the other order, before the choice
@@ -674,12 +677,14 @@ class FrameLoop:
                 self._pol_total += 2 * sum(again)
         if f < self._pol_total:
             k = f
-            for path, warm, timed in self._pol_sched:
+            for b, (path, warm, timed) in enumerate(self._pol_sched):
                 if k < warm + timed:
+                    self._pol_block = b
                     return path, k >= warm, False
                 k -= warm + timed
         if f == self._pol_total:
-            fov_ms, full_ms = self._policy_estimates(self._pol_ms)
+            (fov_ms, full_ms), ref = self._policy_estimates(self._pol_ms)
+            self._pol_ref = {"foveated_ms": ref[0], "full_ms": ref[1]}
             # foveation must pay for its error: within the margin (or when timing noise hides the difference) the
             # exact full-resolution frame wins (H100, city 4K: 5.18 vs 4.96 ms estimated, 5.45 vs 5.08 measured)
             self._pol_choice = "foveated" if fov_ms < (1.0 - self.POLICY_MARGIN) * full_ms else "full"
@@ -687,12 +692,13 @@ class FrameLoop:
                              "trigger": self._pol_trigger, "rechecks": self._pol_rechecks,
                              "blocks": len(self._pol_sched)}
             if self._pol_span["foveated"] and self._pol_span["full"]:
-                g = self._policy_estimates(self._pol_span)
+                g, ref = self._policy_estimates(self._pol_span)
                 self._pol_est["foveated_gpu_ms"], self._pol_est["full_gpu_ms"] = g
+                self._pol_ref["foveated_gpu_ms"], self._pol_ref["full_gpu_ms"] = ref
         # the watch's samples and the estimates it compares them with: GPU spans on CUDA without timing, else
         # synchronized wall times
         sfx = "_gpu_ms" if self._watch_by_events() else "_ms"
-        est = self._pol_est
+        est = self._pol_ref
         if len(self._pol_watch_ms) >= self.POLICY_WATCH and "full" + sfx in est:
             m = float(np.median(self._pol_watch_ms))
             self._pol_watch_ms = []
@@ -709,20 +715,26 @@ class FrameLoop:
                 return self._policy_mode()  # the measurement begins with this frame
         return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
 
-    def _policy_estimates(self, samples: dict) -> tuple:
-        """(foveated, full) estimates from the measurement's timed ``samples`` per path (in the order of
-        ``_pol_sched``'s blocks): per path the lowest of its blocks' medians."""
-        out = []
+    def _policy_record(self, path: str, ms: float, span_ms=None) -> None:
+        """Keep a timed measurement frame of ``path``: its synchronized wall time and (CUDA without timing) its GPU
+        span, with the schedule's block it belongs to."""
+        self._pol_ms[path].append((self._pol_block, float(ms)))
+        if span_ms is not None:
+            self._pol_span[path].append((self._pol_block, float(span_ms)))
+
+    @staticmethod
+    def _policy_estimates(samples: dict) -> tuple:
+        """((foveated, full) decision estimates, (foveated, full) pooled medians) from the measurement's timed
+        ``samples`` ((block, ms) pairs per path): per path the lowest of its blocks' medians, and the median of
+        all its frames (NaN for a path without samples)."""
+        est, pooled = [], []
         for path in ("foveated", "full"):
-            vals, i, meds = samples[path], 0, []
-            for p, _, timed in self._pol_sched:
-                if p == path:
-                    block = vals[i:i + timed]
-                    i += timed
-                    if block:
-                        meds.append(float(np.median(block)))
-            out.append(min(meds) if meds else float("nan"))
-        return tuple(out)
+            by_block: dict = {}
+            for b, v in samples[path]:
+                by_block.setdefault(b, []).append(v)
+            est.append(min(float(np.median(v)) for v in by_block.values()) if by_block else float("nan"))
+            pooled.append(float(np.median([v for _, v in samples[path]])) if by_block else float("nan"))
+        return tuple(est), tuple(pooled)
 
     def _watch_by_events(self) -> bool:
         """Whether the policy times frames by CUDA events (CUDA without timing: no synchronization to spare)."""

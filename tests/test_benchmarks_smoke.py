@@ -318,3 +318,18 @@ def test_list_shading_quick(tmp_path):
           "--parts", "lists", "--split", "on", "--name", "split-on"], tmp_path)
     on = json.loads((tmp_path / "split-on-cpu.json").read_text())["records"][0]
     assert on["split"] is True and on["n_list"] == lists["n_list"] and on["fov_list_ms"] > 0
+
+
+def test_policy_sim_quick(tmp_path):
+    """benchmarks/policy_sim.py drives the policy's state machine with synthetic frame times (no rendering): it
+    runs, writes its JSON / markdown, and reports sane figures."""
+    _run([str(REPO / "benchmarks" / "policy_sim.py"), "--quick", "--cases", "0.9:0.03:0.01,1.3:0.02:0"], tmp_path)
+    res = json.loads((tmp_path / "policy-sim-cpu.json").read_text())
+    assert res["benchmark"] == "policy-sim" and res["commit"] and (tmp_path / "policy-sim-cpu.md").is_file()
+    a, b = res["rows"]
+    assert (a["fov_cost"], a["sigma"], a["episode"]) == (0.9, 0.03, 0.01)
+    for r in (a, b):
+        assert 0.0 <= r["dearer_pct"] <= 100.0 and r["rechecks"] >= 0
+        assert min(r["fov_cost"], 1.0) <= r["mean_cost"] <= max(r["fov_cost"], 1.0)
+    # foveation 30% dearer with little noise: the policy settles on full resolution after its measurement
+    assert b["dearer_pct"] < 5.0

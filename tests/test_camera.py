@@ -210,3 +210,34 @@ def test_params_bytes_equal_the_per_field_setters(e, d, fov, w, h, huge):
         assert getattr(got, k) == getattr(want, k) and type(getattr(got, k)) is type(getattr(want, k))
     if huge and abs(eye[0]) > 3.5e38:
         assert math.isinf(got.eye[0])
+
+
+def test_params_layout_check_and_setters_fallback(monkeypatch):
+    """The one-write path runs only for the layout it writes: ``_params_layout_ok`` accepts the compiled
+    CameraParams and refuses a structure with the same names, offsets and size but other field types; with the
+    check failing, ``params`` takes Warp's setters and gives the same bytes."""
+    import ctypes
+
+    import foveawarp.camera as camera_mod
+    from foveawarp.kernels.camera import CameraParams
+
+    ct = type(CameraParams()._ctype)
+    assert camera_mod._params_layout_ok(ct)
+    v3 = ctypes.c_float * 3
+
+    class WrongTypes(ctypes.Structure):  # width a float, height unsigned: same offsets and size
+        _fields_ = [("eye", v3), ("right", v3), ("up", v3), ("forward", v3), ("tan_half_fov_y", ctypes.c_float),
+                    ("aspect", ctypes.c_float), ("width", ctypes.c_float), ("height", ctypes.c_uint32)]
+
+    class WrongOrder(ctypes.Structure):
+        _fields_ = [("right", v3), ("eye", v3), ("up", v3), ("forward", v3), ("tan_half_fov_y", ctypes.c_float),
+                    ("aspect", ctypes.c_float), ("width", ctypes.c_int32), ("height", ctypes.c_int32)]
+
+    assert ctypes.sizeof(WrongTypes) == 64 and not camera_mod._params_layout_ok(WrongTypes)
+    assert not camera_mod._params_layout_ok(WrongOrder)
+    cam = fw.Camera(eye=(0.3, 1.0, 2.0), target=(0.0, 0.2, -1.0), fov_y_deg=50.0)
+    types = camera_mod._warp_types()
+    monkeypatch.setattr(camera_mod, "_WARP_TYPES", (types[0], types[1], False))
+    got = cam.params(40, 30)
+    want = _setter_params(cam, 40, 30)
+    assert ctypes.string_at(ctypes.addressof(got._ctype), 64) == ctypes.string_at(ctypes.addressof(want._ctype), 64)

@@ -539,7 +539,8 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     # a wrong choice: the other path's estimates far below anything a frame costs
     other = "full_ms" if choice == "foveated" else "foveated_ms"
     gpu = other.replace("_ms", "_gpu_ms")
-    loop._pol_choice, loop._pol_est[other], loop._pol_est[gpu] = choice, 1e-6, 1e-6
+    # (the watch compares with the pooled medians, _pol_ref; the decision's estimates, _pol_est, are reported)
+    loop._pol_choice, loop._pol_ref[other], loop._pol_ref[gpu] = choice, 1e-6, 1e-6
 
     def path(i):
         p = loop.render(scene.camera_at(i / 60.0)).stats["policy"]["path"]
@@ -557,7 +558,7 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
         assert i <= latest + 1, "no re-measurement"
     start = i - 1  # the frame at which the measurement restarted (its first frame is rendered)
     assert loop.POLICY_RECHECK_MIN <= start <= latest
-    # the re-measurement: the estimates it starts from are clear-cut (1e-6 ms), so its short form
+    # the re-measurement: its short form (POLICY_CLEAR 0 makes any two unequal estimates clear-cut)
     m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR
     paths += [path(i + k) for k in range(2 * m - 1)]
     assert loop._pol_len == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
@@ -566,17 +567,18 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
     assert st["measured_at_frame"] == start + 2 * m and st[other] > 1e-6
     # a choice its frames confirm stays until the period
-    loop._pol_choice, loop._pol_est[other], loop._pol_est[gpu] = choice, 1e9, 1e9
+    loop._pol_choice, loop._pol_ref[other], loop._pol_ref[gpu] = choice, 1e9, 1e9
     for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH * every):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
         sync()
         assert st["path"] == choice and st["rechecks"] == 1
 
 
-def _drive_policy(loop, block_ms):
+def _drive_policy(loop, block_ms, skip=()):
     """Run ``loop``'s policy state machine (no rendering) through one measurement, giving each timed frame of
-    the k-th block the time ``block_ms[k]`` (a list per block, cycled). Returns the paths of the frames up to
-    and including the first frame after the decision."""
+    the k-th block the time ``block_ms[k]`` (a list per block, cycled); the timed frames ``(block, k)`` in
+    ``skip`` record nothing (a frame whose time was lost). Returns the paths of the frames up to and including
+    the first frame after the decision."""
     paths, counts = [], {}
     for i in range(loop.POLICY_PERIOD):
         path, timed, _ = loop._policy_mode()
@@ -589,16 +591,19 @@ def _drive_policy(loop, block_ms):
         assert loop._pol_sched[block][0] == path
         if timed:
             k = counts.get(block, 0)
-            loop._pol_ms[path].append(block_ms[block][k % len(block_ms[block])])
+            if (block, k) not in skip:
+                loop._policy_record(path, block_ms[block][k % len(block_ms[block])])
             counts[block] = k + 1
     raise AssertionError("no decision within a period")
 
 
-@pytest.mark.parametrize("case", ["inflated_full", "clear", "close_kept"])
+@pytest.mark.parametrize("case", ["inflated_full", "clear", "close_kept", "lost_frame"])
 def test_policy_confirms_a_close_measurement(case):
     """A measurement whose paths are not clear-cut (neither POLICY_CLEAR cheaper) times both again in the other
     order, and each path's estimate is the lower of its two block medians (NumPy, here); a clear-cut one decides
-    after its two blocks. The state machine is driven with set frame times (no rendering)."""
+    after its two blocks. The watch's yardsticks are each path's median over all its timed frames. A timed frame
+    whose time was lost shifts no other frame into another block. The state machine is driven with set frame
+    times (no rendering)."""
     loop = fw.FrameLoop("cornell", 16, 8, device="cpu", policy="auto")
     n = loop.POLICY_WARM + loop.POLICY_TIMED
     m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED
@@ -607,11 +612,15 @@ def test_policy_confirms_a_close_measurement(case):
         "inflated_full": [[1.0, 1.02, 0.98], [1.2, 1.25, 1.19], [0.9, 0.91, 0.89], [1.01, 1.0, 1.03]],
         "clear": [[0.5, 0.52, 0.49], [1.0, 1.01, 0.99]],
         "close_kept": [[1.0, 1.01, 0.99], [1.2, 1.22, 1.18], [1.21, 1.2, 1.19], [1.3, 1.31, 1.29]],
+        # block 0's first timed frame lost: block 1's frames must stay in block 1
+        "lost_frame": [[0.7, 1.02, 0.98], [1.2, 1.25, 1.19], [0.9, 0.91, 0.89], [1.01, 1.0, 1.03]],
     }[case]
-    paths = _drive_policy(loop, blocks)
+    skip = {(0, 0)} if case == "lost_frame" else set()
+    paths = _drive_policy(loop, blocks, skip)
     est = loop._pol_est
     t = loop.POLICY_TIMED
-    meds = [float(np.median([b[k % len(b)] for k in range(t)])) for b in blocks]
+    kept = [[b[k % len(b)] for k in range(t) if (j, k) not in skip] for j, b in enumerate(blocks)]
+    meds = [float(np.median(v)) for v in kept]
     if case == "clear":
         assert est["blocks"] == 2 and len(paths) == 2 * n + 1
         assert paths[:2 * n] == ["foveated"] * n + ["full"] * n
@@ -621,9 +630,14 @@ def test_policy_confirms_a_close_measurement(case):
         assert paths[:2 * n + 2 * m] == ["foveated"] * n + ["full"] * n + ["full"] * m + ["foveated"] * m
         fov, full = min(meds[0], meds[3]), min(meds[1], meds[2])
     assert est["foveated_ms"] == pytest.approx(fov) and est["full_ms"] == pytest.approx(full)
+    fov_blocks, full_blocks = ((0,), (1,)) if case == "clear" else ((0, 3), (1, 2))
+    pooled = {"foveated_ms": float(np.median(sum((kept[j] for j in fov_blocks), []))),
+              "full_ms": float(np.median(sum((kept[j] for j in full_blocks), [])))}
+    assert loop._pol_ref == pytest.approx(pooled)
     expect = "foveated" if fov < (1 - loop.POLICY_MARGIN) * full else "full"
     assert loop._pol_choice == expect and paths[-1] == expect
-    assert expect == {"inflated_full": "full", "clear": "foveated", "close_kept": "foveated"}[case]
+    assert expect == {"inflated_full": "full", "clear": "foveated", "close_kept": "foveated",
+                      "lost_frame": "full"}[case]
 
 
 def test_policy_measurement_length():
