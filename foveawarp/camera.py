@@ -189,16 +189,8 @@ class Camera:
         e = self.eye
         c = params_type()
         tan, aspect = self.tan_half_fov_y, float(width) / float(height)
-        try:
-            if not packed:
-                raise OverflowError  # the compiled struct is not laid out as _PARAMS_PACK writes: the setters
-            # the struct's 64 bytes in one write (its layout checked once by _warp_types): about half the time of
-            # Warp's per-field setters, on the frame's critical path; the same float32 values
-            _PARAMS_PACK.pack_into(memoryview(c._ctype).cast("B"), 0, e[0], e[1], e[2], r[0], r[1], r[2], u[0],
-                                   u[1], u[2], f[0], f[1], f[2], tan, aspect, width, height)
-            d = c.__dict__  # the vectors' attributes alias the struct's bytes; the scalars' are Python values
-            d["tan_half_fov_y"], d["aspect"], d["width"], d["height"] = tan, aspect, width, height
-        except OverflowError:  # a value beyond float32's range: Warp's setters (they round it to inf)
+        if not (packed and _pack_params(c, e, r, u, f, tan, aspect, width, height)):
+            # Warp's per-field setters: another struct layout, or a value beyond float32's range (rounded to inf)
             c.eye = vec3(e[0], e[1], e[2])
             c.right = vec3(r[0], r[1], r[2])
             c.up = vec3(u[0], u[1], u[2])
@@ -249,6 +241,20 @@ def _params_layout_ok(ct) -> bool:
         else:
             kinds.append({ctypes.c_float: "f32", ctypes.c_int32: "i32"}.get(t, "?"))
     return kinds == ["vec3"] * 4 + ["f32"] * 2 + ["i32"] * 2
+
+
+def _pack_params(c, e, r, u, f, tan: float, aspect: float, width: int, height: int) -> bool:
+    """Write CameraParams ``c``'s 64 bytes in one go (its layout checked by ``_warp_types``): about half the time of
+    Warp's per-field setters, on the frame's critical path; the same float32 values. False (nothing usable written)
+    where a value is beyond float32's range."""
+    try:
+        _PARAMS_PACK.pack_into(memoryview(c._ctype).cast("B"), 0, e[0], e[1], e[2], r[0], r[1], r[2], u[0], u[1],
+                               u[2], f[0], f[1], f[2], tan, aspect, width, height)
+    except OverflowError:
+        return False
+    d = c.__dict__  # the vectors' attributes alias the struct's bytes; the scalars' are Python values
+    d["tan_half_fov_y"], d["aspect"], d["width"], d["height"] = tan, aspect, width, height
+    return True
 
 
 def _warp_types() -> tuple:

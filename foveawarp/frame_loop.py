@@ -225,9 +225,7 @@ class FrameLoop:
         self._pol_next_trigger: Optional[str] = None
         self._pol_trigger = "first frames"
         self._pol_len = (self.POLICY_WARM, self.POLICY_TIMED)  # (untimed, timed) frames per path, this measurement
-        # the measurement's blocks (path, untimed, timed frames) in order, and their frames in all
-        self._pol_sched = [("foveated", *self._pol_len), ("full", *self._pol_len)]
-        self._pol_total = 2 * sum(self._pol_len)
+        self._set_schedule([("foveated", *self._pol_len), ("full", *self._pol_len)])
         self._pol_block = 0  # the schedule's block of the frame _policy_mode last scheduled
         # the watch's yardsticks: each path's median over all its timed frames (the estimates that decide take the
         # lower of its blocks' medians, which runs low; the watch's own median of POLICY_WATCH frames does not)
@@ -662,19 +660,15 @@ class FrameLoop:
             self._pol_span = {"foveated": [], "full": []}
             self._pol_watch_ms = []
             self._pol_len = self._measurement_length()
-            self._pol_sched = [("foveated", *self._pol_len), ("full", *self._pol_len)]
-            self._pol_total = 2 * sum(self._pol_len)
+            self._set_schedule([("foveated", *self._pol_len), ("full", *self._pol_len)])
             self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
                                                            f"every {self.POLICY_PERIOD} frames")
             self._pol_next_trigger = None
         if f == self._pol_total and len(self._pol_sched) == 2:
-            fov_ms, full_ms = self._policy_estimates(self._pol_ms)[0]
-            lo, hi = sorted((fov_ms, full_ms))
-            if not lo < (1.0 - self.POLICY_CLEAR) * hi:
+            if not self._clear_cut(*self._policy_estimates(self._pol_ms)[0]):
                 # not clear-cut: both paths once more, in the other order, before the choice
                 again = (self.POLICY_WARM_AGAIN, self.POLICY_TIMED)
-                self._pol_sched += [("full", *again), ("foveated", *again)]
-                self._pol_total += 2 * sum(again)
+                self._set_schedule(self._pol_sched + [("full", *again), ("foveated", *again)])
         if f < self._pol_total:
             k = f
             for b, (path, warm, timed) in enumerate(self._pol_sched):
@@ -714,6 +708,17 @@ class FrameLoop:
                 self._pol_frame = 0
                 return self._policy_mode()  # the measurement begins with this frame
         return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
+
+    def _set_schedule(self, blocks: list) -> None:
+        """Make ``blocks`` ((path, untimed, timed frames) in order) the measurement's schedule; ``_pol_total``, its
+        frames in all, is kept beside it for the per-frame test of whether the measurement is over."""
+        self._pol_sched = blocks
+        self._pol_total = sum(w + t for _, w, t in blocks)
+
+    def _clear_cut(self, a_ms: float, b_ms: float) -> bool:
+        """Whether the cheaper of two estimates is at least ``POLICY_CLEAR`` cheaper than the other."""
+        lo, hi = sorted((a_ms, b_ms))
+        return lo < (1.0 - self.POLICY_CLEAR) * hi
 
     def _policy_record(self, path: str, ms: float, span_ms=None) -> None:
         """Keep a timed measurement frame of ``path``: its synchronized wall time and (CUDA without timing) its GPU
@@ -762,8 +767,7 @@ class FrameLoop:
         est = self._pol_est
         if not est:
             return self.POLICY_WARM, self.POLICY_TIMED
-        lo, hi = sorted((est["foveated_ms"], est["full_ms"]))
-        clear = lo < (1.0 - self.POLICY_CLEAR) * hi
+        clear = self._clear_cut(est["foveated_ms"], est["full_ms"])
         return self.POLICY_WARM_AGAIN, (self.POLICY_TIMED_CLEAR if clear else self.POLICY_TIMED)
 
     def _seed_history(self) -> bool:
