@@ -164,6 +164,10 @@ def main(argv=None) -> int:
     p.add_argument("--name", default="ceiling", help="output file stem")
     p.add_argument("--out", default=None, help="output folder (default benchmarks/results)")
     a = p.parse_args(argv)
+    for flag, paths in (("--timing", a.timing), ("--ncu", a.ncu)):
+        for t in paths:
+            if not Path(t).is_file():
+                p.error(f"{flag}: no such file: {t}")
     runs = [json.loads(Path(t).read_text()) for t in a.timing]
     floors: dict = {}
     for path in a.ncu:

@@ -77,9 +77,18 @@ def main(argv=None) -> int:
     import foveawarp as fw
 
     print(f"foveawarp from {Path(fw.__file__).resolve().parent}", flush=True)
-    rows = []
+    cases = []
     for case in a.cases.split(","):
-        c, s, e = (float(v) for v in case.split(":"))
+        try:
+            c, s, e = (float(v) for v in case.split(":"))
+        except ValueError:
+            c = s = e = float("nan")
+        if not (c > 0.0 and s >= 0.0 and 0.0 <= e <= 1.0):
+            p.error(f"--cases: each case is fov_cost:sigma:episode with fov_cost > 0, sigma >= 0 and episode in "
+                    f"[0, 1], got {case!r}")
+        cases.append((c, s, e))
+    rows = []
+    for c, s, e in cases:
         rows.append(simulate(fw, c, s, e, 2 if a.quick else a.seeds, 400 if a.quick else a.frames))
         print(rows[-1], flush=True)
     md = md_table(rows, ["fov_cost", "sigma", "episode", "rechecks", "mean_cost", "dearer_pct"])

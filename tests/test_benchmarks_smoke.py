@@ -333,3 +333,11 @@ def test_policy_sim_quick(tmp_path):
         assert min(r["fov_cost"], 1.0) <= r["mean_cost"] <= max(r["fov_cost"], 1.0)
     # foveation 30% dearer with little noise: the policy settles on full resolution after its measurement
     assert b["dearer_pct"] < 5.0
+
+
+@pytest.mark.parametrize("case", ["abc", "0.9:0.1", "0:0.1:0", "0.9:-1:0", "0.9:0.1:2"])
+def test_policy_sim_refuses_bad_cases(tmp_path, case):
+    """A malformed or out-of-range --cases entry: an argparse error naming --cases and the entry."""
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "policy_sim.py"), "--quick", "--cases", case,
+                        "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 2 and "--cases" in r.stderr and repr(case) in r.stderr

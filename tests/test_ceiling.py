@@ -111,3 +111,15 @@ def test_verdicts_and_cli(tmp_path):
     (row,) = [r for r in ceiling.analyse([runs[0], {"records": slow}], {}) if r["scene"] == "bunny"]
     assert row["bound_free_shading"] == pytest.approx(3.0) and row["fixed_ms"] == pytest.approx(1.0)
     assert row["gbuffer_ms"] == pytest.approx(1.0) and row["ref_ms"] == pytest.approx(6.1)
+
+
+def test_cli_refuses_missing_files(tmp_path, capsys):
+    """A --timing or --ncu file that does not exist: an argparse error naming the flag and the path."""
+    good = tmp_path / "t.json"
+    good.write_text(json.dumps({"records": [_rec()]}))
+    for args, flag in ((["--timing", str(tmp_path / "missing.json")], "--timing"),
+                       (["--timing", str(good), "--ncu", str(tmp_path / "gone.md")], "--ncu")):
+        with pytest.raises(SystemExit):
+            ceiling.main([*args, "--out", str(tmp_path)])
+        err = capsys.readouterr().err
+        assert f"{flag}: no such file" in err
