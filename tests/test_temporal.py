@@ -507,3 +507,113 @@ def test_frame_loop_passes_its_samples_per_pixel(monkeypatch, ao, area, want):
         loop.render(scene.camera_at(i / 30.0), gaze_px=(24, 13), time=i / 30.0)
     assert got and all(s == want for _, s in got), got
     assert all(st == (ao > 0 or area) for st, _ in got), got
+
+
+def _history_bytes(st):
+    """The current history as bytes per part, ``normal`` and ``stoch`` only where age > 0 (the only place they are
+    read)."""
+    h = st.history()
+    live = h["age"] > 0
+    return {"color": h["color"].tobytes(), "filled": h["filled"].tobytes(), "depth": h["depth"].tobytes(),
+            "age": h["age"].tobytes(), "stale": h["stale"].tobytes(), "normal": h["normal"][live].tobytes(),
+            "stoch": h["stoch"][live].tobytes()}
+
+
+@pytest.mark.parametrize("stochastic,samples", [(False, 1), (True, 1), (True, 8)])
+@pytest.mark.parametrize("use_history", [False, True])
+@pytest.mark.parametrize("skip_misses", [False, True])
+def test_split_resolve_matches_numpy_rule_and_the_whole_resolve(device, stochastic, samples, use_history,
+                                                               skip_misses):
+    """The split resolve (``run_history``, then ``run_list`` over the list of traced pixels) against the NumPy rule
+    (``ref_resolve``, the tolerance of the whole resolve's test) and byte for byte against ``run`` on the same
+    inputs: every history part. The list holds every sampled pixel, or (``skip_misses``, as the frame's
+    compaction makes it) the sampled surface pixels only, in a shuffled order."""
+    h, w = 13, 17
+    outs = []
+    for split in (False, True):
+        rng = np.random.default_rng(7)  # the same draw for both stages
+        cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, stochastic)
+        kw = dict(use_history=use_history, stochastic=stochastic, background=tuple(BG), samples=samples)
+        if split:
+            keep = inp["smap"].astype(bool) & (inp["hit"].astype(bool) if skip_misses else True)
+            work = np.flatnonzero(keep.ravel()).astype(np.int32)
+            rng.shuffle(work)
+            cap = np.full(h * w, -1, np.int32)  # a capacity-sized list, as ReorderStage's
+            cap[:len(work)] = work
+            st.run_history(smap, g, **kw)
+            st.run_list(arrs["fresh"], arrs["stoch"], wp.array(cap, dtype=wp.int32, device=device),
+                        wp.array([len(work)], dtype=wp.int32, device=device))
+        else:
+            st.run(smap, g, arrs["fresh"], arrs["stoch"], **kw)
+        outs.append(_history_bytes(st))
+        got, filled = st.color.numpy(), st.filled.numpy()
+        ref, rfilled = ref_resolve(inp, prev, cfg, use_history, stochastic, samples)
+        np.testing.assert_array_equal(filled, rfilled)
+        np.testing.assert_allclose(got, ref, atol=2e-5, rtol=1e-5)
+        assert np.isfinite(got).all()
+    for k in outs[0]:
+        assert outs[0][k] == outs[1][k], k
+
+
+def test_split_resolve_list_with_repeats_and_its_order_checks(device):
+    """A pixel listed twice gets the same values as listed once (the list half reads the history half's values,
+    not its own output); ``run_list`` without ``run_history`` and ``run_history`` twice are ValueErrors naming the
+    call, and ``split`` must be None, True or False."""
+    h, w = 11, 14
+    outs = []
+    for repeat in (False, True):
+        rng = np.random.default_rng(3)
+        cfg, st, g, inp, prev, arrs, smap = _setup(rng, h, w, device, True)
+        work = np.flatnonzero(inp["smap"].ravel()).astype(np.int32)
+        if repeat:
+            work = np.concatenate([work, work[::2]])
+        st.run_history(smap, g, stochastic=True, background=tuple(BG), samples=4)
+        with pytest.raises(ValueError, match="run_history: the previous split resolve"):
+            st.run_history(smap, g, stochastic=True, background=tuple(BG), samples=4)
+        st.run_list(arrs["fresh"], arrs["stoch"], wp.array(work, dtype=wp.int32, device=device),
+                    wp.array([len(work)], dtype=wp.int32, device=device))
+        outs.append(_history_bytes(st))
+        with pytest.raises(ValueError, match="run_list: no split resolve"):
+            st.run_list(arrs["fresh"], arrs["stoch"], wp.array(work, dtype=wp.int32, device=device),
+                        wp.array([len(work)], dtype=wp.int32, device=device))
+        st.split = "yes"
+        with pytest.raises(ValueError, match="TemporalStage.split must be None"):
+            st.splits()
+    assert outs[0] == outs[1]
+
+
+@pytest.mark.parametrize("scene,shading", [("cornell", {}), ("cornell", {"ao_samples": 2}),
+                                           ("city", {"ao_samples": 2, "area_light_samples": 1})])
+@pytest.mark.parametrize("timing", [False, True])
+def test_frame_loop_split_resolve_equals_the_whole_resolve(monkeypatch, scene, shading, timing):
+    """FrameLoop with the split resolve (``TemporalStage.split`` True: on the CPU the history half runs before the
+    compaction, or with ``timing`` in the temporal stage) gives the frames of the whole resolve byte for byte over
+    moving frames with a moving gaze: display image, history colour, filled mask, stochastic history."""
+    w, h = 57, 33
+    cfg = fw.Config().with_(shading=shading, reorder={"strategy": "tile"})
+
+    def frames(split):
+        monkeypatch.setattr(TemporalStage, "split", split)
+        calls = []
+        orig = TemporalStage.run_history
+
+        def spy(self, *a, **k):
+            calls.append(k.get("fork"))
+            return orig(self, *a, **k)
+
+        monkeypatch.setattr(TemporalStage, "run_history", spy)
+        fl = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", timing=timing, policy="foveated")
+        out = []
+        for i in range(5):
+            fr = fl.render(fl.scene.camera_at(0.06 * i), gaze_px=(w * (0.2 + 0.1 * i), h * 0.5), time=0.06 * i)
+            assert fr.stats["strategy"] == "tile"
+            st = fl.temporal
+            out += [a.numpy().tobytes() for a in (fr.image, st.color, st.filled, st._stoch[st._cur])]
+        monkeypatch.undo()
+        return out, calls
+
+    whole, calls = frames(False)
+    assert calls == []
+    split, calls = frames(True)
+    assert len(calls) == 5 and all(bool(c) is (not timing) for c in calls)
+    assert whole == split
