@@ -521,13 +521,16 @@ def _history_bytes(st):
 
 @pytest.mark.parametrize("stochastic,samples", [(False, 1), (True, 1), (True, 8)])
 @pytest.mark.parametrize("use_history", [False, True])
-@pytest.mark.parametrize("skip_misses", [False, True])
-def test_split_resolve_matches_numpy_rule_and_the_whole_resolve(device, stochastic, samples, use_history,
-                                                               skip_misses):
+@pytest.mark.parametrize("skip_misses,blocks", [(False, 0), (True, 0), (True, 1)])
+def test_split_resolve_matches_numpy_rule_and_the_whole_resolve(device, monkeypatch, stochastic, samples, use_history,
+                                                               skip_misses, blocks):
     """The split resolve (``run_history``, then ``run_list`` over the list of traced pixels) against the NumPy rule
     (``ref_resolve``, the tolerance of the whole resolve's test) and byte for byte against ``run`` on the same
     inputs: every history part. The list holds every sampled pixel, or (``skip_misses``, as the frame's
-    compaction makes it) the sampled surface pixels only, in a shuffled order."""
+    compaction makes it) the sampled surface pixels only, in a shuffled order. ``blocks``: the history half's
+    ``HISTORY_BLOCKS_PER_SM`` (on CUDA 1: its grid-stride loop over far fewer threads than pixels; the CPU ignores
+    it)."""
+    monkeypatch.setattr(TemporalStage, "HISTORY_BLOCKS_PER_SM", blocks)
     h, w = 13, 17
     outs = []
     for split in (False, True):

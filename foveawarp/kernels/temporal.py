@@ -345,7 +345,9 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
 
         # the stochastic kinds at most 48 registers per thread on CUDA (H100, 3840x2160, 8 AO rays: the gathering
         # kernel 0.71 -> 0.58 ms on cornell, 1.02 -> 0.83 ms on city, same values; no change on the boxed one)
-        @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel", grid_stride=False,
+        # (the history half: a grid-stride loop, so that TemporalStage may launch it on fewer threads than pixels)
+        @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel",
+                   grid_stride=part != "all",
                    cuda_max_registers=48 if stochastic else None)
         def resolve(
             tp: TemporalParams,

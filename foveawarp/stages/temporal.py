@@ -111,6 +111,9 @@ class TemporalStage:
     # CPU (the halves one after the other: a test of the split); False: never. FrameLoop keys its captured graphs
     # by it.
     split = None
+    # CUDA: the history half's launch at most this many 256-thread blocks per SM (a grid-stride loop; 0: a thread
+    # per pixel), so that it leaves the SMs to the shading launched beside it
+    HISTORY_BLOCKS_PER_SM = 0
 
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
         self.width, self.height, self.config, self.device = width, height, config, device
@@ -331,8 +334,18 @@ class TemporalStage:
                                 self._no_box, self._no_box, self._depth[prev], self._normal[prev], self._meta[prev],
                                 self._color_flat[prev], self._stoch[prev]],
                         outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur],
-                                 self._meta[cur], self._stoch[cur], hist, weight], device=self.device, stream=stream)
+                                 self._meta[cur], self._stoch[cur], hist, weight], device=self.device, stream=stream,
+                        max_blocks=self._history_blocks())
         self._pending = ((tp, sample_map, g.hit, hist, weight, cur, stochastic), stream is not None)
+
+    def _history_blocks(self) -> int:
+        """``max_blocks`` of the history half's launch: ``HISTORY_BLOCKS_PER_SM`` per SM on CUDA, 0 (no limit)
+        elsewhere."""
+        dev = wp.get_device(self.device)
+        k = check_int_range("TemporalStage.HISTORY_BLOCKS_PER_SM", self.HISTORY_BLOCKS_PER_SM, 0, 64)
+        if not dev.is_cuda or k == 0:
+            return 0
+        return k * max(1, int(getattr(dev, "sm_count", 0) or 1))
 
     def run_list(self, fresh, fresh_stoch, work, count) -> None:
         """The list half of a split resolve (after ``run_history`` and the shading): the colour (and stochastic
