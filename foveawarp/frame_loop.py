@@ -562,9 +562,8 @@ class FrameLoop:
         if sparse:  # no history: one graph per strategy and field of view
             key = (strategy, "sparse", float(camera.fov_y_deg))
         else:
-            # the list's launches differ with the splits (ShadeStage.split_direct, TemporalStage.split)
             key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg),
-                   self.shade.splits(), self.temporal.splits())
+                   self.shade.splits())  # the list's launches differ with the split (ShadeStage.split_direct)
         graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's host-side state: the history ping-pong ...
@@ -819,15 +818,6 @@ class FrameLoop:
                     s = self.sampling
                     self.temporal.refresh(smap, s.cache_hit, s.prev_index, s.frame_params, s.num_samples,
                                           cfg.temporal.refresh_fraction, stochastic=self._stochastic_shading())
-        # the split resolve (TemporalStage.split): with the traced pixels' flat list, the history half of the
-        # resolve runs beside the compaction and the shading (forked onto a second stream; with per-stage timing it
-        # runs in the temporal stage instead, before the list half)
-        listed = strategy in ("scan", "tile")
-        split_resolve = (foveated and listed and not sample_in_resolve and not self._shade_in_resolve(strategy)
-                         and self.temporal.splits())
-        if split_resolve and not self.timing:
-            self.temporal.run_history(smap, self.gbuffer, use_history=history, background=cfg.shading.background,
-                                      **self._resolve_kind(), fork=True)
         reorders = strategy in ("scan", "tile", "rows", "rows+balance")
         with self._stage("reorder", reorders):
             if reorders:
@@ -841,12 +831,8 @@ class FrameLoop:
         with self._stage("indirect", self.indirect is not None):
             self._indirect(smap, strategy)
         with self._stage("temporal", foveated):
-            if split_resolve:
-                if self.timing:
-                    self.temporal.run_history(smap, self.gbuffer, use_history=history,
-                                              background=cfg.shading.background, **self._resolve_kind())
-                self.temporal.run_list(self.radiance, self.radiance_stoch, self.reorder.work, self.reorder.count)
-            elif foveated:
+            if foveated:
+                listed = strategy in ("scan", "tile")  # the traced pixels' flat list (clip boxes by list)
                 srows = None
                 if sample_in_resolve:
                     srows = self.sampling.rows_pass_args(self.gbuffer, **pass_inputs)

@@ -341,18 +341,3 @@ def test_policy_sim_refuses_bad_cases(tmp_path, case):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "policy_sim.py"), "--quick", "--cases", case,
                         "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 2 and "--cases" in r.stderr and repr(case) in r.stderr
-
-
-def test_split_resolve_quick(tmp_path):
-    """``benchmarks/split_resolve.py``: the CPU smoke run with the tile strategy (the split's flat list) writes a
-    record per shading whose two foveated frames are equal byte for byte; a bad --frames is a parser error naming
-    the flag."""
-    _run([str(REPO / "benchmarks" / "split_resolve.py"), "--quick", "--device", "cpu", "--scenes", "cornell",
-          "--strategy", "tile", "--out", str(tmp_path)], tmp_path)
-    data = json.loads((tmp_path / "split-resolve-cpu.json").read_text())
-    assert [r["shading"] for r in data["records"]] == ["default", "ao8"]
-    assert all(r["images_equal"] and r["strategy"] == "tile" for r in data["records"])
-    assert all(r["ref_ms"] > 0 and r["split_ms"]["0"] > 0 and r["whole_ms"] > 0 for r in data["records"])
-    bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "split_resolve.py"), "--device", "cpu",
-                          "--frames", "0"], capture_output=True, text=True)
-    assert bad.returncode == 2 and "--frames must be >= 1" in bad.stderr

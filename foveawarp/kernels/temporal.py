@@ -9,7 +9,7 @@ the G-buffer depth (also the next frame's cache test inputs)."""
 import warp as wp
 
 from .gbuffer import NO_REPROJ, reproj_velocity
-from .load import (load1_i32, load1_vec3, load_f32, load_u8, load_vec2, load_vec3, store1_i32, store1_vec3, store_vec3,
+from .load import (load1_i32, load1_vec3, load_f32, load_u8, load_vec2, load_vec3, store1_i32, store1_vec3,
                    store_f32, store_u8)
 from .sampling import FrameParams, SamplingParams, sampling_tile_row
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
@@ -150,7 +150,7 @@ def neighbourhood_box(x: int, y: int, radius: int, sample_map: wp.array2d(dtype=
     return mu - sd * gamma, mu + sd * gamma, cnt
 
 
-def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "all"):
+def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
     """The resolve, specialised at compile time on the shading kind (``stochastic``: the shading has Monte
     Carlo terms, ``fresh_stoch`` holds them). The deterministic kernel (the default shading) has no
     stochastic history, no neighbourhood box and no clipping, and computes the velocity only where the rule
@@ -163,14 +163,6 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
     the gather's 25 taps, run by the few traced threads of a warp, held every warp of the image: 0.40 of
     0.71 ms at 3840x2160 on cornell, H100); the same values, so the same result. Only the pixel kernel
     (rows kernel None). The other kinds never read ``box_lo`` / ``box_hi``.
-
-    ``part`` "history": the history half of the split resolve (``resolve_history_kernel``,
-    ``resolve_stoch_history_kernel``), which reads no fresh value and so can run while the sampled pixels are
-    shaded: it writes every output of every pixel except the colour (and stochastic part) of the sampled surface
-    pixels; of those (stochastic) it writes to ``box_lo`` the validated history of the stochastic part and to
-    ``box_hi[0]`` its blend weight (-1: no usable history), which ``resolve_list_kernel`` /
-    ``resolve_stoch_list_kernel`` complete over the list of traced pixels once they are shaded. The same values
-    as the whole resolve. Only the pixel kernel (rows kernel None).
 
     Outputs: ``out_color`` (flat) is both the frame's resolved colour and the colour history; ``out_filled``,
     ``out_depth`` (the G-buffer depth, kept as the next frame's previous depth); ``out_meta`` (age, stale);
@@ -220,16 +212,14 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
         stale = int(0)
         filled = wp.uint8(0)
         sampled = load_u8(sample_map, y, x) != wp.uint8(0)
-        hit_px = load_u8(hit, y, x)
-        if hit_px == wp.uint8(0):
+        if load_u8(hit, y, x) == wp.uint8(0):
             # a miss shows the background: exact without tracing (the G-buffer's primary ray already missed)
             col = tp.background
             filled = wp.uint8(1)
         elif wp.static(not stochastic) and sampled:
             # deterministic shading: the fresh value is the answer; history would only add error
             n = load_vec3(normal, y, x)
-            if wp.static(part == "all"):
-                col = load_vec3(fresh, y, x)
+            col = load_vec3(fresh, y, x)
             age = 1
             filled = wp.uint8(1)
         else:
@@ -272,21 +262,17 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
             if sampled:
                 # stochastic shading (the deterministic kernel took the branch above): fresh deterministic
                 # part + accumulated, neighbourhood-clipped stochastic part
-                if wp.static(part == "all"):
-                    col = load_vec3(fresh, y, x)
+                col = load_vec3(fresh, y, x)
                 age = 1
                 if wp.static(stochastic):
-                    if wp.static(part == "all"):
-                        st = load_vec3(fresh_stoch, y, x)
-                    weight = float(-1.0)  # the history half's blend weight: -1, no usable stochastic history
+                    st = load_vec3(fresh_stoch, y, x)
                     if have:
-                        # (the history half leaves the clipping to the list half, once the fresh values exist)
-                        if wp.static(part == "all" and boxed):
+                        if wp.static(boxed):
                             lo = load_vec3(box_lo, y, x)
                             hi = load_vec3(box_hi, y, x)
                             if lo[0] <= hi[0]:  # an empty box: fewer than 3 traced neighbours, no clipping
                                 hs = clip_to_box(hs, lo, hi)
-                        if wp.static(part == "all" and not boxed):
+                        else:
                             lo, hi, cnt = neighbourhood_box(x, y, tp.box_radius, sample_map, hit, fresh_stoch,
                                                              tp.clamp_gamma)
                             if cnt >= 3:
@@ -296,16 +282,10 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
                         speed = wp.length(pixel_velocity(reproj_uv, x, y))
                         alpha = wp.max(alpha, wp.min(speed * tp.motion_alpha_per_px, 1.0))
                         alpha = wp.max(alpha, 1.0 - wsum)  # partly disoccluded footprint: trust the fresh value more
-                        if wp.static(part == "all"):
-                            s_acc = hs + (st - hs) * alpha
-                            col = col - st + s_acc
-                            st = s_acc
-                        else:
-                            store_vec3(box_lo, y, x, hs)
-                            weight = alpha
+                        s_acc = hs + (st - hs) * alpha
+                        col = col - st + s_acc
+                        st = s_acc
                         age = m + 1
-                    if wp.static(part != "all"):
-                        store_vec3(box_hi, y, x, wp.vec3(weight, 0.0, 0.0))
                 filled = wp.uint8(1)
             elif have:
                 if load_u8(moved, y, x) == wp.uint8(0):
@@ -322,17 +302,13 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
                         age = age_h
                         stale = stale_h + 1
                         filled = wp.uint8(1)
-        # the history half leaves the colour (and stochastic part) of a sampled surface pixel to the list half
-        listed = wp.static(part != "all") and sampled and hit_px != wp.uint8(0)
-        if not listed:
-            store1_vec3(out_color, i, col)
+        store1_vec3(out_color, i, col)
         store_u8(out_filled, y, x, filled)
         store1_i32(out_meta, i, pack_meta(age, stale))
         if age > 0:
             store1_vec3(out_normal, i, n)
             if wp.static(stochastic):
-                if not listed:
-                    store1_vec3(out_stoch, i, st)
+                store1_vec3(out_stoch, i, st)
 
 
     # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72
@@ -340,14 +316,10 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
     # held one block of 256 threads)
     def make(rows: bool):
         kind = ("resolve_stoch_boxed" if boxed else "resolve_stoch") if stochastic else "resolve"
-        if part != "all":
-            kind = "resolve_stoch_history" if stochastic else "resolve_history"
 
         # the stochastic kinds at most 48 registers per thread on CUDA (H100, 3840x2160, 8 AO rays: the gathering
         # kernel 0.71 -> 0.58 ms on cornell, 1.02 -> 0.83 ms on city, same values; no change on the boxed one)
-        # (the history half: a grid-stride loop, so that TemporalStage may launch it on fewer threads than pixels)
-        @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel",
-                   grid_stride=part != "all",
+        @wp.kernel(enable_backward=False, name=f"{kind}_rows_kernel" if rows else f"{kind}_kernel", grid_stride=False,
                    cuda_max_registers=48 if stochastic else None)
         def resolve(
             tp: TemporalParams,
@@ -390,69 +362,12 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False, part: str = "al
 
         return resolve
 
-    return make(False), None if (boxed or part != "all") else make(True), resolve_pixel
+    return make(False), None if boxed else make(True), resolve_pixel
 
 
 resolve_kernel, resolve_rows_kernel, _resolve_pixel = _make_resolve_kernels(False)
 resolve_stoch_kernel, resolve_stoch_rows_kernel, _ = _make_resolve_kernels(True)
 resolve_stoch_boxed_kernel, _, _ = _make_resolve_kernels(True, boxed=True)
-resolve_history_kernel, _, _ = _make_resolve_kernels(False, part="history")
-resolve_stoch_history_kernel, _, _ = _make_resolve_kernels(True, part="history")
-
-
-def _make_resolve_list(stochastic: bool):
-    """The list half of the split resolve: ``resolve_list_kernel`` (deterministic shading) or
-    ``resolve_stoch_list_kernel``, a thread per entry of the flat list ``work[0:count[0]]`` of the traced pixels
-    (pixel indices y * width + x; every sampled surface pixel must be on it, as the frame's compaction puts it),
-    after the history half (``part`` "history" of ``_make_resolve_kernels``) and the shading: each listed surface
-    pixel's colour (and stochastic part) from its fresh values and, stochastic, the history half's validated
-    history (``hist``) and blend weight (``weight[0]``; < 0: none), clipped to the box of the fresh stochastic
-    values around it (``neighbourhood_box``: the whole resolve's operations in its order, so the same values). A
-    miss was resolved by the history half (the background). A pixel listed twice gets the same values twice."""
-
-    @wp.kernel(enable_backward=False, name="resolve_stoch_list_kernel" if stochastic else "resolve_list_kernel")
-    def resolve_list(
-        tp: TemporalParams,
-        work: wp.array(dtype=wp.int32),
-        count: wp.array(dtype=wp.int32),
-        width: int,
-        sample_map: wp.array2d(dtype=wp.uint8),
-        hit: wp.array2d(dtype=wp.uint8),
-        fresh: wp.array2d(dtype=wp.vec3),
-        fresh_stoch: wp.array2d(dtype=wp.vec3),
-        hist: wp.array2d(dtype=wp.vec3),
-        weight: wp.array2d(dtype=wp.vec3),
-        out_color: wp.array(dtype=wp.vec3),
-        out_stoch: wp.array(dtype=wp.vec3),
-        row0: int,
-    ):
-        e = wp.tid() + row0  # band offset (foveawarp.parallel)
-        if e >= count[0]:
-            return
-        x, y = list_pixel(work[e], width)
-        if hit[y, x] == wp.uint8(0):
-            return
-        i = y * width + x
-        col = fresh[y, x]
-        if wp.static(stochastic):
-            st = fresh_stoch[y, x]
-            alpha = weight[y, x][0]
-            if alpha >= 0.0:
-                hs = hist[y, x]
-                lo, hi, cnt = neighbourhood_box(x, y, tp.box_radius, sample_map, hit, fresh_stoch, tp.clamp_gamma)
-                if cnt >= 3:
-                    hs = clip_to_box(hs, lo, hi)
-                s_acc = hs + (st - hs) * alpha
-                col = col - st + s_acc
-                st = s_acc
-            out_stoch[i] = st
-        out_color[i] = col
-
-    return resolve_list
-
-
-resolve_list_kernel = _make_resolve_list(False)
-resolve_stoch_list_kernel = _make_resolve_list(True)
 
 
 @wp.kernel(enable_backward=False)

@@ -13,12 +13,8 @@ from ..kernels.temporal import (
     refresh_thin_kernel,
     resolve_kernel,
     resolve_rows_kernel,
-    resolve_history_kernel,
-    resolve_list_kernel,
     resolve_stoch_boxed_kernel,
-    resolve_stoch_history_kernel,
     resolve_stoch_kernel,
-    resolve_stoch_list_kernel,
     resolve_stoch_rows_kernel,
     sample_shade_resolve_rows_kernel,
     shade_resolve_rows_kernel,
@@ -102,19 +98,6 @@ class TemporalStage:
     # divergence that the list avoids on CUDA; the tests set it to check the CUDA path's kernels on the CPU
     list_boxes_on_cpu = False
 
-    # The split resolve (``run_history`` + ``run_list``): the history half of the resolve, which reads no fresh
-    # value, runs while the sampled pixels are shaded (on CUDA on a second stream, forked after the sampling pass:
-    # a pass over every pixel, bandwidth bound, beside the list's ray tracing, latency bound), and a pass over the
-    # list of traced pixels completes their colours once they are shaded (the clip boxes of stochastic shading
-    # gathered there too). The same values as ``run``. None (default): FrameLoop splits on CUDA whenever its frame
-    # has the traced pixels' flat list (the "tile" and "scan" strategies) and no per-stage timing; True: also on the
-    # CPU (the halves one after the other: a test of the split); False: never. FrameLoop keys its captured graphs
-    # by it.
-    split = None
-    # CUDA: the history half's launch at most this many 256-thread blocks per SM (a grid-stride loop; 0: a thread
-    # per pixel), so that it leaves the SMs to the shading launched beside it
-    HISTORY_BLOCKS_PER_SM = 0
-
     def __init__(self, width: int, height: int, config: TemporalConfig, device):
         self.width, self.height, self.config, self.device = width, height, config, device
         n = width * height
@@ -131,9 +114,6 @@ class TemporalStage:
         self._stochastic = None  # shading kind of the last run/refresh (None: none yet)
         self._box = None  # the list-gathered clip boxes (lo, hi), allocated on the first run that uses them
         self._no_box = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # box placeholder of the other kernels
-        # CUDA: the second stream of the split resolve's history half, made here, before any graph capture can begin
-        self._side = wp.Stream(device) if wp.get_device(device).is_cuda else None
-        self._pending = None  # the split resolve between its halves: (list-half arguments, forked)
 
     @property
     def color(self) -> wp.array:
@@ -299,71 +279,6 @@ class TemporalStage:
                 (self.height, self.width), inputs=inputs, outputs=[*outputs, self._no_box, self._no_box],
                 device=self.device,
             )
-        self.swap()
-
-    def splits(self) -> bool:
-        """Whether FrameLoop resolves its listed frames in two halves (``split``; None: on CUDA)."""
-        s = self.split
-        if s is not None and not isinstance(s, bool):
-            raise ValueError(f"TemporalStage.split must be None (the default rule), True or False, got {s!r}")
-        return bool(wp.get_device(self.device).is_cuda if s is None else s)
-
-    def run_history(self, sample_map, gbuffer, *, use_history: bool = True, stochastic: bool = False,
-                    background=(0.0, 0.0, 0.0), samples: int = 1, fork: bool = False) -> None:
-        """The history half of a split resolve: everything ``run`` writes but the colour (and stochastic part)
-        of the sampled surface pixels, which ``run_list`` then completes from their fresh values; until it does
-        the history is not swapped. Reads no fresh value, so it may run before the sampled pixels are shaded.
-        ``fork`` (CUDA): launch it on the stage's second stream after the work already queued, so it runs beside
-        what the caller queues next; ``run_list`` joins it. Arguments as for ``run``."""
-        stochastic = bool(stochastic)
-        samples = check_int_range("samples", samples, 1, 2**31 - 1)
-        if self._pending is not None:
-            raise ValueError("run_history: the previous split resolve was not completed (call run_list first)")
-        self._check_kind(stochastic)
-        prev, cur = self._cur, 1 - self._cur
-        g = gbuffer
-        tp = self.params(use_history=use_history, stochastic=stochastic, background=background, samples=samples)
-        hist, weight = self._boxes() if stochastic else (self._no_box, self._no_box)
-        stream = None
-        if fork and self._side is not None:
-            stream = self._side
-            stream.wait_stream(wp.get_device(self.device).stream)  # fork: the sample map and the G-buffer are ready
-        parallel.launch(resolve_stoch_history_kernel if stochastic else resolve_history_kernel,
-                        (self.height, self.width),
-                        inputs=[tp, sample_map, g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved,
-                                self._no_box, self._no_box, self._depth[prev], self._normal[prev], self._meta[prev],
-                                self._color_flat[prev], self._stoch[prev]],
-                        outputs=[self._color_flat[cur], self._filled[cur], self._depth[cur], self._normal[cur],
-                                 self._meta[cur], self._stoch[cur], hist, weight], device=self.device, stream=stream,
-                        max_blocks=self._history_blocks())
-        self._pending = ((tp, sample_map, g.hit, hist, weight, cur, stochastic), stream is not None)
-
-    def _history_blocks(self) -> int:
-        """``max_blocks`` of the history half's launch: ``HISTORY_BLOCKS_PER_SM`` per SM on CUDA, 0 (no limit)
-        elsewhere."""
-        dev = wp.get_device(self.device)
-        k = check_int_range("TemporalStage.HISTORY_BLOCKS_PER_SM", self.HISTORY_BLOCKS_PER_SM, 0, 64)
-        if not dev.is_cuda or k == 0:
-            return 0
-        return k * max(1, int(getattr(dev, "sm_count", 0) or 1))
-
-    def run_list(self, fresh, fresh_stoch, work, count) -> None:
-        """The list half of a split resolve (after ``run_history`` and the shading): the colour (and stochastic
-        part) of every traced surface pixel of the flat list ``work[0:count[0]]`` (``ReorderStage.work`` /
-        ``count``; it must hold every sampled surface pixel of ``run_history``'s sample map), from ``fresh`` /
-        ``fresh_stoch`` as ``run`` computes it; then the history is swapped."""
-        if self._pending is None:
-            raise ValueError("run_list: no split resolve to complete (call run_history first)")
-        (tp, sample_map, hit, hist, weight, cur, stochastic), forked = self._pending
-        self._pending = None
-        dev = wp.get_device(self.device)
-        if forked:
-            dev.stream.wait_stream(self._side)  # join
-        blocks = 32 * max(1, int(getattr(dev, "sm_count", 0) or 1)) if dev.is_cuda else 0
-        parallel.launch(resolve_stoch_list_kernel if stochastic else resolve_list_kernel, int(work.shape[0]),
-                        inputs=[tp, work, count, self.width, sample_map, hit, fresh, fresh_stoch, hist, weight],
-                        outputs=[self._color_flat[cur], self._stoch[cur]], device=self.device, count=count,
-                        max_blocks=blocks)
         self.swap()
 
     def _boxes(self):
