@@ -267,13 +267,9 @@ class TemporalStage:
                    self._stoch[cur]]
         if stochastic and work is not None and (self.device.is_cuda or self.list_boxes_on_cpu):
             box_lo, box_hi = self._boxes()
-            # CUDA: 32 blocks per SM stepping over the capacity-sized list (the list launches' form,
-            # ShadeStage._list_blocks), not a block per 256 entries of the capacity whose threads past the count exit
-            dev = wp.get_device(self.device)
             wp.launch(stoch_box_list_kernel, dim=work.shape[0],
                       inputs=[tp, work, count, self.width, sample_map, g.hit, fresh_stoch],
-                      outputs=[box_lo, box_hi], device=self.device,
-                      max_blocks=32 * max(1, int(getattr(dev, "sm_count", 0) or 1)) if dev.is_cuda else 0)
+                      outputs=[box_lo, box_hi], device=self.device)
             wp.launch(resolve_stoch_boxed_kernel, dim=(self.height, self.width), inputs=inputs,
                       outputs=[*outputs, box_lo, box_hi, 0], device=self.device)
         else:
