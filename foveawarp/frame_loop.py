@@ -664,8 +664,10 @@ class FrameLoop:
             self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
                                                            f"every {self.POLICY_PERIOD} frames")
             self._pol_next_trigger = None
+        estimates = None  # the first pair of blocks' estimates, computed once when they end
         if f == self._pol_total and len(self._pol_sched) == 2:
-            if not self._clear_cut(*self._policy_estimates(self._pol_ms)[0]):
+            estimates = self._policy_estimates(self._pol_ms)
+            if not self._clear_cut(*estimates[0]):
                 # not clear-cut: both paths once more, in the other order, before the choice
                 again = (self.POLICY_WARM_AGAIN, self.POLICY_TIMED)
                 self._set_schedule(self._pol_sched + [("full", *again), ("foveated", *again)])
@@ -677,7 +679,7 @@ class FrameLoop:
                     return path, k >= warm, False
                 k -= warm + timed
         if f == self._pol_total:
-            (fov_ms, full_ms), ref = self._policy_estimates(self._pol_ms)
+            (fov_ms, full_ms), ref = estimates or self._policy_estimates(self._pol_ms)
             self._pol_ref = {"foveated_ms": ref[0], "full_ms": ref[1]}
             # foveation must pay for its error: within the margin (or when timing noise hides the difference) the
             # exact full-resolution frame wins (H100, city 4K: 5.18 vs 4.96 ms estimated, 5.45 vs 5.08 measured)
