@@ -341,3 +341,42 @@ def test_policy_sim_refuses_bad_cases(tmp_path, case):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "policy_sim.py"), "--quick", "--cases", case,
                         "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 2 and "--cases" in r.stderr and repr(case) in r.stderr
+
+
+def _kernel_ab_payload():
+    """Two versions, two rounds, one case: kernel times chosen so that the means are known by hand."""
+    def rec(resolve, other, fov_extra, ref):
+        k = {"forward kernel resolve_kernel_aaaa": resolve, "forward kernel gbuffer_tiles_kernel_bbbb": other}
+        return {"scene": "bunny", "width": 64, "height": 36, "foveated_kernels_ms": k,
+                "reference_kernels_ms": {"forward kernel x": ref}, "foveated_gpu_ms": resolve + other + fov_extra,
+                "reference_gpu_ms": ref}
+    runs = [{"code": "old", "round": 1, "shading": "default", "records": [rec(0.30, 0.5, 0.2, 2.0)]},
+            {"code": "old", "round": 2, "shading": "default", "records": [rec(0.34, 0.5, 0.2, 2.2)]},
+            {"code": "new", "round": 1, "shading": "default", "records": [rec(0.20, 0.5, 0.2, 2.0)]},
+            {"code": "new", "round": 2, "shading": "default", "records": [rec(0.22, 0.5, 0.2, 2.0)]}]
+    return {"new_commit": "n", "old_commit": "o", "device_name": "test", "runs": runs}
+
+
+def test_kernel_ab_summary(tmp_path):
+    """benchmarks/kernel_ab.py: the kernel means, their ratio, the sums' speed-ups, against hand-computed values,
+    and the markdown next to the JSON; a file without runs is refused."""
+    sys.path.insert(0, str(REPO))
+    from benchmarks.kernel_ab import main, summarise
+
+    rows = summarise(_kernel_ab_payload(), "resolve")
+    assert len(rows) == 1
+    r = rows[0]
+    assert (r["scene"], r["size"], r["shading"]) == ("bunny", "64x36", "default")
+    assert r["old_kernel_ms"] == pytest.approx(0.32) and r["new_kernel_ms"] == pytest.approx(0.21)
+    assert r["kernel_ratio"] == pytest.approx(0.21 / 0.32)
+    assert r["old_kernel_spread_ms"] == pytest.approx(0.04) and r["new_kernel_spread_ms"] == pytest.approx(0.02)
+    assert r["old_fov_ms"] == pytest.approx(1.02) and r["new_fov_ms"] == pytest.approx(0.91)
+    assert r["old_speedup"] == pytest.approx(2.1 / 1.02) and r["new_speedup"] == pytest.approx(2.0 / 0.91)
+    p = tmp_path / "ab.json"
+    p.write_text(json.dumps(_kernel_ab_payload()))
+    assert main([str(p)]) == 0
+    md = (tmp_path / "ab.md").read_text()
+    assert "| bunny | 64x36 | default | 0.3200 | 0.2100 | 0.656 |" in md
+    (tmp_path / "empty.json").write_text(json.dumps({"new_commit": "n", "old_commit": "o", "runs": []}))
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "empty.json")])
