@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.append(str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
 from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402

@@ -380,3 +380,21 @@ def test_kernel_ab_summary(tmp_path):
     (tmp_path / "empty.json").write_text(json.dumps({"new_commit": "n", "old_commit": "o", "runs": []}))
     with pytest.raises(SystemExit):
         main([str(tmp_path / "empty.json")])
+
+
+def test_benchmarks_import_the_library_on_pythonpath_first(tmp_path):
+    """A benchmark script run with another foveawarp on PYTHONPATH (an old version extracted for an A/B) must run
+    that one: the scripts add the repository after PYTHONPATH, not before it (session 31's A/B ran the working tree
+    on both sides). The stand-in library here refuses to import, with its own message."""
+    fake = tmp_path / "lib" / "foveawarp"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text('raise ImportError("the foveawarp on PYTHONPATH was imported")\n')
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "lib")}
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "cpu.py"), "--help"], capture_output=True,
+                       text=True, cwd=tmp_path, env=env, timeout=300)
+    assert r.returncode != 0 and "the foveawarp on PYTHONPATH was imported" in r.stderr, r.stderr[-2000:]
+    # and without it, the repository's library is found (the script's own parent, appended)
+    env.pop("PYTHONPATH")
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "cpu.py"), "--help"], capture_output=True,
+                       text=True, cwd=tmp_path, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
