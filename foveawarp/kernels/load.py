@@ -111,6 +111,18 @@ def store_f32(a: wp.array2d(dtype=float), y: int, x: int, v: float):
     ...
 
 
+@wp.func_native(f"return *(const unsigned int*){_ADDR1};")
+def load1_u32(a: wp.array(dtype=wp.uint32), i: int) -> wp.uint32:
+    """``a[i]`` for 0 <= i < N (unchecked)."""
+    ...
+
+
+@wp.func_native(f"*(unsigned int*){_ADDR1} = v;")
+def store1_u32(a: wp.array(dtype=wp.uint32), i: int, v: wp.uint32):
+    """``a[i] = v`` for 0 <= i < N (unchecked)."""
+    ...
+
+
 @wp.func_native(f"return *(const wp::vec3h*){_ADDR1};")
 def load1_vec3h(a: wp.array(dtype=wp.vec3h), i: int) -> wp.vec3h:
     """``a[i]`` for 0 <= i < N (unchecked)."""

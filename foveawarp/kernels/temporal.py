@@ -3,14 +3,15 @@ bilinear depth- and normal-validated history elsewhere, and an accumulated (neig
 the stochastic shading terms only. History ages out after ``max_frames`` frames without a refresh.
 
 History per pixel (ping-pong, written by each resolve): the colour (also the frame's output), age and staleness
-packed in one int32, the normal and (stochastic shading) the stochastic part where age > 0 (both float16), the
-filled mask and the G-buffer depth (also the next frame's cache test inputs)."""
+packed in one int32, the normal and (stochastic shading) the stochastic part where age > 0, the filled mask and
+the G-buffer depth (also the next frame's cache test inputs)."""
 
 import warp as wp
 
 from .gbuffer import NO_REPROJ, reproj_velocity
-from .load import (load1_i32, load1_vec3, load1_vec3h, load_f32, load_u8, load_vec2, load_vec3, store1_i32,
-                   store1_vec3, store1_vec3h, store_f32, store_u8)
+from .load import (load1_i32, load1_u32, load1_vec3, load1_vec3h, load_f32, load_u8, load_vec2, load_vec3,
+                   store1_i32, store1_u32, store1_vec3, store1_vec3h, store_f32, store_u8)
+from .octnormal import oct_decode, oct_encode
 from .sampling import FrameParams, SamplingParams, sampling_tile_row
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
@@ -81,7 +82,7 @@ def bilinear_taps(uv: wp.vec2, w: int, h: int):
 
 @wp.func
 def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth: float, tp: TemporalParams,
-           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array(dtype=wp.vec3h),
+           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array(dtype=wp.uint32),
            meta_prev: wp.array(dtype=wp.int32)) -> int:
     """1 when history tap (tx, ty) holds a colour of the same surface: on screen, non-empty history (age > 0,
     which implies it was filled last frame: the resolve writes age > 0 only together with filled = 1), the
@@ -94,7 +95,7 @@ def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth
         return 0
     if not (wp.abs(load_f32(depth_prev, ty, tx) - dist_prev) < tp.depth_eps_rel * depth):
         return 0
-    if wp.dot(wp.vec3(load1_vec3h(normal_prev, i)), n) < tp.normal_cos_min:  # the stored (float16) normal
+    if wp.dot(oct_decode(load1_u32(normal_prev, i)), n) < tp.normal_cos_min:
         return 0
     return 1
 
@@ -184,14 +185,14 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         fresh: wp.array2d(dtype=wp.vec3),
         fresh_stoch: wp.array2d(dtype=wp.vec3),
         depth_prev: wp.array2d(dtype=float),
-        normal_prev: wp.array(dtype=wp.vec3h),
+        normal_prev: wp.array(dtype=wp.uint32),
         meta_prev: wp.array(dtype=wp.int32),
         color_prev: wp.array(dtype=wp.vec3),
         stoch_prev: wp.array(dtype=wp.vec3h),
         out_color: wp.array(dtype=wp.vec3),
         out_filled: wp.array2d(dtype=wp.uint8),
         out_depth: wp.array2d(dtype=float),
-        out_normal: wp.array(dtype=wp.vec3h),
+        out_normal: wp.array(dtype=wp.uint32),
         out_meta: wp.array(dtype=wp.int32),
         out_stoch: wp.array(dtype=wp.vec3h),
         box_lo: wp.array2d(dtype=wp.vec3),
@@ -306,7 +307,7 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         store_u8(out_filled, y, x, filled)
         store1_i32(out_meta, i, pack_meta(age, stale))
         if age > 0:
-            store1_vec3h(out_normal, i, wp.vec3h(n))
+            store1_u32(out_normal, i, oct_encode(n))
             if wp.static(stochastic):
                 store1_vec3h(out_stoch, i, wp.vec3h(st))
 
@@ -333,14 +334,14 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
             fresh: wp.array2d(dtype=wp.vec3),
             fresh_stoch: wp.array2d(dtype=wp.vec3),
             depth_prev: wp.array2d(dtype=float),
-            normal_prev: wp.array(dtype=wp.vec3h),
+            normal_prev: wp.array(dtype=wp.uint32),
             meta_prev: wp.array(dtype=wp.int32),
             color_prev: wp.array(dtype=wp.vec3),
             stoch_prev: wp.array(dtype=wp.vec3h),
             out_color: wp.array(dtype=wp.vec3),
             out_filled: wp.array2d(dtype=wp.uint8),
             out_depth: wp.array2d(dtype=float),
-            out_normal: wp.array(dtype=wp.vec3h),
+            out_normal: wp.array(dtype=wp.uint32),
             out_meta: wp.array(dtype=wp.int32),
             out_stoch: wp.array(dtype=wp.vec3h),
             box_lo: wp.array2d(dtype=wp.vec3),
@@ -421,14 +422,14 @@ def shade_resolve_row(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.vec3h),
+    normal_prev: wp.array(dtype=wp.uint32),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
     stoch_prev: wp.array(dtype=wp.vec3h),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.vec3h),
+    out_normal: wp.array(dtype=wp.uint32),
     out_meta: wp.array(dtype=wp.int32),
     out_stoch: wp.array(dtype=wp.vec3h),
 ):
@@ -465,14 +466,14 @@ def shade_resolve_rows_kernel(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.vec3h),
+    normal_prev: wp.array(dtype=wp.uint32),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
     stoch_prev: wp.array(dtype=wp.vec3h),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.vec3h),
+    out_normal: wp.array(dtype=wp.uint32),
     out_meta: wp.array(dtype=wp.int32),
     out_stoch: wp.array(dtype=wp.vec3h),
     row0: int,
@@ -523,14 +524,14 @@ def sample_shade_resolve_rows_kernel(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.vec3h),
+    normal_prev: wp.array(dtype=wp.uint32),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
     stoch_prev: wp.array(dtype=wp.vec3h),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.vec3h),
+    out_normal: wp.array(dtype=wp.uint32),
     out_meta: wp.array(dtype=wp.int32),
     out_stoch: wp.array(dtype=wp.vec3h),
     row0: int,

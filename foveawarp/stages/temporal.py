@@ -7,6 +7,7 @@ import warp as wp
 
 from .. import parallel
 from ..config import TemporalConfig, check_int_range
+from ..kernels.octnormal import oct_decode_kernel, oct_encode_kernel
 from ..kernels.temporal import (
     META_SHIFT,
     TemporalParams,
@@ -88,9 +89,9 @@ class TemporalStage:
     (``SamplingStage.launch``), so they need no copy. Hold no reference to them across frames: the next
     ``run`` but one overwrites them.
 
-    The history's normals and its stochastic part are kept in float16 (each component within a relative 2^-11, so a
-    stored unit normal's cosine with the current one is off by less than 5e-4): the taps' normal test and the
-    running mean read these stored values. The colour history is float32 (it is the frame's output).
+    The history's normals are kept octahedral in 32 bits (``kernels.octnormal``: within 7e-5 rad) and its
+    stochastic part in float16 (within a relative 2^-11): the taps' normal test and the running mean read these
+    stored values. The colour history is float32 (it is the frame's output).
 
     The shading kind (``stochastic``) picks a compile-time specialisation of the resolve: the deterministic
     one keeps no stochastic history. A ``run`` or ``refresh`` whose ``stochastic`` differs from the previous
@@ -111,10 +112,9 @@ class TemporalStage:
         self._color_flat = [a.flatten() for a in self._color]
         self._filled = [wp.zeros(shape, dtype=wp.uint8, device=device) for _ in range(2)]
         self._depth = [wp.zeros(shape, dtype=float, device=device) for _ in range(2)]
-        # the normal (only tested against a cosine) and the stochastic running mean in float16: 12 bytes a pixel
-        # less for each resolve to write and the next to read (H100, 3840x2160, bunny: the resolve 0.237 -> 0.222 ms,
-        # 8 AO rays 0.326 -> 0.301 ms; octahedral normals in 32 bits took registers and came out between)
-        self._normal = [wp.zeros(n, dtype=wp.vec3h, device=device) for _ in range(2)]
+        # the normal (only validated against a cosine) octahedral in 32 bits, the stochastic running mean in
+        # float16: 28 of the stochastic resolve's ~90 DRAM bytes a pixel were these two, written and read back
+        self._normal = [wp.zeros(n, dtype=wp.uint32, device=device) for _ in range(2)]
         self._stoch = [wp.zeros(n, dtype=wp.vec3h, device=device) for _ in range(2)]
         self._meta = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]  # age | stale << 16
         self._cur = 0
@@ -150,17 +150,21 @@ class TemporalStage:
     def history(self) -> dict:
         """Host copies of the current history (debugging and tests; reads the device): color (H, W, 3),
         filled (H, W), depth (H, W), and flat (H*W, ...) normal, stoch, age, stale. ``normal`` and ``stoch``
-        are meaningful only where age > 0. Both are kept in float16: the arrays returned are their float32 values."""
+        are meaningful only where age > 0. They are kept in 32 bits (``kernels.octnormal``) and float16: the
+        arrays returned are their float32 values (the normals decoded, unit length)."""
         c = self._cur
         meta = self._meta[c].numpy()
+        normal = wp.empty(self._normal[c].shape[0], dtype=wp.vec3, device=self.device)
+        wp.launch(oct_decode_kernel, dim=normal.shape[0], inputs=[self._normal[c]], outputs=[normal],
+                  device=self.device)
         return {"color": self._color[c].numpy(), "filled": self._filled[c].numpy(), "depth": self._depth[c].numpy(),
-                "normal": self._normal[c].numpy().astype("float32"), "stoch": self._stoch[c].numpy().astype("float32"),
+                "normal": normal.numpy(), "stoch": self._stoch[c].numpy().astype("float32"),
                 "age": meta & ((1 << META_SHIFT) - 1), "stale": meta >> META_SHIFT}
 
     def set_history(self, *, color, stoch, normal, age, stale, depth, filled) -> None:
         """Load the current history from host arrays (tests): shapes as ``history()`` returns them. ``age > 0``
         must imply ``filled`` (as every ``run`` leaves it; the resolve relies on it). ``normal`` and ``stoch`` are
-        stored as the resolve stores them: rounded to float16."""
+        stored as the resolve stores them: octahedral in 32 bits and rounded to float16."""
         import numpy as np
 
         age = np.asarray(age, np.int32)
@@ -171,7 +175,9 @@ class TemporalStage:
         c = self._cur
         self._color[c].assign(np.asarray(color, np.float32).reshape(self.height, self.width, 3))
         self._stoch[c].assign(np.asarray(stoch, np.float32).reshape(-1, 3).astype(np.float16))
-        self._normal[c].assign(np.asarray(normal, np.float32).reshape(-1, 3).astype(np.float16))
+        normal = wp.array(np.asarray(normal, np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device)
+        wp.launch(oct_encode_kernel, dim=normal.shape[0], inputs=[normal], outputs=[self._normal[c]],
+                  device=self.device)
         self._meta[c].assign((age | (stale << META_SHIFT)).reshape(-1))
         self._depth[c].assign(np.asarray(depth, np.float32).reshape(self.height, self.width))
         self._filled[c].assign(filled.reshape(self.height, self.width))
