@@ -9,8 +9,7 @@ import warp as wp
 
 from foveawarp.kernels.load import (load1_i32, load1_u8, load1_vec3, load_f32, load_i32, load_u8, load_vec2, load_vec3,
                                    nine_equal_i32, nine_equal_mask64_i32, nine_equal_mask64_vec3, nine_equal_vec3,
-                                   load1_u32, load1_vec3h, store1_i32, store1_u32, store1_vec3, store1_vec3h,
-                                   store_f32, store_i32,
+                                   store1_i32, store1_vec3, store_f32, store_i32,
                                    store_u8, store_vec2, store_vec2i, store_vec3)
 
 
@@ -337,36 +336,3 @@ def test_nine_equal_masks_on_one_value(w, value):
     np.testing.assert_array_equal(oi.numpy(), interior)
     np.testing.assert_array_equal(o3.numpy(), 0 * interior if np.isnan(value).any() else interior)
     np.testing.assert_array_equal(o3.numpy(), _nine_equal_reference(n3, True))
-
-
-@wp.kernel(enable_backward=False)
-def _copy_flat_packed(au: wp.array(dtype=wp.uint32), ah: wp.array(dtype=wp.vec3h), idx: wp.array(dtype=wp.int32),
-                      ou: wp.array(dtype=wp.uint32), oh: wp.array(dtype=wp.vec3h)):
-    k = wp.tid()
-    i = idx[k]
-    store1_u32(ou, i, load1_u32(au, i))
-    store1_vec3h(oh, i, load1_vec3h(ah, i))
-
-
-@pytest.mark.parametrize("view", ["contiguous", "strided"])
-def test_flat_u32_and_half_vec3_loads_and_stores(device, view):
-    """The temporal history's packed normal (uint32) and float16 stochastic part: element for element (every bit
-    of the uint32, the float16 bits) and nothing else written, on contiguous and strided views."""
-    rng = np.random.default_rng(29)
-    n = 70
-    bu = rng.integers(0, 2**32, size=3 * n, dtype=np.uint64).astype(np.uint32)
-    bh = rng.normal(size=(3 * n, 3)).astype(np.float16)
-    fl = slice(2, None, 3) if view == "strided" else slice(0, n)
-    au = wp.array(bu, dtype=wp.uint32, device=device)[fl]
-    ah = wp.array(bh, dtype=wp.vec3h, device=device)[fl]
-    oub = wp.array(np.full(3 * n, 12345, np.uint32), dtype=wp.uint32, device=device)
-    ohb = wp.array(np.full((3 * n, 3), -7.0, np.float16), dtype=wp.vec3h, device=device)
-    idx = rng.permutation(au.shape[0])[: au.shape[0] // 2].astype(np.int32)
-    wp.launch(_copy_flat_packed, dim=idx.size, inputs=[au, ah, wp.array(idx, device=device)],
-              outputs=[oub[fl], ohb[fl]], device=device)
-    eu, eh = np.full(3 * n, 12345, np.uint32), np.full((3 * n, 3), -7.0, np.float16)
-    pos = np.arange(3 * n)[fl][idx]
-    eu[pos] = bu[pos]
-    eh[pos] = bh[pos]
-    np.testing.assert_array_equal(oub.numpy(), eu)
-    np.testing.assert_array_equal(ohb.numpy().view(np.uint16), eh.view(np.uint16))

@@ -11,7 +11,6 @@ import foveawarp as fw
 from foveawarp.buffers import GBuffer
 from foveawarp.metrics import psnr, region_metrics
 from foveawarp.stages.temporal import TemporalStage
-from test_octnormal import np_oct_decode, np_oct_encode
 
 BG = np.array([0.02, 0.02, 0.03])
 
@@ -136,9 +135,6 @@ def _setup(rng, h, w, device, stochastic, min_samples=4):
         inp[k] = np.asarray(inp[k], np.float32).astype(np.float64)
     for k in ("color", "stoch", "normal", "depth"):
         prev[k] = np.asarray(prev[k], np.float32).astype(np.float64)
-    # the history as stored (stages.temporal): the normals octahedral in 32 bits, the stochastic part float16
-    prev["normal"] = np_oct_decode(np_oct_encode(np.asarray(prev["normal"], np.float32)))
-    prev["stoch"] = np.asarray(prev["stoch"], np.float32).astype(np.float16).astype(np.float64)
     return cfg, st, g, inp, prev, arrs, smap
 
 
@@ -338,33 +334,6 @@ def test_shading_kind_change_forgets_history(device, rng):
         np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), without[not first])
         s3.set_history(**load)  # same kind again: the history counts
         np.testing.assert_array_equal(run(s3, use_history=True, stochastic=not first), with_hist[not first])
-
-
-def test_history_is_stored_at_its_stated_precision(device, rng):
-    """``set_history`` stores what the resolve stores: ``history()`` gives back the normals as the octahedral
-    32-bit words decode (NumPy reference, within 1e-4 rad of the input, unit length) and the stochastic part
-    rounded to float16 (NumPy's rounding, bit for bit); the other fields unchanged."""
-    h, w = 9, 11
-    n = h * w
-    st = TemporalStage(w, h, fw.TemporalConfig(), device)
-    nrm = rng.normal(size=(n, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    stoch = rng.random((n, 3)) * 4.0
-    color = rng.random((h, w, 3)).astype(np.float32)
-    age, stale = rng.integers(1, 16, n).astype(np.int32), rng.integers(0, 16, n).astype(np.int32)
-    depth = rng.uniform(1, 5, (h, w)).astype(np.float32)
-    st.set_history(color=color, stoch=stoch, normal=nrm, age=age, stale=stale, depth=depth,
-                   filled=np.ones((h, w), np.uint8))
-    got = st.history()
-    np.testing.assert_array_equal(got["stoch"], stoch.astype(np.float32).astype(np.float16).astype(np.float32))
-    np.testing.assert_allclose(got["normal"], np_oct_decode(np_oct_encode(nrm.astype(np.float32))), atol=4e-5)
-    cosang = np.clip((got["normal"].astype(np.float64) * nrm).sum(1), -1, 1)
-    ang = np.arctan2(np.linalg.norm(np.cross(got["normal"].astype(np.float64), nrm), axis=1), cosang)
-    assert ang.max() < 1e-4, ang.max()
-    np.testing.assert_array_equal(got["color"], color)
-    np.testing.assert_array_equal(got["depth"], depth)
-    np.testing.assert_array_equal(got["age"], age)
-    np.testing.assert_array_equal(got["stale"], stale)
 
 
 def test_set_history_rejects_age_without_filled(device):

@@ -111,30 +111,6 @@ def store_f32(a: wp.array2d(dtype=float), y: int, x: int, v: float):
     ...
 
 
-@wp.func_native(f"return *(const unsigned int*){_ADDR1};")
-def load1_u32(a: wp.array(dtype=wp.uint32), i: int) -> wp.uint32:
-    """``a[i]`` for 0 <= i < N (unchecked)."""
-    ...
-
-
-@wp.func_native(f"*(unsigned int*){_ADDR1} = v;")
-def store1_u32(a: wp.array(dtype=wp.uint32), i: int, v: wp.uint32):
-    """``a[i] = v`` for 0 <= i < N (unchecked)."""
-    ...
-
-
-@wp.func_native(f"return *(const wp::vec3h*){_ADDR1};")
-def load1_vec3h(a: wp.array(dtype=wp.vec3h), i: int) -> wp.vec3h:
-    """``a[i]`` for 0 <= i < N (unchecked)."""
-    ...
-
-
-@wp.func_native(f"*(wp::vec3h*){_ADDR1} = v;")
-def store1_vec3h(a: wp.array(dtype=wp.vec3h), i: int, v: wp.vec3h):
-    """``a[i] = v`` for 0 <= i < N (unchecked)."""
-    ...
-
-
 # -- the 3x3 "all nine taps equal" tests of the Sobel terms, on the CPU ------------------------------------------
 # At an interior pixel of a row-contiguous array the three rows' taps are 3 contiguous elements each: compared as
 # 64-bit words against the centre repeated, instead of 8 element loads and compares. Where the test does not

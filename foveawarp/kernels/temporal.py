@@ -9,9 +9,8 @@ the G-buffer depth (also the next frame's cache test inputs)."""
 import warp as wp
 
 from .gbuffer import NO_REPROJ, reproj_velocity
-from .load import (load1_i32, load1_u32, load1_vec3, load1_vec3h, load_f32, load_u8, load_vec2, load_vec3,
-                   store1_i32, store1_u32, store1_vec3, store1_vec3h, store_f32, store_u8)
-from .octnormal import oct_decode, oct_encode
+from .load import (load1_i32, load1_vec3, load_f32, load_u8, load_vec2, load_vec3, store1_i32, store1_vec3,
+                   store_f32, store_u8)
 from .sampling import FrameParams, SamplingParams, sampling_tile_row
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
 
@@ -82,7 +81,7 @@ def bilinear_taps(uv: wp.vec2, w: int, h: int):
 
 @wp.func
 def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth: float, tp: TemporalParams,
-           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array(dtype=wp.uint32),
+           depth_prev: wp.array2d(dtype=float), normal_prev: wp.array(dtype=wp.vec3),
            meta_prev: wp.array(dtype=wp.int32)) -> int:
     """1 when history tap (tx, ty) holds a colour of the same surface: on screen, non-empty history (age > 0,
     which implies it was filled last frame: the resolve writes age > 0 only together with filled = 1), the
@@ -95,7 +94,7 @@ def tap_ok(tx: int, ty: int, w: int, h: int, dist_prev: float, n: wp.vec3, depth
         return 0
     if not (wp.abs(load_f32(depth_prev, ty, tx) - dist_prev) < tp.depth_eps_rel * depth):
         return 0
-    if wp.dot(oct_decode(load1_u32(normal_prev, i)), n) < tp.normal_cos_min:
+    if wp.dot(load1_vec3(normal_prev, i), n) < tp.normal_cos_min:
         return 0
     return 1
 
@@ -185,16 +184,16 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         fresh: wp.array2d(dtype=wp.vec3),
         fresh_stoch: wp.array2d(dtype=wp.vec3),
         depth_prev: wp.array2d(dtype=float),
-        normal_prev: wp.array(dtype=wp.uint32),
+        normal_prev: wp.array(dtype=wp.vec3),
         meta_prev: wp.array(dtype=wp.int32),
         color_prev: wp.array(dtype=wp.vec3),
-        stoch_prev: wp.array(dtype=wp.vec3h),
+        stoch_prev: wp.array(dtype=wp.vec3),
         out_color: wp.array(dtype=wp.vec3),
         out_filled: wp.array2d(dtype=wp.uint8),
         out_depth: wp.array2d(dtype=float),
-        out_normal: wp.array(dtype=wp.uint32),
+        out_normal: wp.array(dtype=wp.vec3),
         out_meta: wp.array(dtype=wp.int32),
-        out_stoch: wp.array(dtype=wp.vec3h),
+        out_stoch: wp.array(dtype=wp.vec3),
         box_lo: wp.array2d(dtype=wp.vec3),
         box_hi: wp.array2d(dtype=wp.vec3),
     ):
@@ -252,7 +251,7 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
                             wsum += wt
                             hc += load1_vec3(color_prev, j) * wt
                             if wp.static(stochastic):
-                                hs += wp.vec3(load1_vec3h(stoch_prev, j)) * wt
+                                hs += load1_vec3(stoch_prev, j) * wt
                             age_h = wp.min(age_h, meta_age(mj))
                             stale_h = wp.max(stale_h, meta_stale(mj))
             have = wsum > 1.0e-3
@@ -307,9 +306,9 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
         store_u8(out_filled, y, x, filled)
         store1_i32(out_meta, i, pack_meta(age, stale))
         if age > 0:
-            store1_u32(out_normal, i, oct_encode(n))
+            store1_vec3(out_normal, i, n)
             if wp.static(stochastic):
-                store1_vec3h(out_stoch, i, wp.vec3h(st))
+                store1_vec3(out_stoch, i, st)
 
 
     # CUDA: no grid-stride loop (sm_90 registers per thread: deterministic 32, full occupancy; stochastic 72
@@ -334,16 +333,16 @@ def _make_resolve_kernels(stochastic: bool, boxed: bool = False):
             fresh: wp.array2d(dtype=wp.vec3),
             fresh_stoch: wp.array2d(dtype=wp.vec3),
             depth_prev: wp.array2d(dtype=float),
-            normal_prev: wp.array(dtype=wp.uint32),
+            normal_prev: wp.array(dtype=wp.vec3),
             meta_prev: wp.array(dtype=wp.int32),
             color_prev: wp.array(dtype=wp.vec3),
-            stoch_prev: wp.array(dtype=wp.vec3h),
+            stoch_prev: wp.array(dtype=wp.vec3),
             out_color: wp.array(dtype=wp.vec3),
             out_filled: wp.array2d(dtype=wp.uint8),
             out_depth: wp.array2d(dtype=float),
-            out_normal: wp.array(dtype=wp.uint32),
+            out_normal: wp.array(dtype=wp.vec3),
             out_meta: wp.array(dtype=wp.int32),
-            out_stoch: wp.array(dtype=wp.vec3h),
+            out_stoch: wp.array(dtype=wp.vec3),
             box_lo: wp.array2d(dtype=wp.vec3),
             box_hi: wp.array2d(dtype=wp.vec3),
             row0: int,
@@ -422,16 +421,16 @@ def shade_resolve_row(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.uint32),
+    normal_prev: wp.array(dtype=wp.vec3),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
-    stoch_prev: wp.array(dtype=wp.vec3h),
+    stoch_prev: wp.array(dtype=wp.vec3),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.uint32),
+    out_normal: wp.array(dtype=wp.vec3),
     out_meta: wp.array(dtype=wp.int32),
-    out_stoch: wp.array(dtype=wp.vec3h),
+    out_stoch: wp.array(dtype=wp.vec3),
 ):
     """Row ``y`` of ``shade_resolve_rows_kernel``: each sampled pixel shaded into ``fresh`` / ``fresh_stoch``, then
     every pixel resolved. A pixel's resolve reads its own sample flag and fresh value only."""
@@ -466,16 +465,16 @@ def shade_resolve_rows_kernel(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.uint32),
+    normal_prev: wp.array(dtype=wp.vec3),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
-    stoch_prev: wp.array(dtype=wp.vec3h),
+    stoch_prev: wp.array(dtype=wp.vec3),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.uint32),
+    out_normal: wp.array(dtype=wp.vec3),
     out_meta: wp.array(dtype=wp.int32),
-    out_stoch: wp.array(dtype=wp.vec3h),
+    out_stoch: wp.array(dtype=wp.vec3),
     row0: int,
 ):
     """The CPU's masked shading and deterministic resolve of one row in one launch (a thread per row, in bands:
@@ -524,16 +523,16 @@ def sample_shade_resolve_rows_kernel(
     fresh: wp.array2d(dtype=wp.vec3),
     fresh_stoch: wp.array2d(dtype=wp.vec3),
     depth_prev: wp.array2d(dtype=float),
-    normal_prev: wp.array(dtype=wp.uint32),
+    normal_prev: wp.array(dtype=wp.vec3),
     meta_prev: wp.array(dtype=wp.int32),
     color_prev: wp.array(dtype=wp.vec3),
-    stoch_prev: wp.array(dtype=wp.vec3h),
+    stoch_prev: wp.array(dtype=wp.vec3),
     out_color: wp.array(dtype=wp.vec3),
     out_filled: wp.array2d(dtype=wp.uint8),
     out_depth: wp.array2d(dtype=float),
-    out_normal: wp.array(dtype=wp.uint32),
+    out_normal: wp.array(dtype=wp.vec3),
     out_meta: wp.array(dtype=wp.int32),
-    out_stoch: wp.array(dtype=wp.vec3h),
+    out_stoch: wp.array(dtype=wp.vec3),
     row0: int,
 ):
     """Tile row ``wp.tid() + row0``: ``sampling_rows_kernel``'s frame pass (``sampling_tile_row``: the sample map,

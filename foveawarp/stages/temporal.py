@@ -7,7 +7,6 @@ import warp as wp
 
 from .. import parallel
 from ..config import TemporalConfig, check_int_range
-from ..kernels.octnormal import oct_decode_kernel, oct_encode_kernel
 from ..kernels.temporal import (
     META_SHIFT,
     TemporalParams,
@@ -89,10 +88,6 @@ class TemporalStage:
     (``SamplingStage.launch``), so they need no copy. Hold no reference to them across frames: the next
     ``run`` but one overwrites them.
 
-    The history's normals are kept octahedral in 32 bits (``kernels.octnormal``: within 7e-5 rad) and its
-    stochastic part in float16 (within a relative 2^-11): the taps' normal test and the running mean read these
-    stored values. The colour history is float32 (it is the frame's output).
-
     The shading kind (``stochastic``) picks a compile-time specialisation of the resolve: the deterministic
     one keeps no stochastic history. A ``run`` or ``refresh`` whose ``stochastic`` differs from the previous
     one forgets the history first (``reset``): history written without a stochastic part is never used as
@@ -112,10 +107,8 @@ class TemporalStage:
         self._color_flat = [a.flatten() for a in self._color]
         self._filled = [wp.zeros(shape, dtype=wp.uint8, device=device) for _ in range(2)]
         self._depth = [wp.zeros(shape, dtype=float, device=device) for _ in range(2)]
-        # the normal (only validated against a cosine) octahedral in 32 bits, the stochastic running mean in
-        # float16: 28 of the stochastic resolve's ~90 DRAM bytes a pixel were these two, written and read back
-        self._normal = [wp.zeros(n, dtype=wp.uint32, device=device) for _ in range(2)]
-        self._stoch = [wp.zeros(n, dtype=wp.vec3h, device=device) for _ in range(2)]
+        self._normal = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
+        self._stoch = [wp.zeros(n, dtype=wp.vec3, device=device) for _ in range(2)]
         self._meta = [wp.zeros(n, dtype=wp.int32, device=device) for _ in range(2)]  # age | stale << 16
         self._cur = 0
         self._stochastic = None  # shading kind of the last run/refresh (None: none yet)
@@ -150,21 +143,16 @@ class TemporalStage:
     def history(self) -> dict:
         """Host copies of the current history (debugging and tests; reads the device): color (H, W, 3),
         filled (H, W), depth (H, W), and flat (H*W, ...) normal, stoch, age, stale. ``normal`` and ``stoch``
-        are meaningful only where age > 0. They are kept in 32 bits (``kernels.octnormal``) and float16: the
-        arrays returned are their float32 values (the normals decoded, unit length)."""
+        are meaningful only where age > 0."""
         c = self._cur
         meta = self._meta[c].numpy()
-        normal = wp.empty(self._normal[c].shape[0], dtype=wp.vec3, device=self.device)
-        wp.launch(oct_decode_kernel, dim=normal.shape[0], inputs=[self._normal[c]], outputs=[normal],
-                  device=self.device)
         return {"color": self._color[c].numpy(), "filled": self._filled[c].numpy(), "depth": self._depth[c].numpy(),
-                "normal": normal.numpy(), "stoch": self._stoch[c].numpy().astype("float32"),
+                "normal": self._normal[c].numpy(), "stoch": self._stoch[c].numpy(),
                 "age": meta & ((1 << META_SHIFT) - 1), "stale": meta >> META_SHIFT}
 
     def set_history(self, *, color, stoch, normal, age, stale, depth, filled) -> None:
         """Load the current history from host arrays (tests): shapes as ``history()`` returns them. ``age > 0``
-        must imply ``filled`` (as every ``run`` leaves it; the resolve relies on it). ``normal`` and ``stoch`` are
-        stored as the resolve stores them: octahedral in 32 bits and rounded to float16."""
+        must imply ``filled`` (as every ``run`` leaves it; the resolve relies on it)."""
         import numpy as np
 
         age = np.asarray(age, np.int32)
@@ -174,10 +162,8 @@ class TemporalStage:
             raise ValueError("set_history: age > 0 must imply filled (the resolve reads no filled mask)")
         c = self._cur
         self._color[c].assign(np.asarray(color, np.float32).reshape(self.height, self.width, 3))
-        self._stoch[c].assign(np.asarray(stoch, np.float32).reshape(-1, 3).astype(np.float16))
-        normal = wp.array(np.asarray(normal, np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device)
-        wp.launch(oct_encode_kernel, dim=normal.shape[0], inputs=[normal], outputs=[self._normal[c]],
-                  device=self.device)
+        self._stoch[c].assign(np.asarray(stoch, np.float32).reshape(-1, 3))
+        self._normal[c].assign(np.asarray(normal, np.float32).reshape(-1, 3))
         self._meta[c].assign((age | (stale << META_SHIFT)).reshape(-1))
         self._depth[c].assign(np.asarray(depth, np.float32).reshape(self.height, self.width))
         self._filled[c].assign(filled.reshape(self.height, self.width))
