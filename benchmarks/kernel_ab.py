@@ -4,11 +4,12 @@ version (alternating, several rounds) into ``{"new_commit", "old_commit", "runs"
 shading: each version's time of the kernels whose name contains ``--kernel`` (mean over rounds, with the rounds'
 spread), the foveated frame's GPU kernel sum and the reference's, and the speed-up of the sums.
 
-How the runs are made (one machine session; see benchmarks/results/kernels-e44-*-cuda.log): the old library is
-extracted to its own folder with this ``benchmarks`` folder copied beside it, and each version's
-``kernel_profile.py`` is run from its own folder. The scripts put their own parent folder first on ``sys.path``,
-so setting ``PYTHONPATH`` to the old library alone still imports the working tree's (the kernel names' hashes in
-the log show which library ran).
+How the runs are made (one machine session; see benchmarks/results/kernels-e44-*-cuda.log): each version's
+``kernel_profile.py`` runs in turn, the old library extracted to a folder of its own and given first on
+``PYTHONPATH`` (the benchmark scripts add the repository after ``PYTHONPATH``; before 542eca4 they put it first, so
+the old library had to have the benchmarks copied beside it and be run from there). The kernel names' hashes in
+the log show which library ran. (A check by ``python -c "import foveawarp"`` run inside the repository is no
+proof: ``-c`` puts the working directory first on ``sys.path``.)
 
     python benchmarks/kernel_ab.py benchmarks/results/kernels-e44-38ddef7-vs-1346653-cuda.json --kernel resolve
 """
