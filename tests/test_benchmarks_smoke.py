@@ -357,10 +357,10 @@ def _kernel_ab_payload():
     return {"new_commit": "n", "old_commit": "o", "device_name": "test", "runs": runs}
 
 
-def test_kernel_ab_summary(tmp_path):
+def test_kernel_ab_summary(tmp_path, monkeypatch):
     """benchmarks/kernel_ab.py: the kernel means, their ratio, the sums' speed-ups, against hand-computed values,
     and the markdown next to the JSON; a file without runs is refused."""
-    sys.path.insert(0, str(REPO))
+    monkeypatch.syspath_prepend(str(REPO))
     from benchmarks.kernel_ab import main, summarise
 
     rows = summarise(_kernel_ab_payload(), "resolve")
