@@ -18,10 +18,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
+sys.path.append(str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+
+from benchmarks._common import md_table  # noqa: E402
+
+# the table's columns (md_table formats floats to 3 decimals: the kernel times are given as 4-decimal strings)
+COLUMNS = ["scene", "size", "shading", "old kernel ms", "new kernel ms", "new / old", "old fov sum", "new fov sum",
+           "ref sum (old run / new run)", "speed-up of the sums old / new"]
 
 
 def summarise(payload: dict, kernel: str) -> list[dict]:
@@ -54,15 +63,12 @@ def to_markdown(rows: list[dict], payload: dict, kernel: str) -> str:
             f"alternating rounds of 20 frames each), {payload.get('device_name', '?')}: kernels matching "
             f"'{kernel}' at {payload['old_commit']} (old) and {payload['new_commit']} (new); the foveated frame's and "
             "the reference's kernel sums and their ratio.\n\n")
-    cols = ("| scene | size | shading | old kernel ms | new kernel ms | new / old | old fov sum | new fov sum | "
-            "ref sum (old run / new run) | speed-up of the sums old / new |\n|---|---|---|---|---|---|---|---|---|---|\n")
-    body = ""
-    for r in rows:
-        body += (f"| {r['scene']} | {r['size']} | {r['shading']} | {r['old_kernel_ms']:.4f} | {r['new_kernel_ms']:.4f} | "
-                 f"{r['kernel_ratio']:.3f} | {r['old_fov_ms']:.3f} | {r['new_fov_ms']:.3f} | "
-                 f"{r['old_ref_ms']:.3f} / {r['new_ref_ms']:.3f} | {r['old_speedup']:.3f} / {r['new_speedup']:.3f} |\n")
+    cells = [dict(zip(COLUMNS, (r["scene"], r["size"], r["shading"], f"{r['old_kernel_ms']:.4f}",
+                                f"{r['new_kernel_ms']:.4f}", r["kernel_ratio"], r["old_fov_ms"], r["new_fov_ms"],
+                                f"{r['old_ref_ms']:.3f} / {r['new_ref_ms']:.3f}",
+                                f"{r['old_speedup']:.3f} / {r['new_speedup']:.3f}"))) for r in rows]
     spread = max(max(r["old_kernel_spread_ms"], r["new_kernel_spread_ms"]) for r in rows)
-    return head + cols + body + f"\nLargest spread of a kernel time between rounds: {spread:.4f} ms.\n"
+    return head + md_table(cells, COLUMNS) + f"\nLargest spread of a kernel time between rounds: {spread:.4f} ms.\n"
 
 
 def main(argv=None) -> int:
