@@ -32,6 +32,7 @@ import ast
 import math
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -468,7 +469,9 @@ def plot(records, folder, name, dev):
     n = len(keys)
     cols = min(n, 6)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False)
+    # one or two panels get more room than a panel of a grid, so their labels and legend stay readable
+    pw, ph = (5.0, 4.0) if cols <= 2 else (3.2, 2.8)
+    fig, axes = plt.subplots(rows, cols, figsize=(pw * cols, ph * rows), squeeze=False)
     for ax, key in zip(axes.flat, keys):
         rs = [r for r in tim if (r["scene"], r["width"], r["height"]) == key]
         for shading, mk in (("default", "o"), ("ao8", "s")):
@@ -498,8 +501,9 @@ def plot(records, folder, name, dev):
                         label="full resolution, " + "/".join(b[2] for b in bf) + " AO rays")
             front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
             ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
-            for p in pts:
-                ax.annotate(p[2] if len(configs_seen) > 1 else shading, (p[0], p[1]), fontsize=6)
+            for k, p in enumerate(pts):  # labels stepped up and down so that close points' labels part
+                ax.annotate(p[2] if len(configs_seen) > 1 else shading, (p[0], p[1]), fontsize=6,
+                            xytext=(4, 6 * (k % 3) - 6), textcoords="offset points")
         ax.set_title(f"{key[0]} {key[1]}x{key[2]}", fontsize=8)
         ax.set_xlabel("frame ms", fontsize=7)
         ax.set_ylabel("PSNR dB (mean over the path)", fontsize=7)
@@ -511,8 +515,9 @@ def plot(records, folder, name, dev):
     note = ("; circles: default shading against full-resolution tracing; squares and crosses: "
             f"{int(aqs[0]['ao_samples'])} AO rays and fewer against {int(aqs[0]['converged_ao'])}-ray frames"
             if (aqs := [r for r in records if r["kind"] == "ao_quality"]) else "")
-    fig.suptitle(f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias}){note}",
-                 fontsize=9)
+    # wrapped to the figure's width (about 15 characters an inch at this size): a long title was cut at both ends
+    title = f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias}){note}"
+    fig.suptitle(textwrap.fill(title, width=max(40, int(15 * fig.get_figwidth()))), fontsize=9)
     fig.tight_layout()
     tag = "cuda" if alias.startswith("cuda") else "cpu"
     fig.savefig(folder / f"{name}-{tag}.png", dpi=110)
