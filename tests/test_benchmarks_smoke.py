@@ -398,3 +398,67 @@ def test_benchmarks_import_the_library_on_pythonpath_first(tmp_path):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "cpu.py"), "--help"], capture_output=True,
                        text=True, cwd=tmp_path, env=env, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def _timing(scene, w, h, shading, ref, fov, auto):
+    return {"kind": "timing", "scene": scene, "width": w, "height": h, "shading": shading, "ref_ms": ref,
+            "fov_ms": fov, "auto_ms": auto}
+
+
+def test_status_table_values(tmp_path, monkeypatch, capsys):
+    """benchmarks/status.py: the speed-ups of each run, the default policy's worst ratio (default shading only),
+    the quality columns, against hand-computed values; a scene without timing records is left out, a missing
+    quality figure shows "-", and a file that is not a frame.py result is refused."""
+    monkeypatch.syspath_prepend(str(REPO))
+    from benchmarks.status import main
+
+    run1 = [_timing("bunny", 64, 36, "default", 1.0, 1.25, 1.02), _timing("bunny", 64, 36, "ao8", 9.0, 3.0, 3.1),
+            _timing("city", 64, 36, "default", 2.0, 2.5, 1.96)]
+    run2 = [_timing("bunny", 64, 36, "default", 1.1, 1.0, 1.21), _timing("bunny", 64, 36, "ao8", 8.0, 4.0, 9.0)]
+    quality = [{"kind": "quality", "scene": "bunny", "width": 64, "height": 36, "psnr": [40.0, 44.0, 45.0]},
+               {"kind": "ao_quality", "scene": "bunny", "width": 64, "height": 36, "psnr": [30.0, 32.0],
+                "ref_psnr": [35.0, 36.0]},
+               {"kind": "quality", "scene": "bunny", "width": 128, "height": 72, "psnr": [1.0]}]
+    files = []
+    for i, recs in enumerate((run1, run2, quality)):
+        f = tmp_path / f"r{i}.json"
+        f.write_text(json.dumps({"records": recs}))
+        files.append(str(f))
+    out = tmp_path / "status.md"
+    assert main(["--timing", files[0], files[1], "--quality", files[2], "--sizes", "64x36", "--quality-size", "64x36",
+                 "--scenes", "teapot,bunny,city", "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("| scene | 64x36 default | 64x36 8 AO rays | default policy / reference, worst |")
+    # bunny: 1.0 / 1.25 = 0.80x and 1.1 / 1.0 = 1.10x; 9 / 3 = 3.00x and 8 / 4 = 2.00x; the policy's worst with
+    # default shading max(1.02, 1.21 / 1.1 = 1.1) (the ao8 run's 9 / 8 is not counted); PSNR mean 43.0, min 40.0;
+    # AO means 31.0 / 35.5
+    assert lines[2] == "| bunny | 0.80x / 1.10x | 3.00x / 2.00x | 1.100 | 43.0 / 40.0 | 31.0 / 35.5 |"
+    # city: in run 1 only, default shading only; no quality records; teapot: no timing at all, left out
+    assert lines[3] == "| city | 0.80x / - | - / - | 0.980 | - | - |"
+    assert len(lines) == 4
+    assert capsys.readouterr().out.splitlines() == lines
+    (tmp_path / "bad.json").write_text(json.dumps({"runs": []}))
+    with pytest.raises(SystemExit):
+        main(["--timing", str(tmp_path / "bad.json")])
+    with pytest.raises(SystemExit):
+        main(["--timing", files[0], "--quality-size", "64by36"])
+    with pytest.raises(SystemExit):  # no scene of --scenes in the runs
+        main(["--timing", files[0], "--scenes", "teapot"])
+
+
+def test_readme_status_table_matches_the_committed_json(monkeypatch, capsys):
+    """The README's "Where it stands" table is what benchmarks/status.py makes of the JSON files the README's
+    command names (committed results): a hand-edited or stale figure there fails this test."""
+    import shlex
+
+    monkeypatch.syspath_prepend(str(REPO))
+    from benchmarks.status import main
+
+    readme = (REPO / "README.md").read_text().splitlines()
+    cmds = [ln for ln in readme if ln.startswith("python benchmarks/status.py ")]
+    assert len(cmds) == 1, cmds
+    args = [str(REPO / a) if a.startswith("benchmarks/results/") else a for a in shlex.split(cmds[0])[2:]]
+    assert main(args) == 0
+    table = capsys.readouterr().out.splitlines()
+    start = readme.index(table[0])
+    assert readme[start:start + len(table)] == table

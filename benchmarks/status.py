@@ -1,0 +1,133 @@
+"""The README's "Where it stands" table, from committed ``frame.py`` JSON: no GPU, no hand copying.
+
+Per scene, one row:
+
+* the speed-up (reference time / foveated time) of every ``--timing`` run, at each size and shading, "run 1 / run 2";
+* the default policy's time over the reference's, the worst over the runs, sizes and the default shading (the
+  policy renders full resolution where foveation costs more; 8 AO rays are not counted: there it keeps foveation);
+* from the ``--quality`` JSON (``frame.py --parts quality,aoquality``) at ``--quality-size``: the default shading's
+  PSNR in motion against full resolution (mean / min over the path), and with 8 AO rays the foveated frame's and the
+  full-resolution frame's PSNR against the converged frame (means over the path).
+
+Scenes come in ``--scenes`` order; a scene missing from the timing runs is left out, and a quality figure missing
+from the quality JSON is shown as "-".
+
+    python benchmarks/status.py --timing benchmarks/results/frame-s33-41b29e8-timing-run{1,2}-cuda.json \\
+        --quality benchmarks/results/frame-2e786dc-{a,b}-cuda.json
+
+Writes nothing unless ``--out`` names a file for the markdown; prints it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.append(str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+
+SCENE_ORDER = "bunny,nefertiti,city,spot,ogre,teapot,cornell,eyechart,earth"
+SHADINGS = (("default", "default"), ("ao8", "8 AO rays"))
+
+
+def _load(paths) -> list[dict]:
+    recs = []
+    for p in paths:
+        payload = json.loads(Path(p).read_text())
+        if "records" not in payload:
+            raise SystemExit(f"{p}: no 'records' (not a frame.py result)")
+        recs.append(payload["records"])
+    return recs
+
+
+def _size(s: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in s.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"--quality-size must be WIDTHxHEIGHT, got {s!r}") from None
+    if w <= 0 or h <= 0:
+        raise SystemExit(f"--quality-size must be positive, got {s!r}")
+    return w, h
+
+
+def rows(timing_runs: list[list[dict]], quality: list[dict], scenes: list[str], sizes: list[tuple[int, int]],
+         quality_size: tuple[int, int]) -> tuple[list[str], list[list[str]]]:
+    """(column names, rows of strings) of the status table."""
+    cols = ["scene"]
+    for w, h in sizes:
+        for _, label in SHADINGS:
+            cols.append(f"{w}x{h} {label}")
+    qw, qh = quality_size
+    cols += ["default policy / reference, worst", f"PSNR in motion, {qw}x{qh} default: mean / min dB",
+             f"{qw}x{qh} 8 AO rays vs converged: foveated / full dB"]
+
+    def timing(run, scene, w, h, shading):
+        for r in run:
+            if (r.get("kind") == "timing" and r["scene"] == scene and r["width"] == w and r["height"] == h
+                    and r["shading"] == shading):
+                return r
+        return None
+
+    def quality_rec(kind, scene):
+        for r in quality:
+            if r.get("kind") == kind and r["scene"] == scene and r["width"] == qw and r["height"] == qh:
+                return r
+        return None
+
+    out = []
+    for scene in scenes:
+        found = [timing(run, scene, w, h, s) for run in timing_runs for w, h in sizes for s, _ in SHADINGS]
+        if not any(found):
+            continue
+        row = [scene]
+        for w, h in sizes:
+            for s, _ in SHADINGS:
+                vals = [timing(run, scene, w, h, s) for run in timing_runs]
+                row.append(" / ".join("-" if r is None else f"{r['ref_ms'] / r['fov_ms']:.2f}x" for r in vals))
+        pol = [r["auto_ms"] / r["ref_ms"] for run in timing_runs for w, h in sizes
+               if (r := timing(run, scene, w, h, "default")) is not None]
+        row.append(f"{max(pol):.3f}" if pol else "-")
+        q = quality_rec("quality", scene)
+        row.append("-" if q is None else f"{np.mean(q['psnr']):.1f} / {np.min(q['psnr']):.1f}")
+        a = quality_rec("ao_quality", scene)
+        row.append("-" if a is None else f"{np.mean(a['psnr']):.1f} / {np.mean(a['ref_psnr']):.1f}")
+        out.append(row)
+    return cols, out
+
+
+def to_markdown(cols: list[str], table: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in table]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--timing", nargs="+", required=True, help="frame.py --parts timing JSON files (one per run)")
+    p.add_argument("--quality", nargs="*", default=[], help="frame.py JSON files with quality / aoquality records")
+    p.add_argument("--scenes", default=SCENE_ORDER, help="comma-separated scenes, in the table's order")
+    p.add_argument("--sizes", default="1920x1080,3840x2160", help="comma-separated WIDTHxHEIGHT, in column order")
+    p.add_argument("--quality-size", default="3840x2160", help="the size of the PSNR columns")
+    p.add_argument("--out", default=None, help="write the markdown to this file too")
+    a = p.parse_args(argv)
+    sizes = [_size(s) for s in a.sizes.split(",") if s.strip()]
+    if not sizes:
+        p.error("--sizes names no size")
+    runs = _load(a.timing)
+    quality = [r for recs in _load(a.quality) for r in recs]
+    cols, table = rows(runs, quality, [s.strip() for s in a.scenes.split(",") if s.strip()], sizes,
+                       _size(a.quality_size))
+    if not table:
+        p.error("no scene of --scenes has a timing record in the --timing files")
+    md = to_markdown(cols, table)
+    if a.out:
+        Path(a.out).write_text(md)
+    print(md, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
