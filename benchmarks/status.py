@@ -43,13 +43,13 @@ def _load(paths) -> list[dict]:
     return recs
 
 
-def _size(s: str) -> tuple[int, int]:
+def _size(option: str, s: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in s.lower().split("x"))
     except ValueError:
-        raise SystemExit(f"--quality-size must be WIDTHxHEIGHT, got {s!r}") from None
+        raise SystemExit(f"{option} must be WIDTHxHEIGHT, got {s!r}") from None
     if w <= 0 or h <= 0:
-        raise SystemExit(f"--quality-size must be positive, got {s!r}")
+        raise SystemExit(f"{option} must be positive WIDTHxHEIGHT, got {s!r}")
     return w, h
 
 
@@ -113,13 +113,13 @@ def main(argv=None) -> int:
     p.add_argument("--quality-size", default="3840x2160", help="the size of the PSNR columns")
     p.add_argument("--out", default=None, help="write the markdown to this file too")
     a = p.parse_args(argv)
-    sizes = [_size(s) for s in a.sizes.split(",") if s.strip()]
+    sizes = [_size("--sizes items", s) for s in a.sizes.split(",") if s.strip()]
     if not sizes:
         p.error("--sizes names no size")
     runs = _load(a.timing)
     quality = [r for recs in _load(a.quality) for r in recs]
     cols, table = rows(runs, quality, [s.strip() for s in a.scenes.split(",") if s.strip()], sizes,
-                       _size(a.quality_size))
+                       _size("--quality-size", a.quality_size))
     if not table:
         p.error("no scene of --scenes has a timing record in the --timing files")
     md = to_markdown(cols, table)

@@ -440,8 +440,10 @@ def test_status_table_values(tmp_path, monkeypatch, capsys):
     (tmp_path / "bad.json").write_text(json.dumps({"runs": []}))
     with pytest.raises(SystemExit):
         main(["--timing", str(tmp_path / "bad.json")])
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit, match="--quality-size must be WIDTHxHEIGHT, got '64by36'"):
         main(["--timing", files[0], "--quality-size", "64by36"])
+    with pytest.raises(SystemExit, match="--sizes items must be positive WIDTHxHEIGHT, got '0x36'"):
+        main(["--timing", files[0], "--sizes", "0x36"])
     with pytest.raises(SystemExit):  # no scene of --scenes in the runs
         main(["--timing", files[0], "--scenes", "teapot"])
 
