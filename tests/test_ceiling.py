@@ -123,3 +123,33 @@ def test_cli_refuses_missing_files(tmp_path, capsys):
             ceiling.main([*args, "--out", str(tmp_path)])
         err = capsys.readouterr().err
         assert f"{flag}: no such file" in err
+
+
+def test_gbuffer_floor_estimate():
+    """D: both frames with the G-buffer at its DRAM floor, the rest as measured, by hand; none without the floor;
+    a floor above the measured kernel changes nothing (D = the measured speed-up); the Nsight G-buffer rows parsed
+    apart from the fixed passes."""
+    b = ceiling.bounds(_rec(g=1.0, f=1.0, ref=6.0, fov=2.0), floor_ms=None, gbuffer_floor_ms=0.25)
+    assert b["estimate_gbuffer_at_floor"] == pytest.approx((6.0 - 1.0 + 0.25) / (2.0 - 1.0 + 0.25))
+    assert ceiling.bounds(_rec(), None)["estimate_gbuffer_at_floor"] is None
+    b = ceiling.bounds(_rec(g=1.0, ref=6.0, fov=2.0), None, gbuffer_floor_ms=5.0)
+    assert b["estimate_gbuffer_at_floor"] == pytest.approx(3.0)
+    # where the reference is the cheaper frame, a cheaper G-buffer lowers the ratio further (default shading)
+    b = ceiling.bounds(_rec(shading="default", g=0.7, ref=1.5, fov=1.8), None, gbuffer_floor_ms=0.15)
+    assert b["estimate_gbuffer_at_floor"] == pytest.approx(0.95 / 1.25) and 0.95 / 1.25 < 1.5 / 1.8
+
+
+def test_ncu_gbuffer_floor_parsing_and_column(tmp_path):
+    md = tmp_path / "ncu.md"
+    md.write_text("| bunny | 3840x2160 | ao8 | fov | gbuffer_tiles_kernel | 0.7 | 70 | 0.2 | 3 | 1 | 1 | 1 | 72 |\n"
+                  "| bunny | 3840x2160 | ao8 | fov | sampling_map_kernel | 0.3 | 44 | 0.125 | 2 | 1 | 1 | 1 | 48 |\n"
+                  "| bunny | 3840x2160 | ao8 | ref | gbuffer_tiles_kernel | 0.7 | 70 | 0.9 | 3 | 1 | 1 | 1 | 72 |\n")
+    assert ceiling.ncu_gbuffer_floors(md) == {("bunny", "3840x2160", "ao8"): pytest.approx(0.2)}
+    assert ceiling.ncu_floors(md) == {("bunny", "3840x2160", "ao8"): pytest.approx(0.125)}
+    p = tmp_path / "t.json"
+    p.write_text(json.dumps({"records": [_rec(g=1.0, f=1.0, ref=6.0, fov=2.0)]}))
+    assert ceiling.main(["--timing", str(p), "--ncu", str(md), "--name", "c", "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "c.json").read_text())["rows"]
+    assert row["estimate_gbuffer_at_floor"] == pytest.approx(5.2 / 1.2)
+    line = [ln for ln in (tmp_path / "c.md").read_text().splitlines() if ln.startswith("| bunny")][0]
+    assert f"| {5.2 / 1.2:.2f} | " in line
