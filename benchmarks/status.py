@@ -27,7 +27,8 @@ from pathlib import Path
 
 sys.path.append(str(Path(__file__).resolve().parent.parent))
 
-import numpy as np  # noqa: E402
+from benchmarks._common import md_table  # noqa: E402
+from benchmarks.frame import _summ  # noqa: E402
 
 SCENE_ORDER = "bunny,nefertiti,city,spot,ogre,teapot,cornell,eyechart,earth"
 SHADINGS = (("default", "default"), ("ao8", "8 AO rays"))
@@ -91,17 +92,12 @@ def rows(timing_runs: list[list[dict]], quality: list[dict], scenes: list[str], 
                if (r := timing(run, scene, w, h, "default")) is not None]
         row.append(f"{max(pol):.3f}" if pol else "-")
         q = quality_rec("quality", scene)
-        row.append("-" if q is None else f"{np.mean(q['psnr']):.1f} / {np.min(q['psnr']):.1f}")
+        # frame.py's summaries: an identical frame (inf dB) counts as 100 dB in a mean
+        row.append("-" if q is None else f"{_summ(q['psnr'])['mean']:.1f} / {_summ(q['psnr'])['min']:.1f}")
         a = quality_rec("ao_quality", scene)
-        row.append("-" if a is None else f"{np.mean(a['psnr']):.1f} / {np.mean(a['ref_psnr']):.1f}")
+        row.append("-" if a is None else f"{_summ(a['psnr'])['mean']:.1f} / {_summ(a['ref_psnr'])['mean']:.1f}")
         out.append(row)
     return cols, out
-
-
-def to_markdown(cols: list[str], table: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in table]
-    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
@@ -122,7 +118,7 @@ def main(argv=None) -> int:
                        _size("--quality-size", a.quality_size))
     if not table:
         p.error("no scene of --scenes has a timing record in the --timing files")
-    md = to_markdown(cols, table)
+    md = md_table([dict(zip(cols, r)) for r in table], cols)
     if a.out:
         Path(a.out).write_text(md)
     print(md, end="")
