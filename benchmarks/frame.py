@@ -9,7 +9,10 @@ Per scene x resolution:
   (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
   the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
   after warm-up, the three loops taking turns frame by frame in a new (seeded) order every frame (so clock and
-  load drift hit them alike, and no loop always follows the same other one); per-stage ms from a ``timing=True`` run;
+  load drift hit them alike, and no loop always follows the same other one); with ``--turns blocks`` they take
+  turns in blocks of consecutive frames instead (``_timed_blocks``: each loop's frames follow its own, as in an
+  application), and ``--turns frames,blocks`` records both (each record's ``turns``); per-stage ms from a
+  ``timing=True`` run;
   ``overhead_ms`` = foveated frame - (G-buffer + traced shading + indirect) stage times; on CUDA also
   ``stage_gpu_ms`` and ``overhead_gpu_ms``, the same from a ``timing="gpu"`` run (CUDA-event stage times);
 * stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
@@ -191,11 +194,7 @@ def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict, seed: int = 0) -
     reference's; with shuffled turns the same loops measured 1.000-1.012x, and a second reference loop
     0.999-1.011x (H100, `auto-order-e31-a251d8e-cuda.log`): the frame after the foveated loop's usually spends
     more host time (median +5 us over 32 cases), the host's caches holding the other loop's state."""
-    t0_frame = max(warm.values())  # one timeline: each loop's warm-up ends where the timed frames begin
-    for name, loop in loops.items():
-        for i in range(t0_frame - warm[name], t0_frame):
-            t = i / 30.0
-            loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+    t0_frame = _warm_up(loops, scene, w, h, n, warm)  # one timeline: every warm-up ends where the timed frames begin
     ms = {name: [] for name in loops}
     names = list(loops)
     rng = np.random.default_rng(seed)
@@ -215,17 +214,63 @@ def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict, seed: int = 0) -
     return {name: float(np.median(v)) for name, v in ms.items()}
 
 
-def timing(fw, scene, w, h, dev, cfg, n):
-    out = {}
-    loops = {"full": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"),
-             "foveated": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated"),
-             "auto": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)}
-    auto = loops["auto"]
-    # the auto loop measures both paths over its first frames; its timed frames come after (no re-measurement
-    # falls inside them: POLICY_PERIOD is far longer)
-    warm = {"full": 8, "foveated": 8, "auto": auto.policy_measurement_frames() + 2}
-    med = _timed_interleaved(loops, scene, w, h, n, warm)
-    ref_ms, fov_ms, auto_ms = med["full"], med["foveated"], med["auto"]
+TURNS = ("frames", "blocks")
+BLOCK_FRAMES, BLOCK_SKIP = 10, 2
+
+
+def _warm_up(loops: dict, scene, w, h, n, warm: dict) -> int:
+    """Render each loop's ``warm`` frames, untimed, so that every warm-up ends where the timed frames begin; returns
+    that frame index."""
+    t0_frame = max(warm.values())
+    for name, loop in loops.items():
+        for i in range(t0_frame - warm[name], t0_frame):
+            t = i / 30.0
+            loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+    return t0_frame
+
+
+def _timed_blocks(loops: dict, scene, w, h, n, warm: dict, block: int = BLOCK_FRAMES, skip: int = BLOCK_SKIP,
+                  seed: int = 0) -> dict:
+    """Median synchronized frame ms of each loop, the loops taking turns block by block: in each round every loop
+    (in a new seeded order) renders the same ``block`` consecutive frames of the camera path (camera, time, gaze),
+    each synchronized and timed as ``_timed_interleaved`` times them; the first ``skip`` frames of a turn are left
+    out of the medians. Rounds go on until every loop has at least ``n`` timed frames.
+
+    This is how an application runs one loop: frame after frame with nothing else on the GPU between them, so the
+    data a frame leaves in the GPU's caches (the history, the previous depth, the BVH) is there for the next one.
+    In ``_timed_interleaved`` every frame follows another loop's frame, which evicts it. Alternating blocks keeps
+    what that scheme is for: clock and load drift hit the loops alike."""
+    if not 0 <= skip < block:
+        raise ValueError(f"skip must be in [0, block - 1] = [0, {block - 1}], got {skip}")
+    t0_frame = _warm_up(loops, scene, w, h, n, warm)
+    ms = {name: [] for name in loops}
+    names = list(loops)
+    rng = np.random.default_rng(seed)
+    rounds = -(-n // (block - skip))
+    for r in range(rounds):
+        f0 = t0_frame + r * block
+        for j in rng.permutation(len(names)):
+            name, loop = names[j], loops[names[j]]
+            for i in range(f0, f0 + block):
+                t = i / 30.0
+                g = gaze_path(i, n, w, h)
+                wp.synchronize_device(loop.device)
+                t_start = time.perf_counter()
+                loop.render(scene.camera_at(t), gaze_px=g, time=t)  # a new camera each frame, as interleaved
+                wp.synchronize_device(loop.device)
+                if i - f0 >= skip:
+                    ms[name].append((time.perf_counter() - t_start) * 1e3)
+    return {name: float(np.median(v)) for name, v in ms.items()}
+
+
+def timing(fw, scene, w, h, dev, cfg, n, turns=("frames",)):
+    """The timing part's records for one scene, size and configuration: one per item of ``turns`` ("frames":
+    ``_timed_interleaved``, "blocks": ``_timed_blocks``), each with its own fresh loops and the same camera path,
+    and the per-stage times (timing runs, measured once) in every one."""
+    bad = [t for t in turns if t not in TURNS]
+    if bad or not turns:
+        raise ValueError(f"turns items must be in {list(TURNS)}, got {list(turns)}")
+    outs = [_timing_turns(fw, scene, w, h, dev, cfg, n, t) for t in turns]
     traced_keys = ("gbuffer", "shade", "indirect", "indirect_build")
 
     def stage_run(timing_mode):
@@ -243,24 +288,42 @@ def timing(fw, scene, w, h, dev, cfg, n):
                         stages.setdefault(k[3:], []).append(v)
         return {k: float(np.median(v)) for k, v in stages.items()}, rates, tl
 
-    def overheads(stage_ms):
+    def overheads(fov_ms, stage_ms):
         traced = sum(stage_ms.get(k, 0.0) for k in traced_keys)
         return (float(max(fov_ms - traced, 0.0)),
                 float(sum(v for k, v in stage_ms.items() if k not in traced_keys + ("scene",))))
 
     stage_ms, rates, tl = stage_run(True)
-    overhead, stage_sum = overheads(stage_ms)
-    out.update(ref_ms=ref_ms, fov_ms=fov_ms, auto_ms=auto_ms, auto_path=auto._pol_choice,
-               auto_estimates=dict(auto._pol_est), stage_ms=stage_ms, overhead_ms=overhead,
-               overhead_stage_sum_ms=stage_sum,
-               timing_sampling_rate=float(np.mean(rates)), speedup=ref_ms / fov_ms,
-               bvh=[tl.dscene.bvh_constructor, tl.dscene.bvh_leaf_size])  # the tree built (after any fallback)
-    if dev.is_cuda:
-        # the same from CUDA-event stage times (timing="gpu": one synchronization per frame, no per-stage
-        # synchronization inflating the small stages; a stage's host work that overlaps earlier kernels left out)
-        gpu_ms, _, _ = stage_run("gpu")
-        out["stage_gpu_ms"] = gpu_ms
-        out["overhead_gpu_ms"], out["overhead_stage_sum_gpu_ms"] = overheads(gpu_ms)
+    # the same from CUDA-event stage times (timing="gpu": one synchronization per frame, no per-stage
+    # synchronization inflating the small stages; a stage's host work that overlaps earlier kernels left out)
+    gpu_ms = stage_run("gpu")[0] if dev.is_cuda else None
+    for out in outs:
+        overhead, stage_sum = overheads(out["fov_ms"], stage_ms)
+        out.update(stage_ms=stage_ms, overhead_ms=overhead, overhead_stage_sum_ms=stage_sum,
+                   timing_sampling_rate=float(np.mean(rates)),
+                   bvh=[tl.dscene.bvh_constructor, tl.dscene.bvh_leaf_size])  # the tree built (after any fallback)
+        if gpu_ms is not None:
+            out["stage_gpu_ms"] = gpu_ms
+            out["overhead_gpu_ms"], out["overhead_stage_sum_gpu_ms"] = overheads(out["fov_ms"], gpu_ms)
+    return outs
+
+
+def _timing_turns(fw, scene, w, h, dev, cfg, n, turns: str) -> dict:
+    """Reference, foveated and default-policy frame times of new loops, timed with ``turns``."""
+    loops = {"full": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"),
+             "foveated": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated"),
+             "auto": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False)}
+    auto = loops["auto"]
+    # the auto loop measures both paths over its first frames; its timed frames come after (no re-measurement
+    # falls inside them: POLICY_PERIOD is far longer)
+    warm = {"full": 8, "foveated": 8, "auto": auto.policy_measurement_frames() + 2}
+    timed = _timed_interleaved if turns == "frames" else _timed_blocks
+    med = timed(loops, scene, w, h, n, warm)
+    out = {"turns": turns, "ref_ms": med["full"], "fov_ms": med["foveated"], "auto_ms": med["auto"],
+           "auto_path": auto._pol_choice, "auto_estimates": dict(auto._pol_est),
+           "speedup": med["full"] / med["foveated"]}
+    if turns == "blocks":
+        out["block_frames"], out["block_skip"] = BLOCK_FRAMES, BLOCK_SKIP
     return out
 
 
@@ -314,6 +377,10 @@ def main(argv=None):
     p.add_argument("--name", default="frame")
     p.add_argument("--bvh", default=None, help="every scene's BVH as CTOR or CTOR-LEAF (e.g. sah-4; default: auto)")
     p.add_argument("--psnr-only", action="store_true", help="skip SSIM (host PSNR only: fast sweeps)")
+    p.add_argument("--turns", default="frames",
+                   help="how the timing part's loops take turns: frames (one frame each, in a new order every "
+                        "frame), blocks (%d frames each, the first %d untimed), or both: frames,blocks"
+                        % (BLOCK_FRAMES, BLOCK_SKIP))
     args = p.parse_args(argv)
     import foveawarp as fw
 
@@ -341,6 +408,9 @@ def main(argv=None):
     for item in args.configs.split(";"):
         name, _, lit = item.partition("=")
         configs.append((name.strip(), ast.literal_eval(lit) if lit.strip() else {}))
+    turns = tuple(v.strip() for v in args.turns.split(",") if v.strip())
+    if not turns or any(t not in TURNS for t in turns) or len(set(turns)) != len(turns):
+        p.error(f"--turns must be distinct items of {list(TURNS)}, got {args.turns!r}")
     records, rows, arows = [], [], []
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     if args.quick:
@@ -405,13 +475,13 @@ def main(argv=None):
                         "quality_shading": f"ao8 against {arec['converged_ao']} AO rays"}
                     for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
                         c2 = cfg.with_(**sover) if sover else cfg
-                        tm = timing(fw, scene, w, h, dev, c2, args.timing_frames)
-                        rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": c2.foveation.gbuffer,
-                               "sampling_rate": tm["timing_sampling_rate"],
-                               **(aqual if shading == "ao8" and aqual else qual), **tm}
-                        records.append(rec)
-                        print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
-                               if k not in ("stage_ms", "stage_gpu_ms", "overrides", "auto_estimates")}, flush=True)
+                        for tm in timing(fw, scene, w, h, dev, c2, args.timing_frames, turns):
+                            rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": c2.foveation.gbuffer,
+                                   "sampling_rate": tm["timing_sampling_rate"],
+                                   **(aqual if shading == "ao8" and aqual else qual), **tm}
+                            records.append(rec)
+                            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
+                                   if k not in ("stage_ms", "stage_gpu_ms", "overrides", "auto_estimates")}, flush=True)
                         print("   stages", {k: round(v, 3) for k, v in tm["stage_ms"].items()}, flush=True)
                         if "stage_gpu_ms" in tm:
                             print("   stages (gpu)", {k: round(v, 3) for k, v in tm["stage_gpu_ms"].items()}, flush=True)
@@ -426,7 +496,7 @@ def main(argv=None):
                                                "timing_frames": args.timing_frames, "partial": True}, "", args.out)
     md = md_table(rows, list(rows[0])) if rows else ""
     trows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "config": r["config"],
-              "shading": r["shading"], "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
+              "shading": r["shading"], **({"turns": r["turns"]} if len(turns) > 1 else {}), "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
               "speedup": r["speedup"], "auto_ms": r["auto_ms"], "auto_path": r["auto_path"],
               "overhead_ms": r["overhead_ms"], **({"overhead_gpu_ms": r["overhead_gpu_ms"]}
                                                    if "overhead_gpu_ms" in r else {})}

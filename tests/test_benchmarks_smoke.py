@@ -279,11 +279,65 @@ def test_frame_quick(tmp_path):
     assert "| ref_psnr |" in md and "| speedup |" in md
     for bad_args, name in ((["--parts", "quality,bogus"], "--parts"), (["--ao-samples", "0"], "--ao-samples"),
                            (["--converged-ao", "8"], "--converged-ao"), (["--ao-sweep", "2,x"], "--ao-sweep"),
-                           (["--ao-sweep", "0"], "--ao-sweep")):
+                           (["--ao-sweep", "0"], "--ao-sweep"), (["--turns", "blocks,rounds"], "--turns"),
+                           (["--turns", "blocks,blocks"], "--turns")):
         bad = subprocess.run([sys.executable, str(REPO / "benchmarks" / "frame.py"), "--quick", "--device", "cpu",
                               "--scenes", "cornell", "--out", str(tmp_path / "bad"), *bad_args],
                              capture_output=True, text=True, cwd=REPO, timeout=120)
         assert bad.returncode != 0 and name in bad.stderr, bad.stderr
+
+
+def test_frame_timing_turns():
+    """benchmarks/frame.py's two timing schedules, with stand-in loops that log what they render: with turns by
+    frames every loop renders each frame once, the loops in a new order every frame; with turns by blocks each
+    loop renders runs of BLOCK_FRAMES consecutive frames, every loop the same runs, so its own frames follow one
+    another, and the rounds give each loop at least n timed frames; each loop's frames are its warm-up then
+    consecutive path frames in both; a bad skip is refused by name."""
+    sys.path.insert(0, str(REPO))
+    from benchmarks import frame as fb
+
+    log = []
+
+    class Loop:
+        device = wp.get_device("cpu")
+
+        def __init__(self, name):
+            self.name = name
+
+        def render(self, camera, gaze_px=None, time=None):
+            log.append((self.name, round(time * 30.0)))
+
+    class Scene:
+        @staticmethod
+        def camera_at(t):
+            return t
+
+    n, warm = 20, {"a": 3, "b": 5}
+    for timed in (fb._timed_interleaved, fb._timed_blocks):
+        log.clear()
+        med = timed({"a": Loop("a"), "b": Loop("b")}, Scene(), 64, 32, n, warm)
+        assert sorted(med) == ["a", "b"] and all(v >= 0.0 for v in med.values())
+        for name, w0 in warm.items():
+            frames = [i for k, i in log if k == name]
+            assert frames == list(range(5 - w0, 5 - w0 + len(frames))), (timed.__name__, name, frames)
+        timed_part = log[3 + 5:]  # after both warm-ups
+        if timed is fb._timed_interleaved:
+            assert len(timed_part) == 2 * n
+            pairs = [timed_part[2 * i: 2 * i + 2] for i in range(n)]
+            assert all(sorted(k for k, _ in p) == ["a", "b"] and p[0][1] == p[1][1] == 5 + i for i, p in enumerate(pairs))
+            assert len({tuple(k for k, _ in p) for p in pairs}) == 2  # both orders occur
+        else:
+            per = fb.BLOCK_FRAMES - fb.BLOCK_SKIP
+            rounds = -(-n // per)
+            assert len(timed_part) == 2 * rounds * fb.BLOCK_FRAMES
+            runs = [timed_part[j: j + fb.BLOCK_FRAMES] for j in range(0, len(timed_part), fb.BLOCK_FRAMES)]
+            for r in range(rounds):
+                a, b = runs[2 * r], runs[2 * r + 1]
+                assert {a[0][0], b[0][0]} == {"a", "b"} and len({k for k, _ in a}) == len({k for k, _ in b}) == 1
+                f0 = 5 + r * fb.BLOCK_FRAMES
+                assert [i for _, i in a] == [i for _, i in b] == list(range(f0, f0 + fb.BLOCK_FRAMES))
+    with pytest.raises(ValueError, match="skip"):
+        fb._timed_blocks({"a": Loop("a")}, Scene(), 64, 32, 4, {"a": 1}, block=4, skip=4)
 
 
 def test_list_shading_quick(tmp_path):
