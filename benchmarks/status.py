@@ -15,6 +15,11 @@ from the quality JSON is shown as "-".
     python benchmarks/status.py --timing benchmarks/results/frame-s33-41b29e8-timing-run{1,2}-cuda.json \\
         --quality benchmarks/results/frame-2e786dc-{a,b}-cuda.json
 
+Records carry the turn schedule that timed them (``frame.py --turns``; records without one were timed frame by
+frame): ``--turns`` picks the schedule of the table (default "frames"). ``--compare-turns`` prints instead, per
+scene, size and shading, the speed-up of every run with each schedule and the ratio of their medians over the
+runs (blocks / frames), from runs that recorded both (``frame.py --turns frames,blocks``).
+
 Writes nothing unless ``--out`` names a file for the markdown; prints it.
 """
 
@@ -27,8 +32,10 @@ from pathlib import Path
 
 sys.path.append(str(Path(__file__).resolve().parent.parent))
 
+import numpy as np  # noqa: E402
+
 from benchmarks._common import md_table  # noqa: E402
-from benchmarks.frame import _summ  # noqa: E402
+from benchmarks.frame import TURNS, _summ  # noqa: E402
 
 SCENE_ORDER = "bunny,nefertiti,city,spot,ogre,teapot,cornell,eyechart,earth"
 SHADINGS = (("default", "default"), ("ao8", "8 AO rays"))
@@ -54,9 +61,45 @@ def _size(option: str, s: str) -> tuple[int, int]:
     return w, h
 
 
+def find_timing(run: list[dict], scene: str, w: int, h: int, shading: str, turns: str = "frames"):
+    """The timing record of ``scene`` at w x h with ``shading`` timed with ``turns`` in one run's records, or
+    None (a record without "turns" was timed frame by frame)."""
+    for r in run:
+        if (r.get("kind") == "timing" and r["scene"] == scene and r["width"] == w and r["height"] == h
+                and r["shading"] == shading and r.get("turns", "frames") == turns):
+            return r
+    return None
+
+
+def turns_rows(timing_runs: list[list[dict]], scenes: list[str],
+               sizes: list[tuple[int, int]]) -> tuple[list[str], list[list[str]]]:
+    """(column names, rows of strings) of the comparison of the two turn schedules: per scene, size and shading
+    with both schedules in every run, each run's speed-up by frames and by blocks, the ratio of the two medians
+    over the runs (blocks / frames), and the default policy's time over the reference's with each (worst run)."""
+    cols = ["scene", "size", "shading", "speed-up, frame by frame (runs)", "speed-up, blocks (runs)",
+            "blocks / frames (medians)", "default policy / reference, worst: frames; blocks"]
+    out = []
+    for scene in scenes:
+        for w, h in sizes:
+            for s, label in SHADINGS:
+                f = [find_timing(run, scene, w, h, s, "frames") for run in timing_runs]
+                b = [find_timing(run, scene, w, h, s, "blocks") for run in timing_runs]
+                if not all(f) or not all(b):
+                    continue
+                sf = [r["ref_ms"] / r["fov_ms"] for r in f]
+                sb = [r["ref_ms"] / r["fov_ms"] for r in b]
+                row = [scene, f"{w}x{h}", label, " / ".join(f"{v:.2f}x" for v in sf),
+                       " / ".join(f"{v:.2f}x" for v in sb), f"{float(np.median(sb)) / float(np.median(sf)):.3f}"]
+                row.append("-" if s != "default" else
+                           f"{max(r['auto_ms'] / r['ref_ms'] for r in f):.3f}; "
+                           f"{max(r['auto_ms'] / r['ref_ms'] for r in b):.3f}")
+                out.append(row)
+    return cols, out
+
+
 def rows(timing_runs: list[list[dict]], quality: list[dict], scenes: list[str], sizes: list[tuple[int, int]],
-         quality_size: tuple[int, int]) -> tuple[list[str], list[list[str]]]:
-    """(column names, rows of strings) of the status table."""
+         quality_size: tuple[int, int], turns: str = "frames") -> tuple[list[str], list[list[str]]]:
+    """(column names, rows of strings) of the status table, from the records timed with ``turns``."""
     cols = ["scene"]
     for w, h in sizes:
         for _, label in SHADINGS:
@@ -66,11 +109,7 @@ def rows(timing_runs: list[list[dict]], quality: list[dict], scenes: list[str], 
              f"{qw}x{qh} 8 AO rays vs converged: foveated / full dB"]
 
     def timing(run, scene, w, h, shading):
-        for r in run:
-            if (r.get("kind") == "timing" and r["scene"] == scene and r["width"] == w and r["height"] == h
-                    and r["shading"] == shading):
-                return r
-        return None
+        return find_timing(run, scene, w, h, shading, turns)
 
     def quality_rec(kind, scene):
         for r in quality:
@@ -108,16 +147,24 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", default="1920x1080,3840x2160", help="comma-separated WIDTHxHEIGHT, in column order")
     p.add_argument("--quality-size", default="3840x2160", help="the size of the PSNR columns")
     p.add_argument("--out", default=None, help="write the markdown to this file too")
+    p.add_argument("--turns", default="frames", choices=TURNS, help="the turn schedule of the table's records")
+    p.add_argument("--compare-turns", action="store_true",
+                   help="print the two schedules' speed-ups side by side instead (runs that recorded both)")
     a = p.parse_args(argv)
     sizes = [_size("--sizes items", s) for s in a.sizes.split(",") if s.strip()]
     if not sizes:
         p.error("--sizes names no size")
     runs = _load(a.timing)
-    quality = [r for recs in _load(a.quality) for r in recs]
-    cols, table = rows(runs, quality, [s.strip() for s in a.scenes.split(",") if s.strip()], sizes,
-                       _size("--quality-size", a.quality_size))
-    if not table:
-        p.error("no scene of --scenes has a timing record in the --timing files")
+    scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
+    if a.compare_turns:
+        cols, table = turns_rows(runs, scenes, sizes)
+        if not table:
+            p.error("no scene of --scenes has timing records of both turn schedules in every --timing file")
+    else:
+        quality = [r for recs in _load(a.quality) for r in recs]
+        cols, table = rows(runs, quality, scenes, sizes, _size("--quality-size", a.quality_size), a.turns)
+        if not table:
+            p.error(f"no scene of --scenes has a timing record timed by {a.turns} in the --timing files")
     md = md_table([dict(zip(cols, r)) for r in table], cols)
     if a.out:
         Path(a.out).write_text(md)

@@ -500,11 +500,54 @@ def test_status_table_values(tmp_path, monkeypatch, capsys):
         main(["--timing", files[0], "--sizes", "0x36"])
     with pytest.raises(SystemExit):  # no scene of --scenes in the runs
         main(["--timing", files[0], "--scenes", "teapot"])
+    with pytest.raises(SystemExit):  # records without "turns" were timed frame by frame: none by blocks
+        main(["--timing", files[0], "--turns", "blocks"])
+
+
+def test_status_turns(tmp_path, monkeypatch, capsys):
+    """benchmarks/status.py with runs that recorded both turn schedules: --turns picks the schedule of the status
+    table; --compare-turns gives each run's speed-up by each, the ratio of their medians over the runs and the
+    policy's worst ratio with each, against hand-computed values; a scene, size or shading missing a schedule in a
+    run is left out, and runs without both schedules are refused."""
+    monkeypatch.syspath_prepend(str(REPO))
+    from benchmarks.status import main
+
+    def t(shading, turns, ref, fov, auto):
+        return {**_timing("bunny", 64, 36, shading, ref, fov, auto), "turns": turns}
+
+    run1 = [t("default", "frames", 1.0, 1.25, 1.02), t("default", "blocks", 1.0, 1.0, 1.03),
+            t("ao8", "frames", 9.0, 3.0, 3.0), t("ao8", "blocks", 9.0, 2.0, 2.0)]
+    run2 = [t("default", "blocks", 1.2, 1.0, 1.2), t("default", "frames", 1.0, 2.0, 1.05),
+            t("ao8", "frames", 8.0, 4.0, 4.0), {**_timing("city", 64, 36, "ao8", 1.0, 1.0, 1.0), "turns": "blocks"}]
+    runs3 = run1 + [{**_timing("city", 64, 36, "ao8", 1.0, 1.0, 1.0), "turns": "frames"}]
+    files = []
+    for i, recs in enumerate((run1, run2, runs3)):
+        f = tmp_path / f"t{i}.json"
+        f.write_text(json.dumps({"records": recs}))
+        files.append(str(f))
+    base = ["--timing", files[0], files[1], "--sizes", "64x36", "--scenes", "bunny,city"]
+    assert main(base + ["--turns", "blocks"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    # blocks: bunny 1.0 / 1.0 = 1.00x and 1.2 / 1.0 = 1.20x; ao8 9 / 2 = 4.50x, none in run 2; policy max(1.03, 1.0)
+    assert lines[2] == "| bunny | 1.00x / 1.20x | 4.50x / - | 1.030 | - | - |"
+    assert lines[3] == "| city | - / - | - / 1.00x | - | - | - |"
+    assert main(base + ["--compare-turns"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("| scene | size | shading | speed-up, frame by frame (runs) | speed-up, blocks (runs) |")
+    # default: frames 0.80x / 0.50x (median 0.65), blocks 1.00x / 1.20x (median 1.10): 1.10 / 0.65 = 1.692;
+    # the policy's worst: frames max(1.02, 1.05), blocks max(1.03, 1.0); ao8 has no blocks record in run 2, city
+    # no frames record anywhere: both left out
+    assert lines[2:] == ["| bunny | 64x36 | default | 0.80x / 0.50x | 1.00x / 1.20x | 1.692 | 1.050; 1.030 |"]
+    assert main(["--timing", files[0], files[2], "--sizes", "64x36", "--scenes", "bunny,city", "--compare-turns"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[3] == "| bunny | 64x36 | 8 AO rays | 3.00x / 3.00x | 4.50x / 4.50x | 1.500 | - |"
+    with pytest.raises(SystemExit):  # no run with both schedules
+        main(["--timing", files[1], "--sizes", "64x36", "--scenes", "city", "--compare-turns"])
 
 
 def test_readme_status_table_matches_the_committed_json(monkeypatch, capsys):
-    """The README's "Where it stands" table is what benchmarks/status.py makes of the JSON files the README's
-    command names (committed results): a hand-edited or stale figure there fails this test."""
+    """Each of the README's status tables is what benchmarks/status.py makes of the JSON files its command names
+    (committed results): a hand-edited or stale figure there fails this test."""
     import shlex
 
     monkeypatch.syspath_prepend(str(REPO))
@@ -512,9 +555,11 @@ def test_readme_status_table_matches_the_committed_json(monkeypatch, capsys):
 
     readme = (REPO / "README.md").read_text().splitlines()
     cmds = [ln for ln in readme if ln.startswith("python benchmarks/status.py ")]
-    assert len(cmds) == 1, cmds
-    args = [str(REPO / a) if a.startswith("benchmarks/results/") else a for a in shlex.split(cmds[0])[2:]]
-    assert main(args) == 0
-    table = capsys.readouterr().out.splitlines()
-    start = readme.index(table[0])
-    assert readme[start:start + len(table)] == table
+    assert cmds
+    for cmd in cmds:
+        args = [str(REPO / a) if a.startswith("benchmarks/results/") else a for a in shlex.split(cmd)[2:]]
+        assert main(args) == 0
+        table = capsys.readouterr().out.splitlines()
+        # the table printed right after the command's code block
+        start = readme.index(table[0], readme.index(cmd))
+        assert readme[start:start + len(table)] == table, cmd
