@@ -113,13 +113,16 @@ def bounds(rec: dict, floor_ms=None, gbuffer_floor_ms=None) -> dict:
             "estimate_gbuffer_at_floor": d}
 
 
-def analyse(runs: list, floors: dict, gbuffer_floors=None) -> list:
+def analyse(runs: list, floors: dict, gbuffer_floors=None, turns: str = "frames") -> list:
     """Rows per (scene, size, shading): the measured speed-ups of each run, the target, and the bounds over the
-    runs (the largest bound, the smallest stage times and list cost ratio: a transient cannot lower a bound)."""
+    runs (the largest bound, the smallest stage times and list cost ratio: a transient cannot lower a bound).
+    Only records timed with the turn schedule ``turns`` count (``frame.py --turns``; a record without one was timed
+    frame by frame), so a run that timed both schedules counts once."""
     groups: dict = {}
     for run in runs:
         for r in run["records"]:
-            if r.get("kind") != "timing" or r.get("config", "default") != "default":
+            if (r.get("kind") != "timing" or r.get("config", "default") != "default"
+                    or r.get("turns", "frames") != turns):
                 continue
             key = (r["scene"], int(r["width"]), int(r["height"]), r["shading"])
             groups.setdefault(key, []).append(r)
@@ -194,6 +197,8 @@ def main(argv=None) -> int:
     p.add_argument("--ncu", nargs="*", default=[], help="ncu_frame.py markdown files (DRAM floors), optional")
     p.add_argument("--name", default="ceiling", help="output file stem")
     p.add_argument("--out", default=None, help="output folder (default benchmarks/results)")
+    p.add_argument("--turns", default="frames", choices=("frames", "blocks"),
+                   help="the turn schedule of the timing records that count (frame.py --turns)")
     a = p.parse_args(argv)
     for flag, paths in (("--timing", a.timing), ("--ncu", a.ncu)):
         for t in paths:
@@ -205,7 +210,9 @@ def main(argv=None) -> int:
     for path in a.ncu:
         floors.update(ncu_floors(path))
         gfloors.update(ncu_gbuffer_floors(path))
-    rows = analyse(runs, floors, gfloors)
+    rows = analyse(runs, floors, gfloors, a.turns)
+    if not rows:
+        p.error(f"no timing record of the default configuration timed by {a.turns} in the --timing files")
     out = Path(a.out) if a.out else RESULTS
     out.mkdir(parents=True, exist_ok=True)
     sources = [Path(t).name for t in a.timing] + [Path(n).name for n in a.ncu]

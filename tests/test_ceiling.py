@@ -113,6 +113,22 @@ def test_verdicts_and_cli(tmp_path):
     assert row["gbuffer_ms"] == pytest.approx(1.0) and row["ref_ms"] == pytest.approx(6.1)
 
 
+def test_turns_filter(tmp_path):
+    """A run that timed both turn schedules (frame.py --turns frames,blocks) counts once: its frame-by-frame
+    records by default (and records without "turns"), its block records with turns="blocks"; the command line
+    refuses files with no record of the schedule asked for."""
+    a = _rec("bunny", shading="ao8", g=1.0, f=1.0, ref=6.0, rate=0.1, fov=2.0)
+    b = {**_rec("bunny", shading="ao8", g=1.0, f=1.0, ref=6.0, rate=0.1, fov=2.5), "turns": "blocks"}
+    (row,) = ceiling.analyse([{"records": [a, b]}], {})
+    assert row["speedups"] == [pytest.approx(3.0)]
+    (row,) = ceiling.analyse([{"records": [{**a, "turns": "frames"}, b]}], {}, turns="blocks")
+    assert row["speedups"] == [pytest.approx(2.4)]
+    p = tmp_path / "t.json"
+    p.write_text(json.dumps({"device_name": "X", "records": [a]}))
+    with pytest.raises(SystemExit):
+        ceiling.main(["--timing", str(p), "--turns", "blocks", "--name", "c", "--out", str(tmp_path)])
+
+
 def test_cli_refuses_missing_files(tmp_path, capsys):
     """A --timing or --ncu file that does not exist: an argparse error naming the flag and the path."""
     good = tmp_path / "t.json"
