@@ -239,7 +239,9 @@ def _timed_blocks(loops: dict, scene, w, h, n, warm: dict, block: int = BLOCK_FR
     This is how an application runs one loop: frame after frame with nothing else on the GPU between them, so the
     data a frame leaves in the GPU's caches (the history, the previous depth, the BVH) is there for the next one.
     In ``_timed_interleaved`` every frame follows another loop's frame, which evicts it. Alternating blocks keeps
-    what that scheme is for: clock and load drift hit the loops alike."""
+    what that scheme is for: clock and load drift hit the loops alike. Measured on the H100 (session 34,
+    ``frame-s34-turns-c9f0667-run{1,2,3}``, 9 scenes x 2 sizes x 2 shadings): the two schedules' speed-ups agree
+    within 2.5%, so the frame-by-frame figures do not understate the foveated frame."""
     if not 0 <= skip < block:
         raise ValueError(f"skip must be in [0, block - 1] = [0, {block - 1}], got {skip}")
     t0_frame = _warm_up(loops, scene, w, h, n, warm)
