@@ -36,7 +36,12 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 from pathlib import Path
+
+sys.path.append(str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.frame import TURNS, record_turns  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MESHES = ("spot", "teapot", "nefertiti", "ogre")
@@ -122,7 +127,7 @@ def analyse(runs: list, floors: dict, gbuffer_floors=None, turns: str = "frames"
     for run in runs:
         for r in run["records"]:
             if (r.get("kind") != "timing" or r.get("config", "default") != "default"
-                    or r.get("turns", "frames") != turns):
+                    or record_turns(r) != turns):
                 continue
             key = (r["scene"], int(r["width"]), int(r["height"]), r["shading"])
             groups.setdefault(key, []).append(r)
@@ -197,7 +202,7 @@ def main(argv=None) -> int:
     p.add_argument("--ncu", nargs="*", default=[], help="ncu_frame.py markdown files (DRAM floors), optional")
     p.add_argument("--name", default="ceiling", help="output file stem")
     p.add_argument("--out", default=None, help="output folder (default benchmarks/results)")
-    p.add_argument("--turns", default="frames", choices=("frames", "blocks"),
+    p.add_argument("--turns", default="frames", choices=TURNS,
                    help="the turn schedule of the timing records that count (frame.py --turns)")
     a = p.parse_args(argv)
     for flag, paths in (("--timing", a.timing), ("--ncu", a.ncu)):

@@ -199,23 +199,33 @@ def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict, seed: int = 0) -
     names = list(loops)
     rng = np.random.default_rng(seed)
     for i in range(t0_frame, t0_frame + n):
-        t = i / 30.0
-        g = gaze_path(i, n, w, h)
         for j in rng.permutation(len(names)):
-            name, loop = names[j], loops[names[j]]
-            wp.synchronize_device(loop.device)
-            t_start = time.perf_counter()
-            # each loop gets its own camera object, made inside the timed region as an application would: a
-            # camera shared by the loops would carry its cached basis and kernel parameters from the first loop
-            # that used it to the others (c9cc304's run: the first loop, the reference, paid 0.10-0.20 ms more)
-            loop.render(scene.camera_at(t), gaze_px=g, time=t)
-            wp.synchronize_device(loop.device)
-            ms[name].append((time.perf_counter() - t_start) * 1e3)
+            ms[names[j]].append(_timed_frame(loops[names[j]], scene, i, n, w, h))
     return {name: float(np.median(v)) for name, v in ms.items()}
+
+
+def _timed_frame(loop, scene, i: int, n: int, w: int, h: int) -> float:
+    """Synchronized wall ms of ``loop`` rendering frame ``i`` of the camera path (its time, camera and gaze)."""
+    t = i / 30.0
+    g = gaze_path(i, n, w, h)
+    wp.synchronize_device(loop.device)
+    t_start = time.perf_counter()
+    # each loop gets its own camera object, made inside the timed region as an application would: a camera shared
+    # by the loops would carry its cached basis and kernel parameters from the first loop that used it to the others
+    # (c9cc304's run: the first loop, the reference, paid 0.10-0.20 ms more)
+    loop.render(scene.camera_at(t), gaze_px=g, time=t)
+    wp.synchronize_device(loop.device)
+    return (time.perf_counter() - t_start) * 1e3
 
 
 TURNS = ("frames", "blocks")
 BLOCK_FRAMES, BLOCK_SKIP = 10, 2
+
+
+def record_turns(rec: dict) -> str:
+    """The turn schedule that timed a timing record: its "turns", or "frames" for records written before
+    ``--turns`` existed (they were all timed frame by frame)."""
+    return rec.get("turns", "frames")
 
 
 def _warm_up(loops: dict, scene, w, h, n, warm: dict) -> int:
@@ -252,16 +262,10 @@ def _timed_blocks(loops: dict, scene, w, h, n, warm: dict, block: int = BLOCK_FR
     for r in range(rounds):
         f0 = t0_frame + r * block
         for j in rng.permutation(len(names)):
-            name, loop = names[j], loops[names[j]]
             for i in range(f0, f0 + block):
-                t = i / 30.0
-                g = gaze_path(i, n, w, h)
-                wp.synchronize_device(loop.device)
-                t_start = time.perf_counter()
-                loop.render(scene.camera_at(t), gaze_px=g, time=t)  # a new camera each frame, as interleaved
-                wp.synchronize_device(loop.device)
+                frame_ms = _timed_frame(loops[names[j]], scene, i, n, w, h)
                 if i - f0 >= skip:
-                    ms[name].append((time.perf_counter() - t_start) * 1e3)
+                    ms[names[j]].append(frame_ms)
     return {name: float(np.median(v)) for name, v in ms.items()}
 
 

@@ -35,7 +35,7 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 
 from benchmarks._common import md_table  # noqa: E402
-from benchmarks.frame import TURNS, _summ  # noqa: E402
+from benchmarks.frame import TURNS, _summ, record_turns  # noqa: E402
 
 SCENE_ORDER = "bunny,nefertiti,city,spot,ogre,teapot,cornell,eyechart,earth"
 SHADINGS = (("default", "default"), ("ao8", "8 AO rays"))
@@ -66,7 +66,7 @@ def find_timing(run: list[dict], scene: str, w: int, h: int, shading: str, turns
     None (a record without "turns" was timed frame by frame)."""
     for r in run:
         if (r.get("kind") == "timing" and r["scene"] == scene and r["width"] == w and r["height"] == h
-                and r["shading"] == shading and r.get("turns", "frames") == turns):
+                and r["shading"] == shading and record_turns(r) == turns):
             return r
     return None
 
