@@ -1,0 +1,239 @@
+"""Study (issue 14, session 35): the list's AO lanes traced by SM-local segments of the list, on CUDA.
+
+The foveated frame's list of traced pixels shades at 1.26-1.7x the reference's per-pixel cost, because its
+peripheral pixels are sparse and sparse rays share less of their BVH walk (docs/frame-results.md, sessions 28-30).
+``shade_ao_list_kernel`` hands the list's lanes to thread blocks in index order; the hardware places the blocks
+on whichever SM is free, so the blocks that share one SM's L1 at once come from places of the list (and the
+screen) far apart. Here a persistent launch (a few resident blocks per SM) gives each SM a contiguous segment of
+the list (``%smid``), its warps taking 32 lanes at a time from the segment's counter, and taking from the next
+segments once theirs is done: the warps sharing an L1 trace neighbouring pixels. ``nseg=1`` is the same
+persistent launch with one counter for the whole list (dynamic fetching without the SM locality).
+
+Each variant's ``ao_part`` is checked equal to the package kernel's (every lane traced once, the same rays).
+
+    python benchmarks/ao_segments.py --device cuda:0 [--scenes bunny,nefertiti,city,spot] [--sizes 3840x2160]
+
+Writes benchmarks/results/ao-segments-cuda.{json,md} (``--name``).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import warp as wp  # noqa: E402
+
+from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
+from benchmarks.list_shading import _frame_loop, _list_array, _timer  # noqa: E402
+from foveawarp.kernels.rng import cosine_hemisphere, pixel_rng  # noqa: E402
+from foveawarp.kernels.shade import (AreaLightParams, ShadeParams, area_light_draws, list_pixel,  # noqa: E402
+                                     shade_ao_list_kernel, visible)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    unsigned r;
+    asm volatile("mov.u32 %0, %%smid;" : "=r"(r));
+    return (int)r;
+#else
+    return 0;
+#endif
+""")
+def sm_id() -> int:
+    """The SM this thread runs on (CUDA); 0 elsewhere."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    return (int)(threadIdx.x & 31u);
+#else
+    return 0;
+#endif
+""")
+def lane_id() -> int:
+    """This thread's lane in its warp (CUDA); 0 elsewhere."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __syncwarp();
+    int v = 0;
+    if ((threadIdx.x & 31u) == 0u) {
+        int* p = ctr.data + s;
+        v = *((volatile int*)p);
+        if (v < limit) v = atomicAdd(p, step);
+    }
+    return __shfl_sync(0xffffffffu, v, 0);
+#else
+    const int v = ctr.data[s];
+    if (v < limit) ctr.data[s] = v + step;
+    return v;
+#endif
+""")
+def warp_fetch(ctr: wp.array(dtype=wp.int32), s: int, step: int, limit: int) -> int:
+    """The warp's next ``step`` entries of segment ``s``: its counter's old value, the same on every lane (CUDA:
+    the whole warp must call it together)."""
+    ...
+
+
+@wp.func
+def ao_lane(sp: ShadeParams, work: wp.array(dtype=wp.int32), pos: wp.array2d(dtype=wp.vec3),
+            normal: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
+            area_lights: wp.array(dtype=AreaLightParams), ao_part: wp.array2d(dtype=wp.uint8), k: int):
+    """Lane k of the list's AO pass: what ``shade_ao_list_kernel``'s thread k does."""
+    groups = ao_part.shape[1]
+    i = k // groups
+    g = k - i * groups
+    x, y = list_pixel(work[i], sp.width)
+    c = int(0)
+    if hit[y, x] != wp.uint8(0):
+        s0 = (g * sp.ao_samples) // groups
+        s1 = ((g + 1) * sp.ao_samples) // groups
+        if s1 > s0:
+            rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
+            for j in range(area_light_draws(sp, area_lights) + 2 * s0):
+                wp.randf(rng)
+            p = pos[y, x]
+            n = normal[y, x]
+            for s in range(s0, s1):
+                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
+                if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
+                    c += 1
+    ao_part[i, g] = wp.uint8(c)
+
+
+@wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=64)
+def ao_segments_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    area_lights: wp.array(dtype=AreaLightParams),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    ctr: wp.array(dtype=wp.int32),
+    nseg: int,
+    smid: int,
+):
+    """Persistent: the list's ``count[0] * G`` lanes in ``nseg`` segments (a multiple of 32 lanes each); the warps
+    of SM m start on segment m % nseg (``smid`` 1; 0: the block's index instead) and move to the next once it is
+    taken. ``ctr`` (nseg zeros) counts each segment's lanes handed out."""
+    sp = spa[0]
+    total = count[0] * ao_part.shape[1]
+    seglen = (((total + nseg - 1) // nseg) + 31) // 32 * 32
+    lane = lane_id()
+    s = int(0)
+    if smid != 0:
+        s = sm_id() % nseg
+    else:
+        s = (wp.tid() // 128) % nseg
+    tries = int(0)
+    while tries < nseg:
+        b = warp_fetch(ctr, s, 32, seglen)
+        if b >= seglen:
+            s = s + 1
+            if s >= nseg:
+                s = 0
+            tries = tries + 1
+        else:
+            k = s * seglen + b + lane
+            if k < total:
+                ao_lane(sp, work, pos, normal, hit, area_lights, ao_part, k)
+
+
+VARIANTS = (("package", 0, 0, 0), ("sm-seg r8", 8, -1, 1), ("sm-seg r4", 4, -1, 1), ("block-seg r8", 8, -1, 0),
+            ("one-counter r8", 8, 1, 1))
+
+
+def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
+    loop = _frame_loop(fw, scene, w, h, dev, 8, 4, frames)
+    st, g, ds = loop.shade, loop.gbuffer, loop.dscene
+    nsm = st._sm_count()
+    hit = g.hit.numpy() != 0
+    n = int(loop.reorder.count.numpy()[0])
+    fov = loop.reorder.work.numpy()[:n].copy()
+    loop.reorder.run(wp.array(hit.astype(np.uint8), dtype=wp.uint8, device=dev))
+    allhits = loop.reorder.work.numpy()[:int(loop.reorder.count.numpy()[0])].copy()
+    res = {"n_list": n, "n_hit": int(hit.sum()), "n_px": w * h, "sm_count": nsm}
+    lanes = st.ao_lanes()
+    ao_blocks, ao_block_dim = st._ao_launch_shape()
+    for lname, idx in (("fov", fov), ("allhits", allhits)):
+        work, count = _list_array(idx, dev)
+        cap = int(work.shape[0])
+        part = wp.zeros((cap, lanes), dtype=wp.uint8, device=dev)
+        ctr = wp.zeros(nsm, dtype=wp.int32, device=dev)
+        args = [st.params_dev, work, count, g.position, g.normal, g.hit, ds.area_lights, part]
+        want = None
+        for vname, r, nseg, smid in VARIANTS:
+            if vname == "package":
+                def run():
+                    wp.launch(shade_ao_list_kernel, dim=cap * lanes, inputs=[*args, 0], device=dev,
+                              max_blocks=ao_blocks, block_dim=ao_block_dim)
+            else:
+                ns = nsm if nseg < 0 else nseg
+                c = ctr if ns == nsm else wp.zeros(ns, dtype=wp.int32, device=dev)
+
+                def run(r=r, ns=ns, smid=smid, c=c):
+                    c.zero_()
+                    wp.launch(ao_segments_kernel, dim=nsm * r * 128, inputs=[*args, c, ns, smid], device=dev,
+                              block_dim=128)
+            part.fill_(255)
+            run()
+            wp.synchronize_device(dev)
+            got = part.numpy().copy()
+            if want is None:
+                want = got
+            elif not np.array_equal(got, want):
+                raise AssertionError(f"{vname} on the {lname} list changed ao_part")
+            res[f"{lname}_{vname.replace(' ', '_')}_ms"] = t_ms(run)
+    return res
+
+
+def main(argv=None):
+    p = base_parser(__doc__)
+    p.add_argument("--scenes", default="bunny,nefertiti,city,spot")
+    p.add_argument("--sizes", default="3840x2160,1920x1080")
+    p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
+    p.add_argument("--inner", type=int, default=10, help="launches per timed call")
+    p.add_argument("--rounds", type=int, default=2, help="each scene and size studied this many times")
+    p.add_argument("--name", default="ao-segments")
+    args = p.parse_args(argv)
+    import foveawarp as fw
+
+    wp.config.quiet = True
+    dev = wp.get_device(args.device)
+    if not dev.is_cuda:
+        p.error("--device must be a CUDA device (the study is of CUDA SMs)")
+    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    repeats = args.repeats or 15
+    t_ms = _timer(dev, repeats, args.inner, args.warmup)
+    records, rows = [], []
+    for rnd in range(args.rounds):
+        for name in args.scenes.split(","):
+            scene = fw.load_scene(name)
+            for w, h in sizes:
+                r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "round": rnd,
+                     "commit": git_commit(), **study(fw, scene, w, h, dev, t_ms, args.frames)}
+                records.append(r)
+                row = {"scene": name, "size": f"{w}x{h}", "round": rnd, "list": r["n_list"]}
+                for lname in ("fov", "allhits"):
+                    base = r[f"{lname}_package_ms"]
+                    row[f"{lname} package ms"] = base
+                    for vname, *_ in VARIANTS[1:]:
+                        row[f"{lname} {vname} / package"] = r[f"{lname}_{vname.replace(' ', '_')}_ms"] / base
+                rows.append(row)
+                print(row, flush=True)
+    md = md_table(rows, list(rows[0]))
+    write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
