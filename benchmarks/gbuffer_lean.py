@@ -1,0 +1,148 @@
+"""Study (issue 14, session 35): what the reprojection fields cost the G-buffer that the full-resolution frames trace.
+
+``render_reference`` (and the default policy's full-resolution frames) trace the same G-buffer kernel as the
+foveated frame, reprojection included: each hit reads its face's three previous vertex positions, projects the
+point with the previous camera and writes ``reproj_uv``, ``prev_dist`` and ``moved`` (13 bytes a pixel). No
+full-resolution frame reads them (a foveated frame computes its own reprojection towards the previous frame).
+This times the package's CUDA G-buffer kernel (``gbuffer_tiles_kernel``, as ``GBufferStage`` launches it) against
+a copy that stops before the reprojection, on frame 12 of each camera path, and checks that the fields both
+write are equal.
+
+    python benchmarks/gbuffer_lean.py --device cuda:0 [--scenes bunny,nefertiti,city,spot,cornell]
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import warp as wp  # noqa: E402
+
+from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
+from benchmarks.list_shading import _frame_loop, _timer  # noqa: E402
+from foveawarp.kernels.camera import CameraParams, camera_ray_dir  # noqa: E402
+from foveawarp.kernels.gbuffer import gbuffer_tiles_kernel, smooth_normal  # noqa: E402
+from foveawarp.kernels.load import (load1_i32, load1_u8, load1_vec3, store_f32, store_i32, store_u8,  # noqa: E402
+                                    store_vec3)
+from foveawarp.kernels.order import tile_order_pixel  # noqa: E402
+
+
+@wp.kernel(enable_backward=False)
+def gbuffer_lean_tiles_kernel(
+    mesh: wp.uint64,
+    indices: wp.array(dtype=wp.int32),
+    vnormals: wp.array(dtype=wp.vec3),
+    smooth: wp.array(dtype=wp.uint8),
+    cam: CameraParams,
+    max_t: float,
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    wlog2: int,
+):
+    p = tile_order_pixel(wp.tid(), out_depth.shape[1], wlog2)
+    x = p[0]
+    y = p[1]
+    if x < out_depth.shape[1] and y < out_depth.shape[0]:
+        d = camera_ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
+        q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
+        if q.result:
+            fn = q.normal
+            if wp.dot(fn, d) > 0.0:
+                fn = -fn
+            n = fn
+            if load1_u8(smooth, q.face) != wp.uint8(0):
+                i0 = load1_i32(indices, q.face * 3 + 0)
+                i1 = load1_i32(indices, q.face * 3 + 1)
+                i2 = load1_i32(indices, q.face * 3 + 2)
+                n = smooth_normal(fn, q.u, q.v, load1_vec3(vnormals, i0), load1_vec3(vnormals, i1),
+                                  load1_vec3(vnormals, i2))
+            store_vec3(out_pos, y, x, cam.eye + d * q.t)
+            store_vec3(out_normal, y, x, n)
+            store_f32(out_depth, y, x, q.t)
+            store_i32(out_face, y, x, q.face)
+            store_u8(out_hit, y, x, wp.uint8(1))
+        else:
+            store_vec3(out_pos, y, x, wp.vec3(0.0, 0.0, 0.0))
+            store_vec3(out_normal, y, x, wp.vec3(0.0, 0.0, 0.0))
+            store_f32(out_depth, y, x, max_t)
+            store_i32(out_face, y, x, -1)
+            store_u8(out_hit, y, x, wp.uint8(0))
+
+
+def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
+    loop = _frame_loop(fw, scene, w, h, dev, 0, 4, frames)
+    gs, g, ds = loop.gbuffer_stage, loop.gbuffer, loop.dscene
+    gs._set_order()
+    cam = scene.camera_at(frames / 30.0)
+    prev = scene.camera_at((frames - 1) / 30.0)
+    inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam.params(w, h),
+              prev.params(w, h), gs.max_t(cam)]
+    outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, gs._wlog2, 0]
+
+    def pkg():
+        wp.launch(gbuffer_tiles_kernel, dim=gs._dim, inputs=inputs + outputs, device=dev)
+
+    lean_out = [wp.empty_like(a) for a in (g.position, g.normal, g.depth, g.face, g.hit)]
+
+    def lean():
+        wp.launch(gbuffer_lean_tiles_kernel, dim=gs._dim,
+                  inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, cam.params(w, h),
+                          gs.max_t(cam), *lean_out, gs._wlog2], device=dev)
+
+    pkg()
+    lean()
+    wp.synchronize_device(dev)
+    for a, b in zip((g.position, g.normal, g.depth, g.face, g.hit), lean_out):
+        if not np.array_equal(a.numpy(), b.numpy()):
+            raise AssertionError("the lean G-buffer differs from the package's in a field both write")
+    res = {"hit_fraction": float((g.hit.numpy() != 0).mean())}
+    for rnd in range(3):  # alternating
+        res[f"package_ms_{rnd}"] = t_ms(pkg)
+        res[f"lean_ms_{rnd}"] = t_ms(lean)
+    res["package_ms"] = float(np.median([res[f"package_ms_{r}"] for r in range(3)]))
+    res["lean_ms"] = float(np.median([res[f"lean_ms_{r}"] for r in range(3)]))
+    return res
+
+
+def main(argv=None):
+    p = base_parser(__doc__)
+    p.add_argument("--scenes", default="bunny,nefertiti,city,spot,cornell")
+    p.add_argument("--sizes", default="3840x2160,1920x1080")
+    p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
+    p.add_argument("--inner", type=int, default=10, help="launches per timed call")
+    p.add_argument("--name", default="gbuffer-lean")
+    args = p.parse_args(argv)
+    import foveawarp as fw
+
+    wp.config.quiet = True
+    dev = wp.get_device(args.device)
+    if not dev.is_cuda:
+        p.error("--device must be a CUDA device (the tiles launch is CUDA's)")
+    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    repeats = args.repeats or 15
+    t_ms = _timer(dev, repeats, args.inner, args.warmup)
+    records, rows = [], []
+    for name in args.scenes.split(","):
+        scene = fw.load_scene(name)
+        for w, h in sizes:
+            r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
+                 **study(fw, scene, w, h, dev, t_ms, args.frames)}
+            records.append(r)
+            rows.append({"scene": name, "size": f"{w}x{h}", "hits": r["hit_fraction"],
+                         "package ms": r["package_ms"], "lean ms": r["lean_ms"],
+                         "lean / package": r["lean_ms"] / r["package_ms"]})
+            print(rows[-1], flush=True)
+    md = md_table(rows, list(rows[0]))
+    write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
