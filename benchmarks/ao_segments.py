@@ -9,7 +9,8 @@ the list (``%smid``), its warps taking 32 lanes at a time from the segment's cou
 segments once theirs is done: the warps sharing an L1 trace neighbouring pixels. ``nseg=1`` is the same
 persistent launch with one counter for the whole list (dynamic fetching without the SM locality).
 
-Each variant's ``ao_part`` is checked equal to the package kernel's (every lane traced once, the same rays).
+Each variant's ``ao_part`` is checked equal to the package kernel's (every lane traced once, the same rays), on
+any device (``study``; the timings are CUDA's).
 
     python benchmarks/ao_segments.py --device cuda:0 [--scenes bunny,nefertiti,city,spot] [--sizes 3840x2160]
 
@@ -57,6 +58,18 @@ def sm_id() -> int:
 """)
 def lane_id() -> int:
     """This thread's lane in its warp (CUDA); 0 elsewhere."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    return 32;
+#else
+    return 1;
+#endif
+""")
+def warp_width() -> int:
+    """Threads that fetch work together: a CUDA warp's 32; 1 on the CPU (one thread at a time)."""
     ...
 
 
@@ -122,12 +135,14 @@ def ao_segments_kernel(
     nseg: int,
     smid: int,
 ):
-    """Persistent: the list's ``count[0] * G`` lanes in ``nseg`` segments (a multiple of 32 lanes each); the warps
+    """Persistent: the list's ``count[0] * G`` lanes in ``nseg`` segments (a multiple of 32 lanes each on CUDA,
+    where a warp takes 32 lanes at a time; the CPU's threads take one at a time, so the same lanes); the warps
     of SM m start on segment m % nseg (``smid`` 1; 0: the block's index instead) and move to the next once it is
     taken. ``ctr`` (nseg zeros) counts each segment's lanes handed out."""
     sp = spa[0]
     total = count[0] * ao_part.shape[1]
-    seglen = (((total + nseg - 1) // nseg) + 31) // 32 * 32
+    ww = warp_width()
+    seglen = (((total + nseg - 1) // nseg) + ww - 1) // ww * ww
     lane = lane_id()
     s = int(0)
     if smid != 0:
@@ -136,7 +151,7 @@ def ao_segments_kernel(
         s = (wp.tid() // 128) % nseg
     tries = int(0)
     while tries < nseg:
-        b = warp_fetch(ctr, s, 32, seglen)
+        b = warp_fetch(ctr, s, ww, seglen)
         if b >= seglen:
             s = s + 1
             if s >= nseg:

@@ -563,3 +563,73 @@ def test_readme_status_table_matches_the_committed_json(monkeypatch, capsys):
         # the table printed right after the command's code block
         start = readme.index(table[0], readme.index(cmd))
         assert readme[start:start + len(table)] == table, cmd
+
+
+def _cpu_timer():
+    from benchmarks.list_shading import _timer
+
+    return _timer(wp.get_device("cpu"), 1, 1, 0)
+
+
+def test_ao_segments_variants_trace_every_lane_once(monkeypatch):
+    """benchmarks/ao_segments.py (session 35): on the CPU a thread fetches one lane at a time, so every persistent
+    variant must give ``shade_ao_list_kernel``'s ao_part exactly (``study`` checks it on the foveated and the
+    all-surface list of bunny, 8 AO rays, 4 lanes); a variant that leaves lanes untraced is caught."""
+    import foveawarp as fw
+    from benchmarks import ao_segments as A
+
+    dev = wp.get_device("cpu")
+    scene = fw.load_scene("bunny")
+    res = A.study(fw, scene, 96, 64, dev, _cpu_timer(), 3)
+    assert 0 < res["n_list"] < res["n_hit"] <= res["n_px"] == 96 * 64
+    for lname in ("fov", "allhits"):
+        for vname, *_ in A.VARIANTS:
+            assert res[f"{lname}_{vname.replace(' ', '_')}_ms"] > 0
+
+    @wp.kernel(enable_backward=False)
+    def lazy(spa: wp.array(dtype=A.ShadeParams), work: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32),
+             pos: wp.array2d(dtype=wp.vec3), normal: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
+             area_lights: wp.array(dtype=A.AreaLightParams), ao_part: wp.array2d(dtype=wp.uint8),
+             ctr: wp.array(dtype=wp.int32), nseg: int, smid: int):
+        k = wp.tid()
+        if k < count[0] * ao_part.shape[1] and k % 2 == 0:  # every other lane only
+            A.ao_lane(spa[0], work, pos, normal, hit, area_lights, ao_part, k)
+
+    monkeypatch.setattr(A, "ao_segments_kernel", lazy)
+    with pytest.raises(AssertionError, match="changed ao_part"):
+        A.study(fw, scene, 96, 64, dev, _cpu_timer(), 3)
+
+
+def test_gbuffer_lean_equals_the_package_kernel_where_both_write():
+    """benchmarks/gbuffer_lean.py (session 35): the G-buffer copy without the reprojection fields writes the same
+    position, normal, depth, face and hit as ``gbuffer_tiles_kernel`` (``study`` checks it; bunny has smooth
+    faces, cornell flat ones and misses)."""
+    import foveawarp as fw
+    from benchmarks import gbuffer_lean as G
+
+    for name in ("bunny", "cornell"):
+        res = G.study(fw, fw.load_scene(name), 96, 64, wp.get_device("cpu"), _cpu_timer(), 3)
+        assert 0 < res["hit_fraction"] < 1 and res["package_ms"] > 0 and res["lean_ms"] > 0
+
+
+def test_l2_cold_study_runs_on_cpu():
+    """benchmarks/l2_cold.py (session 35): the conditions run (the prefetch is a no-op off CUDA) and give the
+    same outputs (checked in ``study``); the line bound covers the mesh's traversal data."""
+    import foveawarp as fw
+    from benchmarks import l2_cold as L
+
+    dev = wp.get_device("cpu")
+    junk = wp.zeros(1 << 16, dtype=wp.float32, device=dev)
+    scene = fw.load_scene("bunny")
+    res = L.study(fw, scene, 96, 64, dev, _cpu_timer(), 3, lambda: junk.fill_(1.0))
+    assert res["n_list"] > 0 and res["ao_list_warm_ms"] > 0 and res["full_warm_ms"] > 0
+    nt, npt = len(scene.faces), len(scene.vertices)
+    # BVH nodes (at most 2 per triangle, 2 x 16 bytes), primitive indices, triangle indices and points
+    assert L.prefetch_lines(nt, npt) * 128 >= 2 * nt * 32 + nt * 4 + nt * 12 + npt * 12
+
+
+@pytest.mark.parametrize("script", ["ao_segments.py", "l2_cold.py", "gbuffer_lean.py"])
+def test_cuda_studies_refuse_the_cpu(script):
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), "--device", "cpu"], capture_output=True,
+                       text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 2 and "--device must be a CUDA device" in r.stderr
