@@ -28,11 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
-from benchmarks.list_shading import _frame_loop, _list_array, _timer  # noqa: E402
-from foveawarp.kernels.rng import cosine_hemisphere, pixel_rng  # noqa: E402
-from foveawarp.kernels.shade import (AreaLightParams, ShadeParams, area_light_draws, list_pixel,  # noqa: E402
-                                     shade_ao_list_kernel, visible)
+from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks.list_shading import _frame_loop, _list_array  # noqa: E402
+from foveawarp.kernels.shade import (AreaLightParams, ShadeParams, ao_list_lane,  # noqa: E402
+                                     shade_ao_list_kernel)
 
 
 @wp.func_native("""
@@ -95,32 +94,6 @@ def warp_fetch(ctr: wp.array(dtype=wp.int32), s: int, step: int, limit: int) -> 
     ...
 
 
-@wp.func
-def ao_lane(sp: ShadeParams, work: wp.array(dtype=wp.int32), pos: wp.array2d(dtype=wp.vec3),
-            normal: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
-            area_lights: wp.array(dtype=AreaLightParams), ao_part: wp.array2d(dtype=wp.uint8), k: int):
-    """Lane k of the list's AO pass: what ``shade_ao_list_kernel``'s thread k does."""
-    groups = ao_part.shape[1]
-    i = k // groups
-    g = k - i * groups
-    x, y = list_pixel(work[i], sp.width)
-    c = int(0)
-    if hit[y, x] != wp.uint8(0):
-        s0 = (g * sp.ao_samples) // groups
-        s1 = ((g + 1) * sp.ao_samples) // groups
-        if s1 > s0:
-            rng = pixel_rng(sp.seed, sp.frame, y * sp.width + x)
-            for j in range(area_light_draws(sp, area_lights) + 2 * s0):
-                wp.randf(rng)
-            p = pos[y, x]
-            n = normal[y, x]
-            for s in range(s0, s1):
-                d = cosine_hemisphere(n, wp.randf(rng), wp.randf(rng))
-                if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
-                    c += 1
-    ao_part[i, g] = wp.uint8(c)
-
-
 @wp.kernel(enable_backward=False, grid_stride=False, cuda_max_registers=64)
 def ao_segments_kernel(
     spa: wp.array(dtype=ShadeParams),
@@ -160,7 +133,7 @@ def ao_segments_kernel(
         else:
             k = s * seglen + b + lane
             if k < total:
-                ao_lane(sp, work, pos, normal, hit, area_lights, ao_part, k)
+                ao_list_lane(sp, work, pos, normal, hit, area_lights, ao_part, k)
 
 
 VARIANTS = (("package", 0, 0, 0), ("sm-seg r8", 8, -1, 1), ("sm-seg r4", 4, -1, 1), ("block-seg r8", 8, -1, 0),
@@ -211,43 +184,21 @@ def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
     return res
 
 
-def main(argv=None):
-    p = base_parser(__doc__)
-    p.add_argument("--scenes", default="bunny,nefertiti,city,spot")
-    p.add_argument("--sizes", default="3840x2160,1920x1080")
-    p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
-    p.add_argument("--inner", type=int, default=10, help="launches per timed call")
-    p.add_argument("--rounds", type=int, default=2, help="each scene and size studied this many times")
-    p.add_argument("--name", default="ao-segments")
-    args = p.parse_args(argv)
-    import foveawarp as fw
+def _row(r: dict) -> dict:
+    row = {"round": r["round"], "list": r["n_list"]}
+    for lname in ("fov", "allhits"):
+        base = r[f"{lname}_package_ms"]
+        row[f"{lname} package ms"] = base
+        for vname, *_ in VARIANTS[1:]:
+            row[f"{lname} {vname} / package"] = r[f"{lname}_{vname.replace(' ', '_')}_ms"] / base
+    return row
 
-    wp.config.quiet = True
-    dev = wp.get_device(args.device)
-    if not dev.is_cuda:
-        p.error("--device must be a CUDA device (the study is of CUDA SMs)")
-    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    repeats = args.repeats or 15
-    t_ms = _timer(dev, repeats, args.inner, args.warmup)
-    records, rows = [], []
-    for rnd in range(args.rounds):
-        for name in args.scenes.split(","):
-            scene = fw.load_scene(name)
-            for w, h in sizes:
-                r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "round": rnd,
-                     "commit": git_commit(), **study(fw, scene, w, h, dev, t_ms, args.frames)}
-                records.append(r)
-                row = {"scene": name, "size": f"{w}x{h}", "round": rnd, "list": r["n_list"]}
-                for lname in ("fov", "allhits"):
-                    base = r[f"{lname}_package_ms"]
-                    row[f"{lname} package ms"] = base
-                    for vname, *_ in VARIANTS[1:]:
-                        row[f"{lname} {vname} / package"] = r[f"{lname}_{vname.replace(' ', '_')}_ms"] / base
-                rows.append(row)
-                print(row, flush=True)
-    md = md_table(rows, list(rows[0]))
-    write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
-    print(md)
+
+def main(argv=None):
+    p = study_parser(__doc__, "ao-segments", "bunny,nefertiti,city,spot", 10)
+    p.add_argument("--rounds", type=int, default=2, help="each scene and size studied this many times")
+    args = p.parse_args(argv)
+    run_study(p, args, "the study is of CUDA SMs", study, _row, rounds=args.rounds)
 
 
 if __name__ == "__main__":

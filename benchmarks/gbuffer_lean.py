@@ -5,8 +5,8 @@ foveated frame, reprojection included: each hit reads its face's three previous 
 point with the previous camera and writes ``reproj_uv``, ``prev_dist`` and ``moved`` (13 bytes a pixel). No
 full-resolution frame reads them (a foveated frame computes its own reprojection towards the previous frame).
 This times the package's CUDA G-buffer kernel (``gbuffer_tiles_kernel``, as ``GBufferStage`` launches it) against
-a copy that stops before the reprojection, on frame 12 of each camera path, and checks that the fields both
-write are equal.
+a kernel made of the same functions without the reprojection (``primary_normal``, ``store_surface``), on frame 12
+of each camera path, and checks that the fields both write are equal.
 
     python benchmarks/gbuffer_lean.py --device cuda:0 [--scenes bunny,nefertiti,city,spot,cornell]
 """
@@ -22,12 +22,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
-from benchmarks.list_shading import _frame_loop, _timer  # noqa: E402
+from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp.kernels.camera import CameraParams, camera_ray_dir  # noqa: E402
-from foveawarp.kernels.gbuffer import gbuffer_tiles_kernel, smooth_normal  # noqa: E402
-from foveawarp.kernels.load import (load1_i32, load1_u8, load1_vec3, store_f32, store_i32, store_u8,  # noqa: E402
-                                    store_vec3)
+from foveawarp.kernels.gbuffer import gbuffer_tiles_kernel, primary_normal, store_surface  # noqa: E402
+from foveawarp.kernels.load import load1_i32  # noqa: E402
 from foveawarp.kernels.order import tile_order_pixel  # noqa: E402
 
 
@@ -53,27 +52,15 @@ def gbuffer_lean_tiles_kernel(
         d = camera_ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
         q = wp.mesh_query_ray(mesh, cam.eye, d, max_t)
         if q.result:
-            fn = q.normal
-            if wp.dot(fn, d) > 0.0:
-                fn = -fn
-            n = fn
-            if load1_u8(smooth, q.face) != wp.uint8(0):
-                i0 = load1_i32(indices, q.face * 3 + 0)
-                i1 = load1_i32(indices, q.face * 3 + 1)
-                i2 = load1_i32(indices, q.face * 3 + 2)
-                n = smooth_normal(fn, q.u, q.v, load1_vec3(vnormals, i0), load1_vec3(vnormals, i1),
-                                  load1_vec3(vnormals, i2))
-            store_vec3(out_pos, y, x, cam.eye + d * q.t)
-            store_vec3(out_normal, y, x, n)
-            store_f32(out_depth, y, x, q.t)
-            store_i32(out_face, y, x, q.face)
-            store_u8(out_hit, y, x, wp.uint8(1))
+            i0 = load1_i32(indices, q.face * 3 + 0)
+            i1 = load1_i32(indices, q.face * 3 + 1)
+            i2 = load1_i32(indices, q.face * 3 + 2)
+            n = primary_normal(q.normal, d, q.face, q.u, q.v, i0, i1, i2, vnormals, smooth)
+            store_surface(y, x, cam.eye + d * q.t, n, q.t, q.face, wp.uint8(1), out_pos, out_normal, out_depth,
+                          out_face, out_hit)
         else:
-            store_vec3(out_pos, y, x, wp.vec3(0.0, 0.0, 0.0))
-            store_vec3(out_normal, y, x, wp.vec3(0.0, 0.0, 0.0))
-            store_f32(out_depth, y, x, max_t)
-            store_i32(out_face, y, x, -1)
-            store_u8(out_hit, y, x, wp.uint8(0))
+            store_surface(y, x, wp.vec3(0.0, 0.0, 0.0), wp.vec3(0.0, 0.0, 0.0), max_t, -1, wp.uint8(0), out_pos,
+                          out_normal, out_depth, out_face, out_hit)
 
 
 def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
@@ -111,37 +98,15 @@ def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
     return res
 
 
-def main(argv=None):
-    p = base_parser(__doc__)
-    p.add_argument("--scenes", default="bunny,nefertiti,city,spot,cornell")
-    p.add_argument("--sizes", default="3840x2160,1920x1080")
-    p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
-    p.add_argument("--inner", type=int, default=10, help="launches per timed call")
-    p.add_argument("--name", default="gbuffer-lean")
-    args = p.parse_args(argv)
-    import foveawarp as fw
+def _row(r: dict) -> dict:
+    return {"hits": r["hit_fraction"], "package ms": r["package_ms"], "lean ms": r["lean_ms"],
+            "lean / package": r["lean_ms"] / r["package_ms"]}
 
-    wp.config.quiet = True
-    dev = wp.get_device(args.device)
-    if not dev.is_cuda:
-        p.error("--device must be a CUDA device (the tiles launch is CUDA's)")
-    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    repeats = args.repeats or 15
-    t_ms = _timer(dev, repeats, args.inner, args.warmup)
-    records, rows = [], []
-    for name in args.scenes.split(","):
-        scene = fw.load_scene(name)
-        for w, h in sizes:
-            r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
-                 **study(fw, scene, w, h, dev, t_ms, args.frames)}
-            records.append(r)
-            rows.append({"scene": name, "size": f"{w}x{h}", "hits": r["hit_fraction"],
-                         "package ms": r["package_ms"], "lean ms": r["lean_ms"],
-                         "lean / package": r["lean_ms"] / r["package_ms"]})
-            print(rows[-1], flush=True)
-    md = md_table(rows, list(rows[0]))
-    write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
-    print(md)
+
+def main(argv=None):
+    p = study_parser(__doc__, "gbuffer-lean", "bunny,nefertiti,city,spot,cornell", 10)
+    args = p.parse_args(argv)
+    run_study(p, args, "the tiles launch is CUDA's", study, _row)
 
 
 if __name__ == "__main__":

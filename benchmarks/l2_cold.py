@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
-from benchmarks.list_shading import _frame_loop, _timer  # noqa: E402
+from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp.kernels.shade import shade_ao_list_kernel  # noqa: E402
 
 _PREFETCH = """
@@ -114,46 +114,25 @@ def study(fw, scene, w, h, dev, t_ms, frames: int, flush) -> dict:
     return res
 
 
-def main(argv=None):
-    p = base_parser(__doc__)
-    p.add_argument("--scenes", default="bunny,nefertiti,city,spot")
-    p.add_argument("--sizes", default="3840x2160,1920x1080")
-    p.add_argument("--frames", type=int, default=12, help="frames of the camera path before the timings")
-    p.add_argument("--inner", type=int, default=5, help="launches per timed call")
-    p.add_argument("--flush-mb", type=int, default=256, help="MB written between launches to evict L2")
-    p.add_argument("--name", default="l2-cold")
-    args = p.parse_args(argv)
-    import foveawarp as fw
+def _row(r: dict) -> dict:
+    row = {"list": r["n_list"], "mesh MB": r["mesh_mb"], "prefetch ms": r["prefetch_ms"]}
+    for k in ("ao_list", "full"):
+        for c in ("warm", "cold", "cold_prefetch", "prefetchlast_cold"):
+            row[f"{k} {c}"] = r[f"{k}_{c}_ms"]
+    return row
 
-    wp.config.quiet = True
-    dev = wp.get_device(args.device)
-    if not dev.is_cuda:
-        p.error("--device must be a CUDA device (the study is of the CUDA L2)")
-    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    repeats = args.repeats or 15
-    t_ms = _timer(dev, repeats, args.inner, args.warmup)
+
+def _flusher(dev, args):
+    """The flush: a write of ``--flush-mb`` MB."""
     junk = wp.zeros(args.flush_mb * 1024 * 1024 // 4, dtype=wp.float32, device=dev)
+    return (lambda: junk.fill_(1.0),)
 
-    def flush():
-        junk.fill_(1.0)
 
-    records, rows = [], []
-    for name in args.scenes.split(","):
-        scene = fw.load_scene(name)
-        for w, h in sizes:
-            r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
-                 "flush_mb": args.flush_mb, **study(fw, scene, w, h, dev, t_ms, args.frames, flush)}
-            records.append(r)
-            row = {"scene": name, "size": f"{w}x{h}", "list": r["n_list"], "mesh MB": r["mesh_mb"],
-                   "prefetch ms": r["prefetch_ms"]}
-            for k in ("ao_list", "full"):
-                for c in ("warm", "cold", "cold_prefetch", "prefetchlast_cold"):
-                    row[f"{k} {c}"] = r[f"{k}_{c}_ms"]
-            rows.append(row)
-            print(row, flush=True)
-    md = md_table(rows, list(rows[0]))
-    write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
-    print(md)
+def main(argv=None):
+    p = study_parser(__doc__, "l2-cold", "bunny,nefertiti,city,spot", 5)
+    p.add_argument("--flush-mb", type=int, default=256, help="MB written between launches to evict L2")
+    args = p.parse_args(argv)
+    run_study(p, args, "the study is of the CUDA L2", study, _row, setup=_flusher, meta={"flush_mb": args.flush_mb})
 
 
 if __name__ == "__main__":

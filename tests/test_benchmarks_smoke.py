@@ -593,7 +593,7 @@ def test_ao_segments_variants_trace_every_lane_once(monkeypatch):
              ctr: wp.array(dtype=wp.int32), nseg: int, smid: int):
         k = wp.tid()
         if k < count[0] * ao_part.shape[1] and k % 2 == 0:  # every other lane only
-            A.ao_lane(spa[0], work, pos, normal, hit, area_lights, ao_part, k)
+            A.ao_list_lane(spa[0], work, pos, normal, hit, area_lights, ao_part, k)
 
     monkeypatch.setattr(A, "ao_segments_kernel", lazy)
     with pytest.raises(AssertionError, match="changed ao_part"):

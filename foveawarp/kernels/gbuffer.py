@@ -69,6 +69,35 @@ def surface_albedo(face_albedo: wp.array(dtype=wp.vec3), f: int) -> wp.vec3:
 
 
 @wp.func
+def primary_normal(face_normal: wp.vec3, d: wp.vec3, face: int, u: float, v: float, i0: int, i1: int, i2: int,
+                   vnormals: wp.array(dtype=wp.vec3), smooth: wp.array(dtype=wp.uint8)) -> wp.vec3:
+    """The G-buffer normal of a primary hit along ``d`` at barycentrics (u, v) of ``face`` (vertices i0, i1, i2):
+    the unit face normal turned to face the viewer, or on a smooth face the interpolated vertex normals, kept on its
+    side (:func:`smooth_normal`). ``face`` and the vertices index the mesh: unchecked loads (kernels/load.py)."""
+    fn = face_normal
+    if wp.dot(fn, d) > 0.0:
+        fn = -fn  # face the viewer
+    n = fn
+    if load1_u8(smooth, face) != wp.uint8(0):
+        n = smooth_normal(fn, u, v, load1_vec3(vnormals, i0), load1_vec3(vnormals, i1), load1_vec3(vnormals, i2))
+    return n
+
+
+@wp.func
+def store_surface(y: int, x: int, p: wp.vec3, n: wp.vec3, t: float, face: int, hit: wp.uint8,
+                  out_pos: wp.array2d(dtype=wp.vec3), out_normal: wp.array2d(dtype=wp.vec3),
+                  out_depth: wp.array2d(dtype=float), out_face: wp.array2d(dtype=wp.int32),
+                  out_hit: wp.array2d(dtype=wp.uint8)):
+    """The surface fields of G-buffer entry [y, x] (an entry of the outputs: unchecked stores): position, normal,
+    depth, face and hit."""
+    store_vec3(out_pos, y, x, p)
+    store_vec3(out_normal, y, x, n)
+    store_f32(out_depth, y, x, t)
+    store_i32(out_face, y, x, face)
+    store_u8(out_hit, y, x, hit)
+
+
+@wp.func
 def trace_primary(
     mesh: wp.uint64,
     indices: wp.array(dtype=wp.int32),
@@ -137,15 +166,10 @@ def write_primary(
         # face is a face of the mesh and (y, x) an entry of the outputs: the unchecked loads and stores of
         # kernels/load.py (the same values; the kernel is instruction bound)
         p = cam.eye + d * t
-        fn = face_normal
-        if wp.dot(fn, d) > 0.0:
-            fn = -fn  # face the viewer
         i0 = load1_i32(indices, face * 3 + 0)
         i1 = load1_i32(indices, face * 3 + 1)
         i2 = load1_i32(indices, face * 3 + 2)
-        n = fn
-        if load1_u8(smooth, face) != wp.uint8(0):
-            n = smooth_normal(fn, u, v, load1_vec3(vnormals, i0), load1_vec3(vnormals, i1), load1_vec3(vnormals, i2))
+        n = primary_normal(face_normal, d, face, u, v, i0, i1, i2, vnormals, smooth)
         # the same surface point at the previous frame's vertex positions (object motion)
         pp = load1_vec3(points_prev, i0) * u + load1_vec3(points_prev, i1) * v + load1_vec3(points_prev, i2) * (
             1.0 - u - v)
@@ -159,18 +183,11 @@ def write_primary(
         uv = wp.vec2(NO_REPROJ, NO_REPROJ)
         if pr[2] > 0.0:
             uv = wp.vec2(pr[0], pr[1])
-        store_vec3(out_pos, y, x, p)
-        store_vec3(out_normal, y, x, n)
-        store_f32(out_depth, y, x, t)
-        store_i32(out_face, y, x, face)
-        store_u8(out_hit, y, x, wp.uint8(1))
+        store_surface(y, x, p, n, t, face, wp.uint8(1), out_pos, out_normal, out_depth, out_face, out_hit)
         store_vec2(out_reproj, y, x, uv)
     else:
-        store_vec3(out_pos, y, x, wp.vec3(0.0, 0.0, 0.0))
-        store_vec3(out_normal, y, x, wp.vec3(0.0, 0.0, 0.0))
-        store_f32(out_depth, y, x, max_t)
-        store_i32(out_face, y, x, -1)
-        store_u8(out_hit, y, x, wp.uint8(0))
+        store_surface(y, x, wp.vec3(0.0, 0.0, 0.0), wp.vec3(0.0, 0.0, 0.0), max_t, -1, wp.uint8(0), out_pos,
+                      out_normal, out_depth, out_face, out_hit)
         store_vec2(out_reproj, y, x, wp.vec2(NO_REPROJ, NO_REPROJ))
         store_f32(out_prev_dist, y, x, 0.0)
         store_u8(out_moved, y, x, wp.uint8(0))

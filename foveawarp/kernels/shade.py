@@ -388,34 +388,17 @@ def shade_list_kernel(
     shade_pixel(sp, x, y, pos, normal, face_albedo, face, hit, lights, area_lights, face_emission, out, out_stoch, ao)
 
 
-# 64 registers (4 blocks per SM) instead of the compiler's 77 (3): 3-12% faster on bunny, spot and city at 1080p
-# and 4K (city 1080p 1.12 -> 0.98 ms), equal on cornell (regcaps-e3-01a17ff-cuda.json); on the eyechart, earth and
-# teapot -9% to +1% (regcaps-e5-c06862d-cuda.json). The list shading after it stays uncapped: every cap tried (80,
-# 64, 48) slowed it on bunny, spot and cornell.
-@wp.kernel(enable_backward=False, cuda_max_registers=64)
-def shade_ao_list_kernel(
-    spa: wp.array(dtype=ShadeParams),
-    work: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    pos: wp.array2d(dtype=wp.vec3),
-    normal: wp.array2d(dtype=wp.vec3),
-    hit: wp.array2d(dtype=wp.uint8),
-    area_lights: wp.array(dtype=AreaLightParams),
-    ao_part: wp.array2d(dtype=wp.uint8),
-    row0: int,
-):
-    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread k = i G + g (k below
-    ``count[0] * G``) traces rays [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes
-    how many were unoccluded to ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_parts` would
-    trace there: the pixel's random stream is advanced past the draws before it (the area-light samples', then
-    two per earlier ray)."""
-    k = wp.tid() + row0  # band offset (foveawarp.parallel)
+@wp.func
+def ao_list_lane(sp: ShadeParams, work: wp.array(dtype=wp.int32), pos: wp.array2d(dtype=wp.vec3),
+                 normal: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
+                 area_lights: wp.array(dtype=AreaLightParams), ao_part: wp.array2d(dtype=wp.uint8), k: int):
+    """Lane k of the list's AO pass (k below ``count[0] * G``, ``G = ao_part.shape[1]``): k = i G + g traces rays
+    [g S / G, (g + 1) S / G) of pixel ``work[i]`` (S = ``sp.ao_samples``) and writes how many were unoccluded to
+    ``ao_part[i, g]`` (0 on a miss). Each ray is the one :func:`shade_point_parts` would trace there: the pixel's
+    random stream is advanced past the draws before it (the area-light samples', then two per earlier ray)."""
     groups = ao_part.shape[1]
-    if k >= count[0] * groups:
-        return
     i = k // groups
     g = k - i * groups
-    sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
     c = int(0)
     if hit[y, x] != wp.uint8(0):
@@ -432,6 +415,30 @@ def shade_ao_list_kernel(
                 if visible(sp.mesh, p, n, sp.ray_eps, d, sp.ao_radius) > 0.0:
                     c += 1
     ao_part[i, g] = wp.uint8(c)
+
+
+# 64 registers (4 blocks per SM) instead of the compiler's 77 (3): 3-12% faster on bunny, spot and city at 1080p
+# and 4K (city 1080p 1.12 -> 0.98 ms), equal on cornell (regcaps-e3-01a17ff-cuda.json); on the eyechart, earth and
+# teapot -9% to +1% (regcaps-e5-c06862d-cuda.json). The list shading after it stays uncapped: every cap tried (80,
+# 64, 48) slowed it on bunny, spot and cornell.
+@wp.kernel(enable_backward=False, cuda_max_registers=64)
+def shade_ao_list_kernel(
+    spa: wp.array(dtype=ShadeParams),
+    work: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    normal: wp.array2d(dtype=wp.vec3),
+    hit: wp.array2d(dtype=wp.uint8),
+    area_lights: wp.array(dtype=AreaLightParams),
+    ao_part: wp.array2d(dtype=wp.uint8),
+    row0: int,
+):
+    """The AO rays of the list's pixels, ``G = ao_part.shape[1]`` threads per pixel: thread k is
+    :func:`ao_list_lane` k, for k below ``count[0] * G``."""
+    k = wp.tid() + row0  # band offset (foveawarp.parallel)
+    if k >= count[0] * ao_part.shape[1]:
+        return
+    ao_list_lane(spa[0], work, pos, normal, hit, area_lights, ao_part, k)
 
 
 @wp.kernel(enable_backward=False)
