@@ -6,8 +6,9 @@ was with ``timing=True`` before session 14).
 Per scene x size x shading, the three loops take turns frame by frame along the scene's camera path (1/30 s a
 frame) with a moving gaze (``benchmarks/frame.py``'s Lissajous path), each frame synchronized, each loop with its
 own camera objects, the order of the three cycling through all six permutations. The default
-loop's first ``FrameLoop.policy_measurement_frames()`` frames (42) hold its policy's measurement (12 foveated, 12 full
-resolution, and 9 + 9 more when the two are close); then ``--warmup`` frames,
+loop's first ``FrameLoop.policy_measurement_frames()`` frames (51) hold its policy's measurement (12 foveated, 12 full
+resolution, 9 + 9 more when the two are close, and 9 more full ones when foveation still wins); then ``--warmup``
+frames,
 then ``--frames`` timed frames, whose medians are reported with the path the default loop took, the policy's
 estimates and the median of the per-frame differences from the reference. Quality of the same timed frames
 against the reference frame of the same camera, time and gaze: PSNR, foveal PSNR (eccentricity <= 5 deg) and (on
