@@ -633,3 +633,15 @@ def test_cuda_studies_refuse_the_cpu(script):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), "--device", "cpu"], capture_output=True,
                        text=True, cwd=REPO, timeout=300)
     assert r.returncode == 2 and "--device must be a CUDA device" in r.stderr
+
+
+def test_policy_host_quick(tmp_path):
+    """benchmarks/policy_host.py (session 35): the three loops' host and frame times and the profiles, on the CPU
+    (where every launch is synchronous: the host time is the frame's)."""
+    _run([str(REPO / "benchmarks" / "policy_host.py"), "--device", "cpu", "--specs", "cornell:48x32", "--frames", "3",
+          "--profile"], tmp_path)
+    res = json.loads((tmp_path / "policy-host-cpu.json").read_text())
+    (r,) = res["records"]
+    assert (r["scene"], r["width"], r["height"]) == ("cornell", 48, 32) and r["auto_path"] in ("full", "foveated")
+    for n in ("reference", "full", "auto"):
+        assert 0 < r[f"{n}_host_us"] <= r[f"{n}_frame_us"] and "render" in r[f"{n}_profile"]
