@@ -77,7 +77,7 @@ def study(fw, scene, w, h, dev, frames: int, profile: bool) -> dict:
                 wp.synchronize_device(dev)
             pr.disable()
             s = io.StringIO()
-            pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(25)
+            pstats.Stats(pr, stream=s).strip_dirs().sort_stats("tottime").print_stats(25)
             res[f"{n}_profile"] = s.getvalue()
     return res
 
