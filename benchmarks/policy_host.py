@@ -93,10 +93,15 @@ def main(argv=None):
 
     wp.config.quiet = True
     dev = wp.get_device(args.device)
-    records, rows = [], []
+    specs = []
     for spec in args.specs.split(","):
-        name, size = spec.split(":")
-        w, h = (int(v) for v in size.split("x"))
+        name, _, size = spec.partition(":")
+        wh = size.split("x")
+        if not name or len(wh) != 2 or not all(v.isdigit() and int(v) > 0 for v in wh):
+            p.error(f"--specs items must be SCENE:WIDTHxHEIGHT (e.g. cornell:1920x1080), got {spec!r}")
+        specs.append((name, size, int(wh[0]), int(wh[1])))
+    records, rows = [], []
+    for name, size, w, h in specs:
         r = {"device": dev.alias, "scene": name, "width": w, "height": h, "commit": git_commit(),
              **study(fw, fw.load_scene(name), w, h, dev, args.frames, args.profile)}
         records.append(r)

@@ -645,3 +645,8 @@ def test_policy_host_quick(tmp_path):
     assert (r["scene"], r["width"], r["height"]) == ("cornell", 48, 32) and r["auto_path"] in ("full", "foveated")
     for n in ("reference", "full", "auto"):
         assert 0 < r[f"{n}_host_us"] <= r[f"{n}_frame_us"] and "render" in r[f"{n}_profile"]
+    for bad in ("cornell", "cornell:64", "cornell:64x0", ":64x48"):
+        r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "policy_host.py"), "--device", "cpu", "--specs",
+                            bad], capture_output=True, text=True, cwd=REPO, timeout=300)
+        assert r.returncode == 2 and f"--specs items must be SCENE:WIDTHxHEIGHT (e.g. cornell:1920x1080), got {bad!r}" \
+            in r.stderr
