@@ -638,21 +638,21 @@ class FrameLoop:
     def _policy_mode(self) -> tuple:
         """(path of this frame, whether to time it synchronized, whether to watch it) under ``self.policy``.
 
-        "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of
-        each path the first time, fewer later (:meth:`_measurement_length`), the timed ones synchronized. When
-        the two medians are not clear-cut (neither path ``POLICY_CLEAR`` cheaper), both paths are timed once more
-        in the other order (``POLICY_WARM_AGAIN`` + ``POLICY_TIMED`` frames each), and each path's estimate is the
-        lower of its two medians; if foveation is then the cheaper by the margin, the full path is timed a third
-        time and its estimate is the lowest of three (``stats["policy"]["blocks"]``: 2, 4 or 5). It then renders
-        the foveated frame only when its estimate is at least ``POLICY_MARGIN`` below full resolution's, else full
-        resolution (exact, for the same cost), until the next measurement. The chosen path's frames are then watched: by wall time where that costs nothing (the
-        CPU device, whose launches are synchronous, or ``timing=True``, which synchronizes anyway), else (CUDA
-        without timing) by the GPU span between two CUDA timing events of one frame in ``POLICY_WATCH_EVERY``,
-        read at the next frame when the GPU is done with it (never waiting) and compared with the median of the
-        measurement's timed frames (spans) of the other path, all its blocks pooled. When
-        the median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full estimate,
-        or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the next
-        measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
+        "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of each
+        path the first time, fewer later (:meth:`_measurement_length`), the timed ones synchronized. When the two
+        medians are not clear-cut (neither path ``POLICY_CLEAR`` cheaper), both paths are timed once more in the
+        other order (``POLICY_WARM_AGAIN`` + ``POLICY_TIMED`` frames each), and each path's estimate is the lower of
+        its two medians; if foveation is then the cheaper by the margin, the full path is timed a third time and its
+        estimate is the lowest of three (``stats["policy"]["blocks"]``: 2, 4 or 5). It then renders the foveated
+        frame only when its estimate is at least ``POLICY_MARGIN`` below full resolution's, else full resolution
+        (exact, for the same cost), until the next measurement. The chosen path's frames are then watched: by wall
+        time where that costs nothing (the CPU device, whose launches are synchronous, or ``timing=True``, which
+        synchronizes anyway), else (CUDA without timing) by the GPU span between two CUDA timing events of one frame
+        in ``POLICY_WATCH_EVERY``, read at the next frame when the GPU is done with it (never waiting) and compared
+        with the median of the measurement's timed frames (spans) of the other path, all its blocks pooled. When the
+        median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full
+        estimate, or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the
+        next measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
         if self.policy != "auto" or not self.config.foveation.enabled:
             return ("full" if self.policy == "full" else "foveated"), False, False
         f = self._pol_frame
