@@ -64,6 +64,20 @@ def time_ms(fn, device, repeats: int = 20, warmup: int = 3) -> dict:
     return {"median_ms": statistics.median(ts), "p10_ms": q(0.1), "p90_ms": q(0.9), "repeats": repeats}
 
 
+def launch_timer(device, repeats: int, inner: int, warmup: int):
+    """``t_ms(fn)``: ms per call of ``fn``, from ``time_ms`` (synchronized, median of ``repeats``) over timed calls
+    of ``inner`` calls each: launches too short to time one by one."""
+
+    def t_ms(fn) -> float:
+        def many():
+            for _ in range(inner):
+                fn()
+
+        return time_ms(many, device, repeats, warmup)["median_ms"] / inner
+
+    return t_ms
+
+
 def write_results(name: str, device, payload: dict, table_md: str, out=None) -> Path:
     d = wp.get_device(device)
     folder = Path(out) if out else RESULTS

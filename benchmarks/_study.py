@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results
-from benchmarks.list_shading import _timer
+from benchmarks._common import base_parser, git_commit, launch_timer, md_table, write_results
 
 
 def study_parser(doc: str, name: str, scenes: str, inner: int):
@@ -34,7 +33,7 @@ def run_study(p, args, why: str, study, row, rounds: int = 1, setup=None, meta=N
         p.error(f"--device must be a CUDA device ({why}), got {args.device!r}")
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     repeats = args.repeats or 15
-    t_ms = _timer(dev, repeats, args.inner, args.warmup)
+    t_ms = launch_timer(dev, repeats, args.inner, args.warmup)
     extra = () if setup is None else tuple(setup(dev, args))
     records, rows = [], []
     for rnd in range(rounds):

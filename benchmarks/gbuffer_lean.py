@@ -69,8 +69,9 @@ def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
     gs._set_order()
     cam = scene.camera_at(frames / 30.0)
     prev = scene.camera_at((frames - 1) / 30.0)
-    inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam.params(w, h),
-              prev.params(w, h), gs.max_t(cam)]
+    cam_p, max_t = cam.params(w, h), gs.max_t(cam)
+    inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam_p, prev.params(w, h),
+              max_t]
     outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, gs._wlog2, 0]
 
     def pkg():
@@ -78,10 +79,10 @@ def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
 
     lean_out = [wp.empty_like(a) for a in (g.position, g.normal, g.depth, g.face, g.hit)]
 
-    def lean():
-        wp.launch(gbuffer_lean_tiles_kernel, dim=gs._dim,
-                  inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, cam.params(w, h),
-                          gs.max_t(cam), *lean_out, gs._wlog2], device=dev)
+    lean_inputs = [ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, cam_p, max_t, *lean_out, gs._wlog2]
+
+    def lean():  # its arguments built once, as the package kernel's
+        wp.launch(gbuffer_lean_tiles_kernel, dim=gs._dim, inputs=lean_inputs, device=dev)
 
     pkg()
     lean()

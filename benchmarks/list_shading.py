@@ -36,24 +36,11 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._common import base_parser, git_commit, launch_timer, md_table, write_results  # noqa: E402
 from benchmarks.frame import gaze_path  # noqa: E402
 
 CAPS = {"shade_ao_list_kernel": ("nocap", 64, 56, 48), "shade_list_kernel": ("nocap", 80, 64, 48),
         "shade_full_tiles_kernel": ("nocap", 80, 64, 48)}
-
-
-def _timer(dev, repeats: int, inner: int, warmup: int):
-    """ms per launch: ``time_ms`` (synchronized, median of ``repeats``) over calls of ``inner`` launches each."""
-
-    def t_ms(fn) -> float:
-        def many():
-            for _ in range(inner):
-                fn()
-
-        return time_ms(many, dev, repeats, warmup)["median_ms"] / inner
-
-    return t_ms
 
 
 def _frame_loop(fw, scene, w, h, dev, ao: int, lanes: int, frames: int):
@@ -218,7 +205,7 @@ def main(argv=None):
     repeats = args.repeats or 25
     if args.quick:
         sizes, repeats, args.inner, args.frames = [(96, 64)], 3, 2, 3
-    t_ms = _timer(dev, repeats, args.inner, args.warmup)
+    t_ms = launch_timer(dev, repeats, args.inner, args.warmup)
     variants = _variants() if "caps" in parts else None
     records, rows = [], []
     for name in args.scenes.split(","):

@@ -566,9 +566,9 @@ def test_readme_status_table_matches_the_committed_json(monkeypatch, capsys):
 
 
 def _cpu_timer():
-    from benchmarks.list_shading import _timer
+    from benchmarks._common import launch_timer
 
-    return _timer(wp.get_device("cpu"), 1, 1, 0)
+    return launch_timer(wp.get_device("cpu"), 1, 1, 0)
 
 
 def test_ao_segments_variants_trace_every_lane_once(monkeypatch):
