@@ -1,0 +1,212 @@
+"""Study (issue 14, session 36): where a frame's wall time goes on the GPU's own timeline, foveated against full
+resolution.
+
+``frame.py`` times each frame as a user sees it: synchronized wall time, from ``render``'s call to the GPU's last
+work. Its per-stage GPU times come from another run with events between the stages, and never add up to the wall
+time. This study reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
+memset and copy of the process, CUDA-graph nodes included) while the two loops render the same frames of the camera
+path, taking turns as in ``frame.py``. Each frame's wall time splits into:
+
+* ``lead_us``: from ``render``'s call to the GPU's first work of the frame (host work the GPU waits for);
+* ``busy_ms``: the union of the frame's kernels, memsets and copies on the GPU;
+* ``gaps_us``: the GPU's idle time between its first and last work of the frame (launch latencies between graph
+  nodes and between launches, waits on the host);
+* ``tail_us``: from the GPU's last work to the synchronization's return.
+
+``kernels_ms`` is the frame's kernels summed one by one (more than ``busy_ms`` where they overlap), ``n_kernels``,
+``n_memsets`` and ``n_copies`` count them, and ``per_kernel`` (JSON) gives each kernel's median ms. Medians over
+``--frames`` frames per loop. ``wall_ms`` is the same frames' median wall time under the profiler and
+``plain_wall_ms`` a median over as many frames timed without it (the profiler's own cost is their difference).
+
+    python benchmarks/timeline.py --device cuda:0 [--scenes bunny,nefertiti,cornell,city] [--sizes ...]
+
+CUDA only, and PyTorch must import (the GPU machine's Python has it). Results: ``timeline[-NAME]-cuda.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import warp as wp  # noqa: E402
+
+from benchmarks._common import (base_parser, checked_shadings_sizes, git_commit, md_table, scenes_present,  # noqa: E402
+                                shading_config, write_results)
+from benchmarks.frame import gaze_path  # noqa: E402
+
+LOOPS = ("reference", "foveated")
+GPU_CATS = {"kernel": "kernel", "gpu_memset": "memset", "gpu_memcpy": "copy"}
+MARK = "fw-frame"
+
+
+def union_length(intervals) -> float:
+    """Total length covered by the half-open intervals ``[(start, end), ...]`` (overlaps counted once)."""
+    total, cur_s, cur_e = 0.0, None, None
+    for s, e in sorted(intervals):
+        if cur_e is None or s > cur_e:
+            if cur_e is not None:
+                total += cur_e - cur_s
+            cur_s, cur_e = s, e
+        else:
+            cur_e = max(cur_e, e)
+    if cur_e is not None:
+        total += cur_e - cur_s
+    return total
+
+
+def frame_anatomy(gpu_events: list, start_us: float, end_us: float) -> dict:
+    """One frame's split of its wall interval ``[start_us, end_us]`` (µs on the trace's clock) by the GPU work
+    ``gpu_events`` (dicts with ``ts``, ``dur`` in µs, ``kind`` in kernel / memset / copy, ``name``) that starts
+    inside it. A frame with no GPU work is all lead."""
+    ev = [e for e in gpu_events if start_us <= e["ts"] <= end_us]
+    wall = end_us - start_us
+    count = {k: sum(e["kind"] == k for e in ev) for k in ("kernel", "memset", "copy")}
+    if not ev:
+        return {"wall_us": wall, "lead_us": wall, "busy_us": 0.0, "gaps_us": 0.0, "tail_us": 0.0,
+                "kernels_us": 0.0, "n_kernels": 0, "n_memsets": 0, "n_copies": 0, "per_kernel": {}}
+    iv = [(e["ts"], e["ts"] + e["dur"]) for e in ev]
+    first = min(s for s, _ in iv)
+    last = max(e for _, e in iv)
+    busy = union_length(iv)
+    per = {}
+    for e in ev:
+        if e["kind"] == "kernel":
+            per[e["name"]] = per.get(e["name"], 0.0) + e["dur"]
+    return {"wall_us": wall, "lead_us": first - start_us, "busy_us": busy, "gaps_us": (last - first) - busy,
+            "tail_us": max(0.0, end_us - last), "kernels_us": sum(per.values()), "n_kernels": count["kernel"],
+            "n_memsets": count["memset"], "n_copies": count["copy"], "per_kernel": per}
+
+
+def trace_frames(trace: dict) -> tuple:
+    """(GPU work, frame marks) of a Chrome trace that PyTorch's profiler exported: the kernels, memsets and copies
+    as ``frame_anatomy`` reads them, and the ``record_function`` ranges named ``fw-frame:<loop>:<i>`` as
+    (loop, i, start µs, end µs) in start order."""
+    gpu, marks = [], []
+    for e in trace.get("traceEvents", []):
+        if e.get("ph") != "X":
+            continue
+        cat = e.get("cat", "")
+        if cat in GPU_CATS:
+            gpu.append({"ts": float(e["ts"]), "dur": float(e.get("dur", 0.0)), "kind": GPU_CATS[cat],
+                        "name": e.get("name", "")})
+        elif cat == "user_annotation" and str(e.get("name", "")).startswith(MARK + ":"):
+            _, loop, i = e["name"].split(":")
+            marks.append((loop, int(i), float(e["ts"]), float(e["ts"]) + float(e.get("dur", 0.0))))
+    marks.sort(key=lambda m: m[2])
+    return gpu, marks
+
+
+def summarize(frames: list) -> dict:
+    """Medians over one loop's ``frame_anatomy`` dicts (ms for wall, busy and kernels; µs for the rest), and each
+    kernel's median ms over the frames that ran it."""
+    med = lambda k: float(np.median([f[k] for f in frames]))  # noqa: E731
+    names = sorted({n for f in frames for n in f["per_kernel"]})
+    per = {n: float(np.median([f["per_kernel"][n] for f in frames if n in f["per_kernel"]])) / 1e3 for n in names}
+    return {"wall_ms": med("wall_us") / 1e3, "lead_us": med("lead_us"), "busy_ms": med("busy_us") / 1e3,
+            "gaps_us": med("gaps_us"), "tail_us": med("tail_us"), "kernels_ms": med("kernels_us") / 1e3,
+            "n_kernels": med("n_kernels"), "n_memsets": med("n_memsets"), "n_copies": med("n_copies"),
+            "frames": len(frames), "per_kernel": per}
+
+
+def _render(loop, scene, i: int, n: int, w: int, h: int):
+    t = i / 30.0
+    return loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+
+
+def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int) -> dict:
+    cfg = shading_config(fw, shading)
+    loops = {"reference": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"),
+             "foveated": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")}
+    for loop in loops.values():
+        for i in range(warm):
+            _render(loop, scene, i, frames, w, h)
+    wp.synchronize_device(dev)
+    rng = np.random.default_rng(0)
+    # the same frames timed without the profiler first (frame.py's way), then under it
+    plain = {k: [] for k in loops}
+    rates = []
+    for i in range(warm, warm + frames):
+        for j in rng.permutation(len(LOOPS)):
+            name = LOOPS[j]
+            wp.synchronize_device(dev)
+            t0 = time.perf_counter()
+            f = _render(loops[name], scene, i, frames, w, h)
+            wp.synchronize_device(dev)
+            plain[name].append((time.perf_counter() - t0) * 1e3)
+            if name == "foveated":
+                rates.append(float(f.stats["sampling_rate"]))  # read after the timing (a device read)
+    act = [torch_profiler.ProfilerActivity.CPU, torch_profiler.ProfilerActivity.CUDA]
+    with torch_profiler.profile(activities=act) as prof:
+        for i in range(warm + frames, warm + 2 * frames):
+            for j in rng.permutation(len(LOOPS)):
+                name = LOOPS[j]
+                wp.synchronize_device(dev)
+                with torch_profiler.record_function(f"{MARK}:{name}:{i}"):
+                    _render(loops[name], scene, i, frames, w, h)
+                    wp.synchronize_device(dev)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "trace.json"
+        prof.export_chrome_trace(str(path))
+        trace = json.loads(path.read_text())
+    gpu, marks = trace_frames(trace)
+    res = {"shading": shading, "sampling_rate": float(np.median(rates))}
+    for name in LOOPS:
+        fr = [frame_anatomy(gpu, s, e) for loop, _, s, e in marks if loop == name]
+        if not fr:
+            raise RuntimeError(f"the profiler recorded no frame of the {name} loop (is CUPTI available?)")
+        res[name] = {**summarize(fr), "plain_wall_ms": float(np.median(plain[name]))}
+    return res
+
+
+ROW_KEYS = ("plain_wall_ms", "wall_ms", "lead_us", "busy_ms", "gaps_us", "tail_us", "kernels_ms", "n_kernels",
+            "n_memsets", "n_copies")
+
+
+def main(argv=None) -> list:
+    p = base_parser(__doc__)
+    p.add_argument("--scenes", default="bunny,nefertiti,cornell,city")
+    p.add_argument("--sizes", default="3840x2160,1920x1080")
+    p.add_argument("--shadings", default="default,ao8")
+    p.add_argument("--frames", type=int, default=30, help="frames per loop, timed plain and again profiled")
+    p.add_argument("--warm", type=int, default=12, help="untimed frames of each loop first")
+    p.add_argument("--name", default="timeline")
+    args = p.parse_args(argv)
+    shadings, sizes = checked_shadings_sizes(p, args)
+    if args.frames < 1 or args.warm < 0:
+        p.error(f"--frames must be >= 1 and --warm >= 0, got {args.frames} and {args.warm}")
+    wp.config.quiet = True
+    dev = wp.get_device(args.device)
+    if not dev.is_cuda:
+        p.error(f"--device must be a CUDA device (the study reads the CUDA timeline), got {args.device!r}")
+    try:
+        import torch.profiler as torch_profiler
+    except ImportError as e:
+        p.error(f"PyTorch's profiler must import (it reads the GPU's timeline through CUPTI): {e}")
+    import foveawarp as fw
+
+    records, rows = [], []
+    for scene in scenes_present(fw, args.scenes):
+        for w, h in sizes:
+            for shading in shadings:
+                r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
+                     **study(fw, torch_profiler, scene, w, h, shading, dev, args.frames, args.warm)}
+                records.append(r)
+                for name in LOOPS:
+                    rows.append({"scene": scene.name, "size": f"{w}x{h}", "shading": shading, "loop": name,
+                                 **{k: r[name][k] for k in ROW_KEYS}})
+                    print(rows[-1], flush=True)
+    md = md_table(rows, list(rows[0])) if rows else "no scene loaded\n"
+    write_results(args.name, dev, {"records": records, "frames": args.frames, "warm": args.warm}, md, args.out)
+    print(md)
+    return records
+
+
+if __name__ == "__main__":
+    main()

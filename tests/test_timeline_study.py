@@ -1,0 +1,138 @@
+"""benchmarks/timeline.py (issue 14, session 36): the split of a frame's wall time on the GPU's timeline, checked
+against an independent reference (a dense time grid) on random work, on a hand-built frame, through the Chrome
+trace it reads, and end to end on the CPU with a stand-in profiler (no GPU work: every frame is all lead)."""
+
+import json
+import subprocess
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from benchmarks import timeline as T
+
+REPO = Path(__file__).resolve().parent.parent
+
+_iv = st.lists(st.tuples(st.integers(0, 400), st.integers(0, 60)), max_size=12)
+
+
+def _grid_cover(intervals, scale=1):
+    """Covered length by marking integer time cells: the independent reference of ``union_length``."""
+    cells = np.zeros(600 * scale, bool)
+    for s, d in intervals:
+        cells[s * scale:(s + d) * scale] = True
+    return cells.sum() / scale
+
+
+@settings(max_examples=200, deadline=None)
+@given(_iv)
+def test_union_length_matches_a_time_grid(iv):
+    assert T.union_length([(float(s), float(s + d)) for s, d in iv]) == pytest.approx(_grid_cover(iv))
+
+
+@settings(max_examples=200, deadline=None)
+@given(_iv, st.integers(0, 100), st.integers(450, 600))
+def test_frame_anatomy_adds_up(iv, start, end):
+    """lead + busy + gaps + tail is the wall time whenever the work ends inside the frame; busy and gaps match the
+    grid over the work that starts inside it; nothing is negative."""
+    ev = [{"ts": float(s), "dur": float(d), "kind": "kernel", "name": f"k{s % 3}"} for s, d in iv]
+    a = T.frame_anatomy(ev, float(start), float(end))
+    inside = [(s, d) for s, d in iv if start <= s <= end]
+    assert a["n_kernels"] == len(inside)
+    assert a["busy_us"] == pytest.approx(_grid_cover(inside))
+    assert a["kernels_us"] == pytest.approx(sum(d for _, d in inside))
+    assert min(a["lead_us"], a["busy_us"], a["gaps_us"], a["tail_us"]) >= 0
+    if inside:
+        first, last = min(s for s, _ in inside), max(s + d for s, d in inside)
+        assert a["lead_us"] == first - start and a["gaps_us"] == pytest.approx(last - first - _grid_cover(inside))
+        if last <= end:
+            assert a["lead_us"] + a["busy_us"] + a["gaps_us"] + a["tail_us"] == pytest.approx(end - start)
+    else:
+        assert a["lead_us"] == end - start and a["busy_us"] == 0
+
+
+def test_frame_anatomy_by_hand():
+    """A frame from 0 to 100 µs: a copy at 10-12, kernels 20-50 and 45-60 (overlapping), a memset 70-72, work of
+    another frame at 150."""
+    ev = [{"ts": 10.0, "dur": 2.0, "kind": "copy", "name": "HtoD"},
+          {"ts": 20.0, "dur": 30.0, "kind": "kernel", "name": "a"},
+          {"ts": 45.0, "dur": 15.0, "kind": "kernel", "name": "b"},
+          {"ts": 70.0, "dur": 2.0, "kind": "memset", "name": "Memset"},
+          {"ts": 150.0, "dur": 5.0, "kind": "kernel", "name": "a"}]
+    a = T.frame_anatomy(ev, 0.0, 100.0)
+    assert (a["lead_us"], a["busy_us"], a["gaps_us"], a["tail_us"]) == (10.0, 44.0, 18.0, 28.0)
+    assert (a["n_kernels"], a["n_memsets"], a["n_copies"], a["kernels_us"]) == (2, 1, 1, 45.0)
+    assert a["per_kernel"] == {"a": 30.0, "b": 15.0}
+    s = T.summarize([a, T.frame_anatomy(ev, 140.0, 160.0)])
+    assert s["frames"] == 2 and s["per_kernel"] == {"a": pytest.approx(0.0175), "b": pytest.approx(0.015)}
+    assert s["lead_us"] == 10.0 and s["n_kernels"] == 1.5
+
+
+def test_trace_frames_reads_the_profilers_chrome_trace():
+    trace = {"traceEvents": [
+        {"ph": "X", "cat": "user_annotation", "name": "fw-frame:foveated:13", "ts": 200, "dur": 50},
+        {"ph": "X", "cat": "user_annotation", "name": "fw-frame:reference:12", "ts": 100, "dur": 50},
+        {"ph": "X", "cat": "user_annotation", "name": "something else", "ts": 0, "dur": 500},
+        {"ph": "X", "cat": "kernel", "name": "k", "ts": 110.5, "dur": 20},
+        {"ph": "X", "cat": "gpu_memset", "name": "Memset", "ts": 205, "dur": 1},
+        {"ph": "X", "cat": "gpu_memcpy", "name": "Memcpy HtoD", "ts": 206, "dur": 1},
+        {"ph": "X", "cat": "cuda_runtime", "name": "cudaLaunchKernel", "ts": 105, "dur": 3},
+        {"ph": "i", "cat": "kernel", "name": "instant", "ts": 1}]}
+    gpu, marks = T.trace_frames(trace)
+    assert marks == [("reference", 12, 100.0, 150.0), ("foveated", 13, 200.0, 250.0)]
+    assert [(e["kind"], e["ts"]) for e in gpu] == [("kernel", 110.5), ("memset", 205.0), ("copy", 206.0)]
+
+
+class _StandInProfiler:
+    """PyTorch's profiler as the study uses it, writing only the frame marks (a CPU run has no GPU work)."""
+
+    class ProfilerActivity:
+        CPU, CUDA = "cpu", "cuda"
+
+    def __init__(self):
+        self.events = []
+
+    @contextmanager
+    def record_function(self, name):
+        t0 = len(self.events) * 1000.0
+        yield
+        self.events.append({"ph": "X", "cat": "user_annotation", "name": name, "ts": t0, "dur": 500.0})
+
+    @contextmanager
+    def profile(self, activities):
+        outer = self
+
+        class _P:
+            def export_chrome_trace(self, path):
+                Path(path).write_text(json.dumps({"traceEvents": outer.events}))
+
+        yield _P()
+
+
+def test_study_runs_on_cpu_with_a_stand_in_profiler():
+    import foveawarp as fw
+
+    prof = _StandInProfiler()
+    res = T.study(fw, prof, fw.load_scene("cornell"), 48, 32, "default", wp.get_device("cpu"), 3, 2)
+    assert 0 < res["sampling_rate"] <= 1
+    for name in T.LOOPS:
+        r = res[name]
+        assert r["frames"] == 3 and r["plain_wall_ms"] > 0 and r["lead_us"] == 500.0 and r["n_kernels"] == 0
+    assert sorted(e["name"].split(":")[1] for e in prof.events) == ["foveated"] * 3 + ["reference"] * 3
+
+
+def test_timeline_refuses_the_cpu_and_bad_options():
+    run = lambda *a: subprocess.run([sys.executable, str(REPO / "benchmarks" / "timeline.py"), *a],  # noqa: E731
+                                    capture_output=True, text=True, cwd=REPO, timeout=300)
+    r = run("--device", "cpu")
+    assert r.returncode == 2 and "--device must be a CUDA device (the study reads the CUDA timeline), got 'cpu'" \
+        in r.stderr
+    r = run("--device", "cpu", "--frames", "0")
+    assert r.returncode == 2 and "--frames must be >= 1 and --warm >= 0, got 0 and 12" in r.stderr
+    r = run("--device", "cpu", "--shadings", "ao9")
+    assert r.returncode == 2 and "--shadings must be a comma list" in r.stderr
