@@ -4,8 +4,10 @@ resolution.
 ``frame.py`` times each frame as a user sees it: synchronized wall time, from ``render``'s call to the GPU's last
 work. Its per-stage GPU times come from another run with events between the stages, and never add up to the wall
 time. This study reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
-memset and copy of the process, CUDA-graph nodes included) while the two loops render the same frames of the camera
-path, taking turns as in ``frame.py``. Each frame's wall time splits into:
+memset and copy of the process, CUDA-graph nodes included) while the loops render the same frames of the camera
+path, taking turns as in ``frame.py``: the reference (``policy="full"``), the foveated loop (forced) and the default
+policy's loop past its measurement (``--loops``; ``path`` says which path it rendered). Each frame's wall time
+splits into:
 
 * ``lead_us``: from ``render``'s call to the GPU's first work of the frame (host work the GPU waits for);
 * ``busy_ms``: the union of the frame's kernels, memsets and copies on the GPU;
@@ -16,7 +18,9 @@ path, taking turns as in ``frame.py``. Each frame's wall time splits into:
 ``kernels_ms`` is the frame's kernels summed one by one (more than ``busy_ms`` where they overlap), ``n_kernels``,
 ``n_memsets`` and ``n_copies`` count them, and ``per_kernel`` (JSON) gives each kernel's median ms. Medians over
 ``--frames`` frames per loop. ``wall_ms`` is the same frames' median wall time under the profiler and
-``plain_wall_ms`` a median over as many frames timed without it (the profiler's own cost is their difference).
+``plain_wall_ms`` the median over the ``--frames`` frames before them, timed without it. The profiler slows the
+host (its callbacks on every CUDA call), so ``lead_us`` is larger than without it, alike for every loop: compare
+the loops with each other, not with ``plain_wall_ms``.
 
     python benchmarks/timeline.py --device cuda:0 [--scenes bunny,nefertiti,cornell,city] [--sizes ...]
 
@@ -41,7 +45,7 @@ from benchmarks._common import (base_parser, checked_shadings_sizes, git_commit,
                                 shading_config, write_results)
 from benchmarks.frame import gaze_path  # noqa: E402
 
-LOOPS = ("reference", "foveated")
+LOOPS = ("reference", "foveated", "auto")
 GPU_CATS = {"kernel": "kernel", "gpu_memset": "memset", "gpu_memcpy": "copy"}
 MARK = "fw-frame"
 
@@ -120,44 +124,56 @@ def _render(loop, scene, i: int, n: int, w: int, h: int):
     return loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
 
 
-def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int) -> dict:
+def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int, loops_on=LOOPS) -> dict:
+    """The loops of ``loops_on`` (of ``LOOPS``: ``reference`` is ``policy="full"``, ``foveated`` forced, ``auto``
+    the default policy, past its measurement) on the same frames, taking turns in a new order each frame: first
+    ``frames`` frames timed plain, then as many more under the profiler."""
     cfg = shading_config(fw, shading)
-    loops = {"reference": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full"),
-             "foveated": fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")}
-    for loop in loops.values():
-        for i in range(warm):
+    make = {"reference": dict(policy="full"), "foveated": dict(policy="foveated"), "auto": {}}
+    loops = {n: fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, **make[n]) for n in loops_on}
+    # every warm-up ends at the same frame; the default policy's past its measurement
+    need = {n: warm + (loop.policy_measurement_frames() + 8 if n == "auto" else 0) for n, loop in loops.items()}
+    t0 = max(need.values())
+    for n, loop in loops.items():
+        for i in range(t0 - need[n], t0):
             _render(loop, scene, i, frames, w, h)
     wp.synchronize_device(dev)
+    names = list(loops)
     rng = np.random.default_rng(0)
-    # the same frames timed without the profiler first (frame.py's way), then under it
-    plain = {k: [] for k in loops}
-    rates = []
-    for i in range(warm, warm + frames):
-        for j in rng.permutation(len(LOOPS)):
-            name = LOOPS[j]
+    # the loops timed without the profiler first (frame.py's way), then the next frames under it
+    plain = {k: [] for k in names}
+    rates, paths = [], []
+    for i in range(t0, t0 + frames):
+        for j in rng.permutation(len(names)):
+            name = names[j]
             wp.synchronize_device(dev)
-            t0 = time.perf_counter()
+            t_start = time.perf_counter()
             f = _render(loops[name], scene, i, frames, w, h)
             wp.synchronize_device(dev)
-            plain[name].append((time.perf_counter() - t0) * 1e3)
+            plain[name].append((time.perf_counter() - t_start) * 1e3)
             if name == "foveated":
                 rates.append(float(f.stats["sampling_rate"]))  # read after the timing (a device read)
+            elif name == "auto":
+                paths.append(f.stats["policy"]["path"])
     act = [torch_profiler.ProfilerActivity.CPU, torch_profiler.ProfilerActivity.CUDA]
     with torch_profiler.profile(activities=act) as prof:
-        for i in range(warm + frames, warm + 2 * frames):
-            for j in rng.permutation(len(LOOPS)):
-                name = LOOPS[j]
+        for i in range(t0 + frames, t0 + 2 * frames):
+            for j in rng.permutation(len(names)):
+                name = names[j]
                 wp.synchronize_device(dev)
                 with torch_profiler.record_function(f"{MARK}:{name}:{i}"):
-                    _render(loops[name], scene, i, frames, w, h)
+                    f = _render(loops[name], scene, i, frames, w, h)
                     wp.synchronize_device(dev)
+                if name == "auto":
+                    paths.append(f.stats["policy"]["path"])
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "trace.json"
         prof.export_chrome_trace(str(path))
         trace = json.loads(path.read_text())
     gpu, marks = trace_frames(trace)
-    res = {"shading": shading, "sampling_rate": float(np.median(rates))}
-    for name in LOOPS:
+    res = {"shading": shading, "sampling_rate": float(np.median(rates)) if rates else None,
+           "auto_paths": sorted(set(paths))}
+    for name in names:
         fr = [frame_anatomy(gpu, s, e) for loop, _, s, e in marks if loop == name]
         if not fr:
             raise RuntimeError(f"the profiler recorded no frame of the {name} loop (is CUPTI available?)")
@@ -176,9 +192,13 @@ def main(argv=None) -> list:
     p.add_argument("--shadings", default="default,ao8")
     p.add_argument("--frames", type=int, default=30, help="frames per loop, timed plain and again profiled")
     p.add_argument("--warm", type=int, default=12, help="untimed frames of each loop first")
+    p.add_argument("--loops", default=",".join(LOOPS), help=f"a comma list of {', '.join(LOOPS)}")
     p.add_argument("--name", default="timeline")
     args = p.parse_args(argv)
     shadings, sizes = checked_shadings_sizes(p, args)
+    loops_on = [n for n in args.loops.split(",") if n]
+    if not loops_on or any(n not in LOOPS for n in loops_on) or len(set(loops_on)) < len(loops_on):
+        p.error(f"--loops must be a comma list of distinct names of {', '.join(LOOPS)}, got {args.loops!r}")
     if args.frames < 1 or args.warm < 0:
         p.error(f"--frames must be >= 1 and --warm >= 0, got {args.frames} and {args.warm}")
     wp.config.quiet = True
@@ -196,11 +216,12 @@ def main(argv=None) -> list:
         for w, h in sizes:
             for shading in shadings:
                 r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
-                     **study(fw, torch_profiler, scene, w, h, shading, dev, args.frames, args.warm)}
+                     **study(fw, torch_profiler, scene, w, h, shading, dev, args.frames, args.warm, loops_on)}
                 records.append(r)
-                for name in LOOPS:
+                for name in loops_on:
                     rows.append({"scene": scene.name, "size": f"{w}x{h}", "shading": shading, "loop": name,
-                                 **{k: r[name][k] for k in ROW_KEYS}})
+                                 **{k: r[name][k] for k in ROW_KEYS},
+                                 "path": "/".join(r["auto_paths"]) if name == "auto" else ""})
                     print(rows[-1], flush=True)
     md = md_table(rows, list(rows[0])) if rows else "no scene loaded\n"
     write_results(args.name, dev, {"records": records, "frames": args.frames, "warm": args.warm}, md, args.out)
