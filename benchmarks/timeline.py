@@ -181,8 +181,63 @@ def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm:
     return res
 
 
+def kernel_group(name: str) -> str:
+    """The part of the frame a kernel belongs to: ``scene`` (an animated scene's update: rigid motion, the BVH
+    refit and Warp's mesh kernels), ``gbuffer``, ``shading`` (the package's ``shade_*`` kernels) or ``passes``
+    (the rest: the foveated frame's fixed passes, the shading parameters, memsets)."""
+    base = name.split("_cuda_kernel_forward")[0]
+    if base.startswith(("rigid_motion", "wp::", "void cub::")):
+        return "scene"
+    if base.startswith("gbuffer"):
+        return "gbuffer"
+    if base.startswith("shade_"):
+        return "shading"
+    return "passes"
+
+
+GROUPS = ("scene", "gbuffer", "shading", "passes")
+# issue 14's speed targets (reference / foveated time) by shading and height: default shading on every scene (1.5 at
+# 4K on bunny and city), 8 AO rays on city, bunny and the shared meshes
+TARGETS = {("ao8", 2160): 3.0, ("ao8", 1080): 2.5, ("default", 2160): 1.0, ("default", 1080): 1.0}
+AO8_TARGET_SCENES = ("city", "bunny", "spot", "nefertiti", "ogre", "teapot")
+
+
+def target_of(scene: str, shading: str, height: int):
+    """Issue 14's speed-up target for a scene, shading and height (None: the issue sets none there)."""
+    if shading == "ao8" and scene not in AO8_TARGET_SCENES:
+        return None
+    if shading == "default" and height == 2160 and scene in ("bunny", "city"):
+        return 1.5
+    return TARGETS.get((shading, height))
+
+
+def accounting(rec: dict) -> dict:
+    """One record's foveated frame against its reference, as the target sees it: both plain wall times, the
+    speed-up, the target (``target_of``) and how many ms the foveated frame must lose to meet it (negative: met;
+    None without a target), and the
+    foveated frame's kernels by ``kernel_group`` (ms, medians per kernel summed) with its time off the kernels
+    (wall under the profiler less busy, ms) beside the reference's."""
+    ref, fov = rec["reference"], rec["foveated"]
+    target = target_of(rec["scene"], rec["shading"], rec["height"])
+    out = {"ref_ms": ref["plain_wall_ms"], "fov_ms": fov["plain_wall_ms"],
+           "speedup": ref["plain_wall_ms"] / fov["plain_wall_ms"], "target": target,
+           "cut_needed_ms": None if target is None else fov["plain_wall_ms"] - ref["plain_wall_ms"] / target}
+    for g in GROUPS:
+        out[f"fov_{g}_ms"] = sum(v for k, v in fov["per_kernel"].items() if kernel_group(k) == g)
+    out["fov_off_kernels_ms"] = fov["wall_ms"] - fov["busy_ms"]
+    out["ref_off_kernels_ms"] = ref["wall_ms"] - ref["busy_ms"]
+    return out
+
+
 ROW_KEYS = ("plain_wall_ms", "wall_ms", "lead_us", "busy_ms", "gaps_us", "tail_us", "kernels_ms", "n_kernels",
             "n_memsets", "n_copies")
+
+
+def accounting_table(records: list) -> str:
+    """``accounting`` of each record with a reference and a foveated loop, as a markdown table."""
+    rows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "shading": r["shading"], **accounting(r)}
+            for r in records if "reference" in r and "foveated" in r]
+    return md_table(rows, list(rows[0])) if rows else ""
 
 
 def main(argv=None) -> list:
@@ -194,7 +249,12 @@ def main(argv=None) -> list:
     p.add_argument("--warm", type=int, default=12, help="untimed frames of each loop first")
     p.add_argument("--loops", default=",".join(LOOPS), help=f"a comma list of {', '.join(LOOPS)}")
     p.add_argument("--name", default="timeline")
+    p.add_argument("--from-json", default=None, help="print the accounting table of a results JSON of this script "
+                   "(no device needed) and exit")
     args = p.parse_args(argv)
+    if args.from_json:
+        print(accounting_table(json.loads(Path(args.from_json).read_text())["records"]))
+        return []
     shadings, sizes = checked_shadings_sizes(p, args)
     loops_on = [n for n in args.loops.split(",") if n]
     if not loops_on or any(n not in LOOPS for n in loops_on) or len(set(loops_on)) < len(loops_on):
@@ -223,7 +283,7 @@ def main(argv=None) -> list:
                                  **{k: r[name][k] for k in ROW_KEYS},
                                  "path": "/".join(r["auto_paths"]) if name == "auto" else ""})
                     print(rows[-1], flush=True)
-    md = md_table(rows, list(rows[0])) if rows else "no scene loaded\n"
+    md = (md_table(rows, list(rows[0])) + "\n" + accounting_table(records)) if rows else "no scene loaded\n"
     write_results(args.name, dev, {"records": records, "frames": args.frames, "warm": args.warm}, md, args.out)
     print(md)
     return records

@@ -140,3 +140,40 @@ def test_timeline_refuses_the_cpu_and_bad_options():
         "'reference,reference'" in r.stderr
     r = run("--device", "cpu", "--shadings", "ao9")
     assert r.returncode == 2 and "--shadings must be a comma list" in r.stderr
+
+
+def test_accounting_by_hand():
+    """The split of a record into issue 14's target, the cut it needs and the foveated frame's kernel groups."""
+    rec = {"scene": "bunny", "width": 3840, "height": 2160, "shading": "ao8",
+           "reference": {"plain_wall_ms": 9.0, "wall_ms": 9.3, "busy_ms": 9.1, "per_kernel": {}},
+           "foveated": {"plain_wall_ms": 3.2, "wall_ms": 3.4, "busy_ms": 3.1, "per_kernel": {
+               "gbuffer_tiles_kernel_6f3c439d_cuda_kernel_forward": 0.6,
+               "shade_ao_list_kernel_3f_cuda_kernel_forward": 1.0, "shade_list_kernel_fc_cuda_kernel_forward": 0.2,
+               "sampling_map_kernel_38_cuda_kernel_forward": 0.3, "memset32": 0.01,
+               "wp::bvh_refit_kernel(int, int const*)": 0.02, "void cub::DeviceScanKernel<float>(int)": 0.01,
+               "rigid_motion_kernel_aa_cuda_kernel_forward": 0.005}}}
+    a = T.accounting(rec)
+    assert a["target"] == 3.0 and a["speedup"] == pytest.approx(9.0 / 3.2)
+    assert a["cut_needed_ms"] == pytest.approx(3.2 - 3.0)
+    assert (a["fov_gbuffer_ms"], a["fov_shading_ms"]) == (0.6, pytest.approx(1.2))
+    assert a["fov_passes_ms"] == pytest.approx(0.31) and a["fov_scene_ms"] == pytest.approx(0.035)
+    assert a["fov_off_kernels_ms"] == pytest.approx(0.3) and a["ref_off_kernels_ms"] == pytest.approx(0.2)
+    # issue 14's targets: 8 AO rays only on city, bunny and the shared meshes; 1.5x at 4K on bunny and city
+    assert T.target_of("cornell", "ao8", 2160) is None and T.target_of("teapot", "ao8", 1080) == 2.5
+    assert T.target_of("city", "default", 2160) == 1.5 and T.target_of("city", "default", 1080) == 1.0
+    assert T.target_of("earth", "default", 2160) == 1.0
+    assert T.accounting({**rec, "scene": "cornell"})["cut_needed_ms"] is None
+
+
+def test_from_json_tabulates_a_results_file(tmp_path):
+    rec = {"scene": "spot", "width": 1920, "height": 1080, "shading": "default",
+           "reference": {"plain_wall_ms": 0.5, "wall_ms": 0.6, "busy_ms": 0.4, "per_kernel": {}},
+           "foveated": {"plain_wall_ms": 0.6, "wall_ms": 0.7, "busy_ms": 0.5, "per_kernel": {}}}
+    f = tmp_path / "t.json"
+    f.write_text(json.dumps({"records": [rec]}))
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "timeline.py"), "--from-json", str(f)],
+                       capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 0, r.stderr
+    head, _, row = r.stdout.strip().splitlines()
+    assert "cut_needed_ms" in head
+    assert row.startswith("| spot | 1920x1080 | default | 0.500 | 0.600 | 0.833 | 1.000 | 0.100")
