@@ -5,9 +5,10 @@ resolution.
 work. Its per-stage GPU times come from another run with events between the stages, and never add up to the wall
 time. This study reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
 memset and copy of the process, CUDA-graph nodes included) while the loops render the same frames of the camera
-path, taking turns as in ``frame.py``: the reference (``policy="full"``), the foveated loop (forced) and the default
-policy's loop past its measurement (``--loops``; ``path`` says which path it rendered). Each frame's wall time
-splits into:
+path, taking turns as in ``frame.py``: the reference (``policy="full"``), the foveated loop (forced), the default
+policy's loop past its measurement (``path`` says which path it rendered) and a second reference, ``control``,
+whose difference from the first is the spread of two identical loops in the same run (``--loops``). Each frame's
+wall time splits into:
 
 * ``lead_us``: from ``render``'s call to the GPU's first work of the frame (host work the GPU waits for);
 * ``busy_ms``: the union of the frame's kernels, memsets and copies on the GPU;
@@ -45,7 +46,7 @@ from benchmarks._common import (base_parser, checked_shadings_sizes, git_commit,
                                 shading_config, write_results)
 from benchmarks.frame import gaze_path  # noqa: E402
 
-LOOPS = ("reference", "foveated", "auto")
+LOOPS = ("reference", "foveated", "auto", "control")
 GPU_CATS = {"kernel": "kernel", "gpu_memset": "memset", "gpu_memcpy": "copy"}
 MARK = "fw-frame"
 
@@ -125,11 +126,12 @@ def _render(loop, scene, i: int, n: int, w: int, h: int):
 
 
 def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int, loops_on=LOOPS) -> dict:
-    """The loops of ``loops_on`` (of ``LOOPS``: ``reference`` is ``policy="full"``, ``foveated`` forced, ``auto``
-    the default policy, past its measurement) on the same frames, taking turns in a new order each frame: first
+    """The loops of ``loops_on`` (of ``LOOPS``: ``reference`` and ``control`` are ``policy="full"``, ``foveated``
+    forced, ``auto`` the default policy, past its measurement) on the same frames, taking turns in a new order each frame: first
     ``frames`` frames timed plain, then as many more under the profiler."""
     cfg = shading_config(fw, shading)
-    make = {"reference": dict(policy="full"), "foveated": dict(policy="foveated"), "auto": {}}
+    make = {"reference": dict(policy="full"), "foveated": dict(policy="foveated"), "auto": {},
+            "control": dict(policy="full")}
     loops = {n: fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, **make[n]) for n in loops_on}
     # every warm-up ends at the same frame; the default policy's past its measurement
     need = {n: warm + (loop.policy_measurement_frames() + 8 if n == "auto" else 0) for n, loop in loops.items()}

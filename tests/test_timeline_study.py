@@ -123,7 +123,8 @@ def test_study_runs_on_cpu_with_a_stand_in_profiler():
     for name in T.LOOPS:
         r = res[name]
         assert r["frames"] == 3 and r["plain_wall_ms"] > 0 and r["lead_us"] == 500.0 and r["n_kernels"] == 0
-    assert sorted(e["name"].split(":")[1] for e in prof.events) == ["auto"] * 3 + ["foveated"] * 3 + ["reference"] * 3
+    assert sorted(e["name"].split(":")[1] for e in prof.events) == \
+        ["auto"] * 3 + ["control"] * 3 + ["foveated"] * 3 + ["reference"] * 3
     assert set(res["auto_paths"]) <= {"full", "foveated"} and res["auto_paths"]
 
 
@@ -136,7 +137,7 @@ def test_timeline_refuses_the_cpu_and_bad_options():
     r = run("--device", "cpu", "--frames", "0")
     assert r.returncode == 2 and "--frames must be >= 1 and --warm >= 0, got 0 and 12" in r.stderr
     r = run("--device", "cpu", "--loops", "reference,reference")
-    assert r.returncode == 2 and "--loops must be a comma list of distinct names of reference, foveated, auto, got " \
+    assert r.returncode == 2 and "--loops must be a comma list of distinct names of reference, foveated, auto, control, got " \
         "'reference,reference'" in r.stderr
     r = run("--device", "cpu", "--shadings", "ao9")
     assert r.returncode == 2 and "--shadings must be a comma list" in r.stderr
