@@ -628,7 +628,48 @@ def test_l2_cold_study_runs_on_cpu():
     assert L.prefetch_lines(nt, npt) * 128 >= 2 * nt * 32 + nt * 4 + nt * 12 + npt * 12
 
 
-@pytest.mark.parametrize("script", ["ao_segments.py", "l2_cold.py", "gbuffer_lean.py"])
+def test_merge_history_equals_the_package_passes_on_cpu():
+    """benchmarks/merge_history.py (session 36): the sampling pass merged with the resolve's history half, then the
+    traced pixels' resolve over the list, write what the package's two passes write (checked in ``_compare``, for
+    the deterministic and the stochastic boxed resolve); a changed output would raise there."""
+    import foveawarp as fw
+    from benchmarks import merge_history as M
+
+    res = M.study(fw, fw.load_scene("bunny"), 96, 64, wp.get_device("cpu"), _cpu_timer(), 6, ["default", "ao8"],
+                  [None])
+    assert res["default"]["stochastic"] is False and res["ao8"]["stochastic"] is True
+    for v in res.values():
+        assert 0 < v["n_list"] < 96 * 64 and v["pkg_ms"] > 0 and v["merged_nocap_ms"] > 0
+
+
+@wp.func
+def _next_list_pixel(idx: int, width: int):
+    """A wrong list lookup for the test below: the traced pixel's right neighbour (its own on the last column)."""
+    y = idx // width
+    return wp.min(idx - y * width + 1, width - 1), y
+
+
+def test_merge_history_check_catches_a_wrong_merge(monkeypatch):
+    """The study's equality check fails when the merged pair resolves the wrong pixels."""
+    import foveawarp as fw
+    from benchmarks import merge_history as M
+
+    monkeypatch.setattr(M, "list_pixel", _next_list_pixel)
+    monkeypatch.setattr(M, "_KERNELS", {})
+    with pytest.raises(AssertionError, match="differs from the package's two passes"):
+        M.study(fw, fw.load_scene("bunny"), 96, 64, wp.get_device("cpu"), _cpu_timer(), 6, ["default"], [None])
+
+
+def test_merge_history_refuses_bad_options():
+    for args, msg in ((["--caps", "12"], "--caps must be a comma list of 'none' or integers in [16, 255], got '12'"),
+                      (["--caps", "x"], "--caps must be a comma list of 'none' or integers in [16, 255], got 'x'"),
+                      (["--shadings", "ao9"], "--shadings must be a comma list of default, ao8, got 'ao9'")):
+        r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "merge_history.py"), "--device", "cpu", *args],
+                           capture_output=True, text=True, cwd=REPO, timeout=300)
+        assert r.returncode == 2 and msg in r.stderr
+
+
+@pytest.mark.parametrize("script", ["ao_segments.py", "l2_cold.py", "gbuffer_lean.py", "merge_history.py"])
 def test_cuda_studies_refuse_the_cpu(script):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), "--device", "cpu"], capture_output=True,
                        text=True, cwd=REPO, timeout=300)
