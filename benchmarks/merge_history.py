@@ -33,7 +33,8 @@ from benchmarks._common import SHADINGS  # noqa: E402
 from benchmarks._study import run_study, study_parser  # noqa: E402
 from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp.kernels.load import load_u8  # noqa: E402
-from foveawarp.kernels.sampling import FrameParams, SamplingParams, _make_sampling_pixel, sampling_map_kernel  # noqa: E402
+from foveawarp.kernels.sampling import (FrameParams, SamplingParams, _make_sampling_pixel,  # noqa: E402
+                                       sampling_map_kernel)
 from foveawarp.kernels.shade import list_pixel  # noqa: E402
 from foveawarp.kernels.temporal import TemporalParams, _make_resolve_kernels  # noqa: E402
 
