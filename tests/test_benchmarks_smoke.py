@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 import warp as wp
 
+from foveawarp.kernels.shade import LightParams, ShadeParams
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -669,7 +671,42 @@ def test_merge_history_refuses_bad_options():
         assert r.returncode == 2 and msg in r.stderr
 
 
-@pytest.mark.parametrize("script", ["ao_segments.py", "l2_cold.py", "gbuffer_lean.py", "merge_history.py"])
+def test_shadow_lanes_study_runs_on_cpu():
+    """benchmarks/shadow_lanes.py (session 36): the lean shadow rays' visibility agrees with the package's list
+    shading (checked in ``_compare``: equal with shadows on and off where every light is visible), on a scene with
+    one light and one with three."""
+    import foveawarp as fw
+    from benchmarks import shadow_lanes as S
+
+    for name, nl in (("bunny", 1), ("city", 3)):
+        res = S.study(fw, fw.load_scene(name), 96, 64, wp.get_device("cpu"), _cpu_timer(), 6)
+        for v in res.values():
+            assert v["lights"] == nl and v["n_list"] > 0 and 0 < v["blocked_fraction"] < 1
+            assert v["shade_ms"] > 0 and v["noshadow_ms"] > 0 and v["lanes_ms"] > 0
+
+
+@wp.kernel(enable_backward=False)
+def _all_visible_kernel(spa: wp.array(dtype=ShadeParams), work: wp.array(dtype=wp.int32),
+                        count: wp.array(dtype=wp.int32), pos: wp.array2d(dtype=wp.vec3),
+                        normal: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
+                        lights: wp.array(dtype=LightParams), vis: wp.array2d(dtype=wp.uint8), row0: int):
+    k = wp.tid() + row0
+    if k < count[0] * vis.shape[1]:
+        vis[k // vis.shape[1], k % vis.shape[1]] = wp.uint8(1)
+
+
+def test_shadow_lanes_check_catches_wrong_visibility(monkeypatch):
+    """The study's check fails when the lean kernel calls every light visible (bunny has shadowed pixels)."""
+    import foveawarp as fw
+    from benchmarks import shadow_lanes as S
+
+    monkeypatch.setattr(S, "shadow_lanes_kernel", _all_visible_kernel)
+    with pytest.raises(AssertionError, match="every light visible shades differently"):
+        S.study(fw, fw.load_scene("bunny"), 96, 64, wp.get_device("cpu"), _cpu_timer(), 6)
+
+
+@pytest.mark.parametrize("script", ["ao_segments.py", "l2_cold.py", "gbuffer_lean.py", "merge_history.py",
+                                    "shadow_lanes.py"])
 def test_cuda_studies_refuse_the_cpu(script):
     r = subprocess.run([sys.executable, str(REPO / "benchmarks" / script), "--device", "cpu"], capture_output=True,
                        text=True, cwd=REPO, timeout=300)
