@@ -7,6 +7,9 @@ pixels' resolve needs the shading; every other pixel's (history reused, a miss's
 resolved in the sampling pass, which has already read the pixel's depth, normal, reprojection and hit, leaving the
 traced pixels to a launch over their list (a thread per traced pixel, as the clip boxes are gathered today).
 
+Session 10 built this for deterministic shading in the library (bf3dd3f) and reverted it, slower
+(``docs/frame-results.md``); this measures it again with today's kernels, and for the stochastic resolve too.
+
 This times, on frame 12 of each camera path, the package's two passes (as the stages launch them) against the
 merged pair: one per-pixel kernel that runs the sampling pass's per-pixel function and then, where the pixel is
 not a traced surface, the resolve's per-pixel function; and a list kernel that runs the resolve's function at the
