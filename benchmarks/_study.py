@@ -4,6 +4,7 @@ JSON and markdown they write."""
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from benchmarks._common import base_parser, git_commit, launch_timer, md_table, write_results
@@ -49,3 +50,15 @@ def run_study(p, args, why: str, study, row, rounds: int = 1, setup=None, meta=N
     write_results(args.name, dev, {"records": records, "repeats": repeats, "inner": args.inner}, md, args.out)
     print(md)
     return records
+
+
+def alternating(t_ms, fns: dict, rounds: int = 3) -> dict:
+    """Time each callable of ``fns`` (name -> fn) with ``t_ms``, taking turns for ``rounds`` rounds, so that drift
+    hits them alike: ``{name}_ms_{k}`` for round k and ``{name}_ms``, the median over the rounds."""
+    out = {}
+    for k in range(rounds):
+        for name, fn in fns.items():
+            out[f"{name}_ms_{k}"] = t_ms(fn)
+    for name in fns:
+        out[f"{name}_ms"] = float(np.median([out[f"{name}_ms_{k}"] for k in range(rounds)]))
+    return out

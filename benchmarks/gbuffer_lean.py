@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks._study import alternating, run_study, study_parser  # noqa: E402
 from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp.kernels.camera import CameraParams, camera_ray_dir  # noqa: E402
 from foveawarp.kernels.gbuffer import gbuffer_tiles_kernel, primary_normal, store_surface  # noqa: E402
@@ -91,11 +91,7 @@ def study(fw, scene, w, h, dev, t_ms, frames: int) -> dict:
         if not np.array_equal(a.numpy(), b.numpy()):
             raise AssertionError("the lean G-buffer differs from the package's in a field both write")
     res = {"hit_fraction": float((g.hit.numpy() != 0).mean())}
-    for rnd in range(3):  # alternating
-        res[f"package_ms_{rnd}"] = t_ms(pkg)
-        res[f"lean_ms_{rnd}"] = t_ms(lean)
-    res["package_ms"] = float(np.median([res[f"package_ms_{r}"] for r in range(3)]))
-    res["lean_ms"] = float(np.median([res[f"lean_ms_{r}"] for r in range(3)]))
+    res.update(alternating(t_ms, {"package": pkg, "lean": lean}))
     return res
 
 

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import warp as wp  # noqa: E402
 
 from benchmarks._common import SHADINGS  # noqa: E402
-from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks._study import alternating, run_study, study_parser  # noqa: E402
 from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp.kernels.load import load_u8  # noqa: E402
 from foveawarp.kernels.sampling import (FrameParams, SamplingParams, _make_sampling_pixel,  # noqa: E402
@@ -236,13 +236,9 @@ def _compare(loop, w, h, dev, t_ms, caps) -> dict:
     n = int(r.count.numpy()[0])
     out = {"stochastic": stochastic, "n_list": n, "traced_fraction": n / (w * h),
            "pkg_sampling_ms": t_ms(pkg_sampling), "pkg_resolve_ms": t_ms(pkg_resolve_pass)}
-    for rnd in range(3):  # alternating
-        out[f"pkg_ms_{rnd}"] = t_ms(pkg)
-        for name, (mp, lp) in variants.items():
-            out[f"merged_{name}_ms_{rnd}"] = t_ms(lambda mp=mp, lp=lp: (mp(), lp()))
-    out["pkg_ms"] = float(np.median([out[f"pkg_ms_{k}"] for k in range(3)]))
+    out.update(alternating(t_ms, {"pkg": pkg, **{f"merged_{name}": (lambda mp=mp, lp=lp: (mp(), lp()))
+                                                 for name, (mp, lp) in variants.items()}}))
     for name, (mp, lp) in variants.items():
-        out[f"merged_{name}_ms"] = float(np.median([out[f"merged_{name}_ms_{k}"] for k in range(3)]))
         out[f"merged_{name}_pixel_ms"] = t_ms(mp)
         out[f"merged_{name}_list_ms"] = t_ms(lp)
     out["variants"] = list(variants)

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._study import run_study, study_parser  # noqa: E402
+from benchmarks._study import alternating, run_study, study_parser  # noqa: E402
 from benchmarks.list_shading import _frame_loop  # noqa: E402
 from foveawarp import parallel  # noqa: E402
 from foveawarp.kernels.shade import (LightParams, ShadeParams, list_pixel, shade_ao_list_kernel,  # noqa: E402
@@ -141,12 +141,8 @@ def _compare(loop, w, h, dev, t_ms, ao: int) -> dict:
         raise AssertionError("a pixel with a blocked light is brighter with shadows on")
     res = {"n_list": n, "lights": int(ds.lights.shape[0]), "blocked_fraction": float(1.0 - lit.mean()) if n else 0.0,
            "ao_lanes": lanes}
-    for rnd in range(3):  # alternating
-        res[f"shade_ms_{rnd}"] = t_ms(lambda: shade(st.params_dev, out_a, sa))
-        res[f"noshadow_ms_{rnd}"] = t_ms(lambda: shade(no_sh, out_b, sb))
-        res[f"lanes_ms_{rnd}"] = t_ms(shadow_lanes)
-    for k in ("shade", "noshadow", "lanes"):
-        res[f"{k}_ms"] = float(np.median([res[f"{k}_ms_{rr}"] for rr in range(3)]))
+    res.update(alternating(t_ms, {"shade": lambda: shade(st.params_dev, out_a, sa),
+                                  "noshadow": lambda: shade(no_sh, out_b, sb), "lanes": shadow_lanes}))
     return res
 
 

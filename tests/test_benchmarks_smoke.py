@@ -728,3 +728,21 @@ def test_policy_host_quick(tmp_path):
                             bad], capture_output=True, text=True, cwd=REPO, timeout=300)
         assert r.returncode == 2 and f"--specs items must be SCENE:WIDTHxHEIGHT (e.g. cornell:1920x1080), got {bad!r}" \
             in r.stderr
+
+
+def test_study_alternating_takes_turns_and_keeps_the_median():
+    """benchmarks/_study.alternating: the callables are timed in turn, round after round, and each median is over
+    its own rounds."""
+    from benchmarks._study import alternating
+
+    calls = []
+    times = iter([5.0, 1.0, 3.0, 2.0, 4.0, 9.0])
+
+    def t_ms(fn):
+        calls.append(fn())
+        return next(times)
+
+    out = alternating(t_ms, {"a": lambda: "a", "b": lambda: "b"}, rounds=3)
+    assert calls == ["a", "b"] * 3
+    assert [out[f"a_ms_{k}"] for k in range(3)] == [5.0, 3.0, 4.0] and out["a_ms"] == 4.0
+    assert [out[f"b_ms_{k}"] for k in range(3)] == [1.0, 2.0, 9.0] and out["b_ms"] == 2.0
