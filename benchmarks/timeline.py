@@ -127,8 +127,8 @@ def _render(loop, scene, i: int, n: int, w: int, h: int):
 
 def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int, loops_on=LOOPS) -> dict:
     """The loops of ``loops_on`` (of ``LOOPS``: ``reference`` and ``control`` are ``policy="full"``, ``foveated``
-    forced, ``auto`` the default policy, past its measurement) on the same frames, taking turns in a new order each frame: first
-    ``frames`` frames timed plain, then as many more under the profiler."""
+    forced, ``auto`` the default policy, past its measurement) on the same frames of the camera path, taking turns
+    in a new order each frame: ``frames`` frames timed plain, then the next ``frames`` under the profiler."""
     cfg = shading_config(fw, shading)
     make = {"reference": dict(policy="full"), "foveated": dict(policy="foveated"), "auto": {},
             "control": dict(policy="full")}
@@ -216,9 +216,8 @@ def target_of(scene: str, shading: str, height: int):
 def accounting(rec: dict) -> dict:
     """One record's foveated frame against its reference, as the target sees it: both plain wall times, the
     speed-up, the target (``target_of``) and how many ms the foveated frame must lose to meet it (negative: met;
-    None without a target), and the
-    foveated frame's kernels by ``kernel_group`` (ms, medians per kernel summed) with its time off the kernels
-    (wall under the profiler less busy, ms) beside the reference's."""
+    None without a target), and the foveated frame's kernels by ``kernel_group`` (ms, medians per kernel summed)
+    with its time off the kernels (wall under the profiler less busy, ms) beside the reference's."""
     ref, fov = rec["reference"], rec["foveated"]
     target = target_of(rec["scene"], rec["shading"], rec["height"])
     out = {"ref_ms": ref["plain_wall_ms"], "fov_ms": fov["plain_wall_ms"],
