@@ -1,11 +1,12 @@
 """Study (issue 14, session 36): the list's shadow rays in a lean launch of their own.
 
 The foveated frame's list shading (``shade_list_kernel``, after the AO lanes) traces one shadow ray per point or
-spot light for each traced pixel, in a kernel of ~127 registers (one block of 256 threads in five SM slots). On
+spot light for each traced pixel, in a kernel of ~127 registers (Nsight Compute: 20% occupancy on the H100). On
 the sparse list those rays cost 3-4x the full frame's per ray (``list-shadows-e23-fe02422-cuda.log``: bunny at
 4K, 0.215 ms for the list's shading with shadows, 0.036 without). This times, on frame 12 of each camera path:
 
-* ``shade_ms``: the package's list shading after the AO lanes (shadows on, as the frame runs it);
+* ``shade_ms``: the package's list shading after the AO lanes, shadows on, in its unsplit form (``split_direct``
+  off: at 1920x1080 and below the frame shades the lights' part beside the AO pass instead);
 * ``noshadow_ms``: the same kernel with the scene's shadows off (the floor of a shading that reads its lights'
   visibility instead of tracing it);
 * ``lanes_ms``: a lean kernel, a thread per (traced pixel, light), tracing the same shadow ray as
