@@ -254,7 +254,15 @@ def main(argv=None) -> list:
                    "(no device needed) and exit")
     args = p.parse_args(argv)
     if args.from_json:
-        print(accounting_table(json.loads(Path(args.from_json).read_text())["records"]))
+        try:
+            records = json.loads(Path(args.from_json).read_text())["records"]
+            table = accounting_table(records)
+            if not table:
+                raise ValueError("no record has both a reference and a foveated loop")
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            p.error(f"--from-json must be a results JSON of this script (records with a reference and a foveated "
+                    f"loop), got {args.from_json!r} ({type(e).__name__}: {e})")
+        print(table)
         return []
     shadings, sizes = checked_shadings_sizes(p, args)
     loops_on = [n for n in args.loops.split(",") if n]

@@ -178,3 +178,13 @@ def test_from_json_tabulates_a_results_file(tmp_path):
     head, _, row = r.stdout.strip().splitlines()
     assert "cut_needed_ms" in head
     assert row.startswith("| spot | 1920x1080 | default | 0.500 | 0.600 | 0.833 | 1.000 | 0.100")
+
+
+def test_from_json_refuses_what_is_not_a_results_file(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"records": [{"scene": "spot"}]}))
+    for path in (str(tmp_path / "missing.json"), str(bad)):
+        r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "timeline.py"), "--from-json", path],
+                           capture_output=True, text=True, cwd=REPO, timeout=300)
+        assert r.returncode == 2 and "--from-json must be a results JSON of this script" in r.stderr
+        assert repr(path) in r.stderr
