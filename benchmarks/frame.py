@@ -55,6 +55,13 @@ def gaze_path(i, n, w, h):
     return (w * (0.5 + 0.3 * math.sin(2 * math.pi * t)), h * (0.5 + 0.2 * math.sin(4 * math.pi * t + 0.5)))
 
 
+def render_path_frame(loop, scene, i: int, n: int, w: int, h: int):
+    """``loop`` renders frame ``i`` of the scene's camera path (time i / 30 s) with the gaze of ``gaze_path(i, n)``;
+    returns the frame."""
+    t = i / 30.0
+    return loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+
+
 def _psnr_only(img, ref, g, fov):
     """PSNR of the whole frame and of the fovea (<= 5 deg) on the host, SSIM left out (fast sweeps)."""
     from foveawarp.metrics import psnr, region_masks
@@ -234,8 +241,7 @@ def _warm_up(loops: dict, scene, w, h, n, warm: dict) -> int:
     t0_frame = max(warm.values())
     for name, loop in loops.items():
         for i in range(t0_frame - warm[name], t0_frame):
-            t = i / 30.0
-            loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
+            render_path_frame(loop, scene, i, n, w, h)
     return t0_frame
 
 
@@ -285,8 +291,7 @@ def timing(fw, scene, w, h, dev, cfg, n, turns=("frames",)):
         tl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=timing_mode, policy="foveated")
         stages, rates = {}, []
         for i in range(16):
-            t = i / 30.0
-            f = tl.render(scene.camera_at(t), gaze_px=gaze_path(i, 16, w, h), time=t)
+            f = render_path_frame(tl, scene, i, 16, w, h)
             if i >= 6:
                 rates.append(f.stats["sampling_rate"])
                 for k, v in f.stats.items():

@@ -37,7 +37,7 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import warp as wp  # noqa: E402
 
 from benchmarks._common import base_parser, git_commit, launch_timer, md_table, write_results  # noqa: E402
-from benchmarks.frame import gaze_path  # noqa: E402
+from benchmarks.frame import gaze_path, render_path_frame  # noqa: E402
 
 CAPS = {"shade_ao_list_kernel": ("nocap", 64, 56, 48), "shade_list_kernel": ("nocap", 80, 64, 48),
         "shade_full_tiles_kernel": ("nocap", 80, 64, 48)}
@@ -48,8 +48,7 @@ def _frame_loop(fw, scene, w, h, dev, ao: int, lanes: int, frames: int):
     cfg = fw.Config().with_(shading={"ao_samples": ao, "ao_lanes": lanes}, reorder={"strategy": "tile"})
     loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, policy="foveated", graph=False)
     for i in range(frames):
-        t = i / 30.0
-        loop.render(scene.camera_at(t), gaze_px=gaze_path(i, 30, w, h), time=t)
+        render_path_frame(loop, scene, i, 30, w, h)
     wp.synchronize_device(dev)
     return loop
 

@@ -6,9 +6,9 @@ work. Its per-stage GPU times come from another run with events between the stag
 time. This study reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
 memset and copy of the process, CUDA-graph nodes included) while the loops render the same frames of the camera
 path, taking turns as in ``frame.py``: the reference (``policy="full"``), the foveated loop (forced), the default
-policy's loop past its measurement (``path`` says which path it rendered) and a second reference, ``control``,
-whose difference from the first is the spread of two identical loops in the same run (``--loops``). Each frame's
-wall time splits into:
+policy's loop past its measurement (``path`` says which path it rendered in the profiled frames) and a second
+reference, ``control``, whose difference from the first is the spread of two identical loops in the same run
+(``--loops``). Each frame's wall time splits into:
 
 * ``lead_us``: from ``render``'s call to the GPU's first work of the frame (host work the GPU waits for);
 * ``busy_ms``: the union of the frame's kernels, memsets and copies on the GPU;
@@ -19,7 +19,7 @@ wall time splits into:
 ``kernels_ms`` is the frame's kernels summed one by one (more than ``busy_ms`` where they overlap), ``n_kernels``,
 ``n_memsets`` and ``n_copies`` count them, and ``per_kernel`` (JSON) gives each kernel's median ms. Medians over
 ``--frames`` frames per loop. ``wall_ms`` is the same frames' median wall time under the profiler and
-``plain_wall_ms`` the median over the ``--frames`` frames before them, timed without it. The profiler slows the
+``plain_wall_ms`` the median over the ``--frames`` frames before them, timed without it as ``frame.py`` times them. The profiler slows the
 host (its callbacks on every CUDA call), so ``lead_us`` is larger than without it, alike for every loop: compare
 the loops with each other, not with ``plain_wall_ms``.
 
@@ -33,7 +33,6 @@ from __future__ import annotations
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +43,7 @@ import warp as wp  # noqa: E402
 
 from benchmarks._common import (base_parser, checked_shadings_sizes, git_commit, md_table, scenes_present,  # noqa: E402
                                 shading_config, write_results)
-from benchmarks.frame import gaze_path  # noqa: E402
+from benchmarks.frame import _timed_interleaved, render_path_frame  # noqa: E402
 
 LOOPS = ("reference", "foveated", "auto", "control")
 GPU_CATS = {"kernel": "kernel", "gpu_memset": "memset", "gpu_memcpy": "copy"}
@@ -120,43 +119,22 @@ def summarize(frames: list) -> dict:
             "frames": len(frames), "per_kernel": per}
 
 
-def _render(loop, scene, i: int, n: int, w: int, h: int):
-    t = i / 30.0
-    return loop.render(scene.camera_at(t), gaze_px=gaze_path(i, n, w, h), time=t)
-
-
 def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm: int, loops_on=LOOPS) -> dict:
     """The loops of ``loops_on`` (of ``LOOPS``: ``reference`` and ``control`` are ``policy="full"``, ``foveated``
     forced, ``auto`` the default policy, past its measurement) on the same frames of the camera path, taking turns
-    in a new order each frame: ``frames`` frames timed plain, then the next ``frames`` under the profiler."""
+    in a new order each frame: ``frames`` frames timed plain (``frame._timed_interleaved``, after the warm-up), then
+    the next ``frames`` under the profiler."""
     cfg = shading_config(fw, shading)
     make = {"reference": dict(policy="full"), "foveated": dict(policy="foveated"), "auto": {},
             "control": dict(policy="full")}
     loops = {n: fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, **make[n]) for n in loops_on}
     # every warm-up ends at the same frame; the default policy's past its measurement
     need = {n: warm + (loop.policy_measurement_frames() + 8 if n == "auto" else 0) for n, loop in loops.items()}
+    plain = _timed_interleaved(loops, scene, w, h, frames, need)  # frame.py's way: the timed frames t0 .. t0 + frames
     t0 = max(need.values())
-    for n, loop in loops.items():
-        for i in range(t0 - need[n], t0):
-            _render(loop, scene, i, frames, w, h)
-    wp.synchronize_device(dev)
     names = list(loops)
-    rng = np.random.default_rng(0)
-    # the loops timed without the profiler first (frame.py's way), then the next frames under it
-    plain = {k: [] for k in names}
+    rng = np.random.default_rng(1)
     rates, paths = [], []
-    for i in range(t0, t0 + frames):
-        for j in rng.permutation(len(names)):
-            name = names[j]
-            wp.synchronize_device(dev)
-            t_start = time.perf_counter()
-            f = _render(loops[name], scene, i, frames, w, h)
-            wp.synchronize_device(dev)
-            plain[name].append((time.perf_counter() - t_start) * 1e3)
-            if name == "foveated":
-                rates.append(float(f.stats["sampling_rate"]))  # read after the timing (a device read)
-            elif name == "auto":
-                paths.append(f.stats["policy"]["path"])
     act = [torch_profiler.ProfilerActivity.CPU, torch_profiler.ProfilerActivity.CUDA]
     with torch_profiler.profile(activities=act) as prof:
         for i in range(t0 + frames, t0 + 2 * frames):
@@ -164,9 +142,11 @@ def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm:
                 name = names[j]
                 wp.synchronize_device(dev)
                 with torch_profiler.record_function(f"{MARK}:{name}:{i}"):
-                    f = _render(loops[name], scene, i, frames, w, h)
+                    f = render_path_frame(loops[name], scene, i, frames, w, h)
                     wp.synchronize_device(dev)
-                if name == "auto":
+                if name == "foveated":
+                    rates.append(float(f.stats["sampling_rate"]))  # a device read, outside the frame's mark
+                elif name == "auto":
                     paths.append(f.stats["policy"]["path"])
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "trace.json"
@@ -179,7 +159,7 @@ def study(fw, torch_profiler, scene, w, h, shading: str, dev, frames: int, warm:
         fr = [frame_anatomy(gpu, s, e) for loop, _, s, e in marks if loop == name]
         if not fr:
             raise RuntimeError(f"the profiler recorded no frame of the {name} loop (is CUPTI available?)")
-        res[name] = {**summarize(fr), "plain_wall_ms": float(np.median(plain[name]))}
+        res[name] = {**summarize(fr), "plain_wall_ms": plain[name]}
     return res
 
 
