@@ -19,9 +19,9 @@ reference, ``control``, whose difference from the first is the spread of two ide
 ``kernels_ms`` is the frame's kernels summed one by one (more than ``busy_ms`` where they overlap), ``n_kernels``,
 ``n_memsets`` and ``n_copies`` count them, and ``per_kernel`` (JSON) gives each kernel's median ms. Medians over
 ``--frames`` frames per loop. ``wall_ms`` is the same frames' median wall time under the profiler and
-``plain_wall_ms`` the median over the ``--frames`` frames before them, timed without it as ``frame.py`` times them. The profiler slows the
-host (its callbacks on every CUDA call), so ``lead_us`` is larger than without it, alike for every loop: compare
-the loops with each other, not with ``plain_wall_ms``.
+``plain_wall_ms`` the median over the ``--frames`` frames before them, timed without it as ``frame.py`` times
+them. The profiler slows the host (its callbacks on every CUDA call), so ``lead_us`` is larger than without it,
+alike for every loop: compare the loops with each other, not with ``plain_wall_ms``.
 
     python benchmarks/timeline.py --device cuda:0 [--scenes bunny,nefertiti,cornell,city] [--sizes ...]
 
