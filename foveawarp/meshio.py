@@ -1,7 +1,8 @@
 """Mesh files -> triangle arrays.
 
-- Named meshes (``bunny``, ``spot``, ``teapot`` ship in ``foveawarp/assets/``; ``nefertiti`` and ``ogre`` are
-  read from ``$FOVEAWARP_SCENES`` or a ``shared/scenes`` folder): :func:`find_named_mesh`.
+- Named meshes (``bunny``, ``spot``, ``teapot`` ship in the repository's ``assets/``, installed as
+  ``foveawarp/assets/``; ``nefertiti`` and ``ogre`` are read from ``$FOVEAWARP_SCENES`` or a ``shared/scenes``
+  folder): :func:`find_named_mesh`.
 - PLY files whose faces are stored as triangle strips (``element tristrips`` with ``-1`` restarts and alternating
   winding), ASCII and binary: :func:`read_ply`, :func:`strips_to_triangles`.
 - Scenes of several meshes with transforms (glTF / GLB, OBJ with several objects or materials, ...): each mesh is
@@ -57,8 +58,15 @@ NAMED_MESHES = {
 
 
 def assets_dir() -> Path:
-    """The folder of mesh files installed with the package (``foveawarp/assets``)."""
-    return Path(str(resources.files("foveawarp") / "assets"))
+    """The folder of mesh files installed with the package: the ``foveawarp.assets`` package, which is the
+    repository's top-level ``assets/`` in a source checkout (editable install or ``PYTHONPATH``) and
+    ``foveawarp/assets`` in a wheel."""
+    # a checkout beside this package comes first, so a checkout on PYTHONPATH reads its own assets, not those of
+    # another editable install
+    checkout = Path(__file__).resolve().parent.parent
+    if (checkout / "assets" / "__init__.py").is_file() and (checkout / "pyproject.toml").is_file():
+        return checkout / "assets"
+    return Path(str(resources.files("foveawarp.assets")))
 
 
 def scene_search_dirs() -> list:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import ast
 import struct
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -332,7 +331,10 @@ def test_uncoloured_parts_get_the_default_albedo(tmp_path):
 def test_named_meshes_resolve_from_package_assets(monkeypatch, tmp_path):
     monkeypatch.delenv("FOVEAWARP_SCENES", raising=False)
     monkeypatch.chdir(tmp_path)
-    pkg_assets = Path(str(resources.files("foveawarp") / "assets"))
+    # in this checkout the package's assets are the top-level assets/ folder (a wheel installs it as
+    # foveawarp/assets, which tests/test_packaging.py checks)
+    pkg_assets = Path(__file__).resolve().parent.parent / "assets"
+    assert meshio.assets_dir() == pkg_assets
     for name, tris in (("bunny", 69451), ("spot", 5856), ("teapot", 6320)):
         p = meshio.find_named_mesh(name)
         assert p is not None and p.parent == pkg_assets and p.suffix == ".ply", p

@@ -1,4 +1,4 @@
-"""Regenerate the meshes in foveawarp/assets/ from the original OBJ files.
+"""Regenerate the meshes in assets/ (installed as foveawarp/assets/) from the original OBJ files.
 
     python tools/make_assets.py [--src ../shared/scenes]
 
@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-OUT = REPO / "foveawarp" / "assets"
+OUT = REPO / "assets"
 
 # asset file -> (source OBJ, header comment naming the source and licence; assets/README.md has the details)
 ASSETS = {
     "bunny.ply": ("stanford-bunny.obj",
                   "Stanford Bunny, Stanford 3D Scanning Repository (bun_zipper), Stanford Computer Graphics "
-                  "Laboratory; free for research with credit, see foveawarp/assets/README.md"),
+                  "Laboratory; free for research with credit, see the README.md beside this file"),
     "spot.ply": ("spot.obj", "Spot by Keenan Crane, CC0 1.0 (public domain dedication)"),
     "teapot.ply": ("teapot.obj", "Utah teapot, Martin Newell 1975; public domain"),
 }
