@@ -155,7 +155,7 @@ def test_refit_follows_moving_geometry(device, ctor):
 
 def test_device_scene_passes_the_choice_to_warp(monkeypatch):
     """The wp.Mesh arguments DeviceScene passes: on the CPU "auto" is SAH with Warp's default leaf size (None:
-    the CPU output of earlier versions), an explicit leaf size and constructor reach Warp, and the scene's fields
+    Warp's own default), an explicit leaf size and constructor reach Warp, and the scene's fields
     are overridden by DeviceScene's arguments."""
     seen = []
     real = wp.Mesh.__init__

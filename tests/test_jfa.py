@@ -82,7 +82,7 @@ def check_valid(mask, nearest):
     assert np.all(nx[mask] == xx[mask]) and np.all(ny[mask] == yy[mask])
 
 
-# -- step schedules and block-guarantee helpers ------------------------------------------------------------
+# -- step schedules and the block-guarantee bounds --------------------------------------------------------
 
 
 def test_jfa_steps_schedule():
@@ -101,7 +101,7 @@ def test_jfa_steps_schedule():
         jfa_steps(8, 8, "jfa", start_step=0)
 
 
-def test_block_bound_helpers():
+def test_block_bounds_of_start_step_and_sibson_window():
     assert [jfa_start_step_for_block(k) for k in (1, 2, 3, 4, 8, 64)] == [1, 2, 4, 8, 16, 128]
     assert [sibson_window_for_block(k) for k in (1, 2, 3, 4, 8)] == [1, 1, 2, 4, 9]
     for k in range(1, 65):

@@ -200,7 +200,7 @@ def test_rsm_matches_brute_force_ray_triangle(cornell, device):
     assert rsm["solid_angle"] == pytest.approx(2 * math.pi * (1 - cos_o) / n ** 2, rel=1e-12)
 
     # the documented square -> cone map in a frame-free form: polar angle from max(|u|, |v|), azimuth up to a
-    # rotation (and possibly a mirror) about the axis, which we fit from the hits
+    # rotation (and possibly a mirror) about the axis, fitted from the hits
     c = (np.arange(n) + 0.5) * 2.0 / n - 1.0
     u, v = np.meshgrid(c, c)  # u: column, v: row
     r = np.maximum(np.abs(u), np.abs(v))
@@ -812,8 +812,8 @@ def test_refinement_never_increases_the_error(seed, threshold, budget, trav, min
     relative L2 error against the exact sum with per-receiver refinement is not above the error of the same
     extended-emitter cut without it, within 0.5% of that error. Not a theorem: a partly refined cluster can
     lose a lucky cancellation. With this split rule none of 240 generated cases (60 rooms, seeds 1 + 7919 k, x 4
-    threshold / budget / traversal settings) rose at all; an earlier rule (no angular-size precondition)
-    raised 2 of them by at most 0.1%, both at budget 4."""
+    threshold / budget / traversal settings) rises at all; without the angular-size precondition 2 of them
+    rise by at most 0.1%, both at budget 4."""
     rng = np.random.default_rng(seed)
     scene = _random_room(rng)
     ds = _cpu_dscene(scene)

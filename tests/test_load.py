@@ -259,7 +259,7 @@ def test_nine_equal_tests_against_numpy(seed, h, w, levels, strided):
 
 def test_nine_equal_tests_answer_zero_on_cuda():
     """The CUDA build of the word compares answers 0 everywhere (the element compares then decide, as before), even
-    on an image of one value. It needs a CUDA device to run that build; it ran on the H100 (CUDA-selected tests)."""
+    on an image of one value. It needs a CUDA device to run that build (skipped elsewhere)."""
     if not wp.is_cuda_available():
         pytest.skip("needs a CUDA device")
     a3 = wp.zeros((4, 5), dtype=wp.vec3, device="cuda:0")

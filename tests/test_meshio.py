@@ -392,7 +392,7 @@ def test_named_mesh_from_env_folder_and_clear_error_when_absent(monkeypatch, tmp
 
 
 # --------------------------------------------------------------------------------------------------------------
-# import structure (issue 14): scene.py never imports scenes.py; meshio imports neither
+# import structure: scene.py never imports scenes.py; meshio imports neither
 
 
 def _imports(path: Path) -> set:

@@ -143,8 +143,8 @@ def _box(lo, hi):
 def test_packets_equal_single_rays_on_overlapping_coplanar_boxes(seed):
     """Boxes on a floor, half of them with a second box whose faces lie in the same planes, seen from random
     cameras: coplanar faces hit an ulp apart, where the nearer hit kept depends on the order in which a ray's
-    walk visits the two children of a node (found by a review: the packets now let each ray visit them in its own
-    order). The same bits as mesh_query_ray on every ray."""
+    walk visits the two children of a node (the packets let each ray visit them in its own order). The same
+    bits as mesh_query_ray on every ray."""
     rng = np.random.default_rng(seed)
     parts = [_box((-10.0, -1.0, -10.0), (10.0, 0.0, 10.0))]
     for _ in range(12):
@@ -177,8 +177,8 @@ def test_packets_equal_single_rays_on_overlapping_coplanar_boxes(seed):
 def test_packets_send_infinite_directions_to_mesh_query_ray(leaf):
     """A direction with an infinite component has a finite reciprocal (0). With boxes whose distance from the eye
     overflows, its slab distance is 0 * inf = NaN, where Warp's min and max (NaN ignored) and the packet's differ:
-    such rays are traced by mesh_query_ray (a case found by a review; here three triangles near the ends of the
-    float range, the eye at -2.5e38)."""
+    such rays are traced by mesh_query_ray (here three triangles near the ends of the float range, the eye at
+    -2.5e38)."""
     tris = np.array([[[2.95e38, 0.7, -0.8], [2.9e38, -0.4, -0.2], [2.96e38, -0.8, 0.5]],
                      [[1.8e38, 0.4, -0.1], [1.85e38, -0.8, 0.5], [1.86e38, 0.7, 0.0]],
                      [[-2.4e38, -0.5, -0.1], [-2.45e38, 0.3, -0.4], [-2.47e38, -0.1, 0.9]]], np.float32)

@@ -1,4 +1,4 @@
-"""Band-parallel CPU launches (issue 16, ``foveawarp.parallel``): the band split, bit-identical output for every
+"""Band-parallel CPU launches (``foveawarp.parallel``): the band split, bit-identical output for every
 thread count (kernels, stages, whole frames), a stress test for races between concurrent CPU launches, and
 the thread-count settings."""
 
@@ -187,8 +187,8 @@ def test_stage_outputs_bit_identical(every_band):
 
 def test_concurrent_launches_stress(every_band, rng):
     """Many band-parallel launches of several kernels from several Python threads at once, repeated: every
-    result equals the one-thread result (a static launch index or shared state in the generated CPU code, as
-    in the old Warp threading crash, would mix up rows or crash here)."""
+    result equals the one-thread result (a static launch index or shared state in the generated CPU code would
+    mix up rows or crash here)."""
     _concurrent_launches(rng)
 
 
@@ -684,8 +684,8 @@ def test_native_team_that_cannot_be_built_turns_itself_off(every_band, monkeypat
 
 def test_native_team_poster_held_up_between_jobs(every_band, monkeypatch):
     """A worker that wakes while the next job is being written must not claim a band of it under the finished
-    job's generation (which ran bands twice, and let a launch return before its bands were done, before the
-    poster closed the word first). The poster is held up between writing a job and publishing it (the control
+    job's generation (that would run bands twice, and let a launch return before its bands are done, unless
+    the poster closes the word first). The poster is held up between writing a job and publishing it (the control
     block's testing word 48), the worker naps at once after a job, and 2- and 8-band launches alternate: every
     band runs exactly once per launch."""
     _native_team_or_skip()
@@ -736,7 +736,7 @@ def _run_script(tmp_path, body: str) -> str:
 
 def test_band_launch_after_its_module_was_rebuilt(tmp_path):
     """Warp rebuilds a loaded module when a kernel is added to it, and frees the old code: a band launch of a
-    kernel of that module packed before must not call its old entry point (it crashed the process)."""
+    kernel of that module packed before must not call its old entry point (that would crash the process)."""
     out = _run_script(tmp_path, """
 parallel.launch(fill, a.shape[0], [a], threads=2, device="cpu", min_band_items=1)
 def factory(c):

@@ -1,4 +1,4 @@
-"""The reconstruction stage's lean frame path (issue 14) against independent references.
+"""The reconstruction stage's lean frame path against independent references.
 
 The stage skips work at seed pixels (one mask read per JFA pass, seed entries written once), fuses the JFA
 init into the first pass and the Voronoi / radius / statistics pass into the last one, and clips the Sibson

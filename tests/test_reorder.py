@@ -120,7 +120,7 @@ def test_bad_arguments():
         fw.ops.reorder_rows(np.ones((4, 4)), balance_rows=-1)
 
 
-# -- issue 14: count + one-block scan + scatter, block-local prefix sums --------------------------------------
+# -- count + one-block scan + scatter, block-local prefix sums --------------------------------------------
 
 
 def filled_mask(h, w, rng):
@@ -250,7 +250,7 @@ def test_compaction_by_words_only_where_it_applies(rng):
         np.testing.assert_array_equal(_words_run(st8, m2, "tile", True), tile_order_ref(m2, 8))
 
 
-# -- issue 14: the second mask (``keep``): the frame loop lists only the sampled pixels that hit a surface -----------
+# -- the second mask (``keep``): the frame loop lists only the sampled pixels that hit a surface -----------
 
 
 def _keep_run(stage, m, k, strategy):

@@ -212,10 +212,11 @@ def test_disocclusion_rejected_on_moving_block(device):
 
 @pytest.mark.parametrize("t1", [0.1, 0.3, 0.5])
 def test_moving_object_keeps_its_history(device, t1):
-    """Issue 15: >= 90% of the moving block's pixels that were visible in the last frame pass the cache test
+    """>= 90% of the moving block's pixels that were visible in the last frame pass the cache test
     (the test compares the previous depth with the point's distance at the block's previous place). The camera
     looks along the block's motion, so its depth changes by more than the tolerance every frame: eq. 4 with the
-    current position rejects nearly all of these pixels (checked below, so the scenario exercises the fix)."""
+    current position rejects nearly all of these pixels (checked below, so the scenario exercises the motion
+    term)."""
     w, h = 192, 144
     scene = fw.load_scene("cornell", motion=True)
     loop = fw.FrameLoop(scene, w, h, device=device)

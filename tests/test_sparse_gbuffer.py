@@ -213,7 +213,7 @@ def test_sparse_mode_validation():
 
 
 def test_sparse_graph_replay_equals_eager_on_cuda():
-    # CUDA graphs exist only on CUDA (the CPU device always launches eagerly); this test runs in the H100 runs
+    # CUDA graphs exist only on CUDA (the CPU device always launches eagerly)
     if not wp.is_cuda_available():
         pytest.skip("needs a CUDA device: CUDA graph capture and replay")
     w, h = 160, 90

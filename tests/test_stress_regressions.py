@@ -1,4 +1,4 @@
-"""Regression cases for bugs the numerical stress suite (tests/stress, issue 9) found; one test per bug."""
+"""Regression cases for bugs the numerical stress suite (tests/stress) found; one test per bug."""
 
 import numpy as np
 import pytest

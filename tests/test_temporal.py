@@ -1,4 +1,4 @@
-"""Temporal resolve (issue 15's rule, ``stages.temporal``): the kernel against a per-pixel NumPy reference written
+"""Temporal resolve (``stages.temporal``): the kernel against a per-pixel NumPy reference written
 from the rule, variance clipping on a step edge, and the frame loop in motion (fovea exact, history never costs)."""
 
 import math
@@ -230,7 +230,7 @@ def test_history_never_costs_in_motion_and_fovea_exact(scene_name):
 
 
 def test_still_stochastic_view_converges_with_progressive_sampling():
-    """Issue 15: with 4 AO rays on a still view, frame 29 is >= 3 dB closer to a converged (256-ray) reference
+    """With 4 AO rays on a still view, frame 29 is >= 3 dB closer to a converged (256-ray) reference
     than frame 0; while converging the sampling floor is raised (reported), afterwards the refresh budget
     thins the samples again."""
     w, h = 128, 72
@@ -257,7 +257,7 @@ def test_still_stochastic_view_converges_with_progressive_sampling():
         assert "foveation.min_probability" not in fd.stats["skipped"]
 
 
-# -- storage of the history (issue 14): what the resolve no longer reads must hold by construction ----------------
+# -- storage of the history: what the resolve does not read must hold by construction ---------------------------
 
 
 @pytest.mark.parametrize("stochastic", [False, True])

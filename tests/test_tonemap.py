@@ -164,8 +164,8 @@ def _hable64(x):
 @pytest.mark.parametrize("white", [11.2, 1.0e-3, 6.1538372e7, 1.0e10, 1.0e17, 1.0e18, 1.0e25, 3.0e38])
 def test_tonemap_huge_radiance_and_white_point(device, white):
     """Radiance up to float max (and exposures that push it past float max) maps to the curve's limit, white for
-    a finite white point, not to 0 (x^2 overflowed to inf / inf before); a white point beyond float32's square
-    root no longer blackens the image. Against the float64 curve (1e-5 relative) and the display gamma."""
+    a finite white point, not to 0 (x^2 / white^2 would reach inf / inf); a white point beyond float32's square
+    root does not blacken the image. Against the float64 curve (1e-5 relative) and the display gamma."""
     vals = np.array([0.0, 1e-3, 0.3, 1.0, 11.2, 1e3, 1e9, 1e17, 1e18, 2e18, 1e19, 1e20, 1e30, 1e38, 3.4028235e38],
                     np.float32)
     c = np.repeat(vals[None, :, None], 3, axis=2).astype(np.float32)

@@ -1,12 +1,11 @@
-"""Input validation of every public entry point (issue 9): a table of (entry point, bad input) cases.
+"""Input validation of every public entry point: a table of (entry point, bad input) cases.
 
 Each case calls a public function, constructor or method with one bad argument (NaN, +-Inf, a wrong type, a
 wrong shape or dtype, an array holding NaN / Inf, a size <= 0, a value outside its range, an empty or
 non-triangle mesh, an unreadable file) and expects a ``ValueError`` whose message names the parameter, the
 offending value and the allowed range: all three substrings of the case must appear in the message.
 
-Every case must pass: there are no expected failures (the 46 gaps first found in frame_loop.py and
-stages/sampling.py are fixed).
+Every case must pass: there are no expected failures.
 
 The table is built at import time from small generators (one per kind of parameter); ``case_families()``
 counts the cases per entry point family (docs/robustness.md quotes these counts).

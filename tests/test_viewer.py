@@ -1,4 +1,4 @@
-"""The live viewer (issue 20): message validation, camera moves, the display kernel against NumPy, gaze traces,
+"""The live viewer: message validation, camera moves, the display kernel against NumPy, gaze traces,
 and a real server on a free loopback port driven by a WebSocket client (frames, /stats.json, errors, a client
 that vanishes, a fuzz of 1000 garbage messages). CPU, 96 x 54: seconds."""
 

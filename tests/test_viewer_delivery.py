@@ -1,4 +1,4 @@
-"""The viewer's frame delivery and its measurements (issue 20, latency): the JPEG encoders against the image they
+"""The viewer's frame delivery and its latency measurements: the JPEG encoders against the image they
 encode, the one-frame slot (a slow client gets the newest frame, never a queue), the render thread's wait for a
 frame's send (and that it never waits for a busy or departed client), a clean stop, and the two gaze-to-frame
 latency definitions against hand-computed values. No rendering: fake sockets and a session that draws nothing;

@@ -1,4 +1,4 @@
-"""Numerical stress suite (issue 9): profiles, the executed-case counter and shared checks.
+"""Numerical stress suite: profiles, the executed-case counter and shared checks.
 
 Profiles (environment variable ``FOVEAWARP_STRESS``):
 

@@ -1,4 +1,4 @@
-"""Helpers of the stress suite (profiles, the case counter, checks); see conftest.py."""
+"""Shared code of the stress suite (profiles, the case counter, checks); see conftest.py."""
 
 from __future__ import annotations
 

@@ -212,7 +212,7 @@ def test_seed_sets_empty_single_full_collinear_voronoi_sibson(device, cases, kin
     cases.add("seed sets: voronoi + sibson (masks)", 1)
 
 
-# -- issue 14: the stage's lean frame path over sequences of seed sets --------------------------------------
+# -- the stage's lean frame path over sequences of seed sets ---------------------------------------------
 
 
 def plain_jfa(mask, steps):
