@@ -1,0 +1,1 @@
+"""Scene file readers: one module per format."""
