@@ -370,7 +370,8 @@ class _Reader:
 
     def _read_raw(self, view_index, byte_offset: int, count: int, dtype, rows: int, cols: int, where: str,
                   tight: bool = False) -> np.ndarray:
-        """``count`` elements of ``rows x cols`` components (column-major, columns 4-byte aligned) as (count, rows*cols)."""
+        """``count`` elements of ``rows x cols`` components as (count, rows * cols); matrix columns are stored
+        one after another, each starting on a 4-byte boundary (glTF 2.0 spec 3.6.2.4)."""
         csize = dtype.itemsize
         col_bytes = rows * csize
         col_stride = col_bytes if cols == 1 else (col_bytes + 3) // 4 * 4
@@ -458,7 +459,7 @@ class _Reader:
 
 
 # ---------------------------------------------------------------------------------------------------
-# transforms and geometry helpers
+# transforms and geometry
 
 
 def _quat_matrix(q) -> np.ndarray:
@@ -491,15 +492,19 @@ def _any_perpendicular(n: np.ndarray) -> np.ndarray:
     return _normalize_rows(t, (1.0, 0.0, 0.0))
 
 
+def _scatter_add(triangles: np.ndarray, per_triangle: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) sums over the triangles at each of their corners of the per-triangle (F, 3) vectors."""
+    idx = triangles.reshape(-1)
+    vals = np.repeat(per_triangle, 3, axis=0)
+    return np.stack([np.bincount(idx, weights=vals[:, c], minlength=n) for c in range(3)], axis=1)
+
+
 def compute_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals: the sum of the (unnormalized) face normals around each vertex, normalized;
     (0, 0, 1) for a vertex of no or only degenerate triangles."""
     p = positions[triangles]
     fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # length = twice the area
-    acc = np.zeros_like(positions, dtype=np.float64)
-    for k in range(3):
-        np.add.at(acc, triangles[:, k], fn)
-    return _normalize_rows(acc, (0.0, 0.0, 1.0))
+    return _normalize_rows(_scatter_add(triangles, fn, positions.shape[0]), (0.0, 0.0, 1.0))
 
 
 def compute_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray,
@@ -518,11 +523,8 @@ def compute_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray
     # Lengyel's per-triangle frame: [T B] = [e1 e2] [[du1 du2], [dv1 dv2]]^-1
     ft = (e1 * dv2[:, None] - e2 * dv1[:, None]) * inv
     fb = (e2 * du1[:, None] - e1 * du2[:, None]) * inv
-    acc_t = np.zeros_like(positions, dtype=np.float64)
-    acc_b = np.zeros_like(positions, dtype=np.float64)
-    for k in range(3):
-        np.add.at(acc_t, triangles[:, k], ft)
-        np.add.at(acc_b, triangles[:, k], fb)
+    acc_t = _scatter_add(triangles, ft, positions.shape[0])
+    acc_b = _scatter_add(triangles, fb, positions.shape[0])
     tg = acc_t - normals * np.sum(acc_t * normals, axis=1, keepdims=True)
     n = np.linalg.norm(tg, axis=1)
     good = (n > 1e-12 * np.maximum(np.linalg.norm(acc_t, axis=1), 1e-30)) & (n > 1e-30)
