@@ -17,7 +17,9 @@ Supported:
       ``KHR_mesh_quantization`` (integer attributes are read as floats), ``EXT_texture_webp`` (the image index).
       Other extensions named in ``extensionsUsed`` are listed in one warning and ignored; one named in
       ``extensionsRequired`` that is not supported raises ``ValueError``.
-Not supported: skins, morph targets, animations (the rest pose is read), other material extensions.
+Not supported: skins (a skinned mesh is placed by its node, in its bind pose), morph targets, animations (the
+rest pose is read), TEXCOORD_2 and above (a texture reading one falls back to TEXCOORD_0 with a warning), the
+other material extensions.
 
 Conventions:
     - UVs are kept as the file stores them: (0, 0) is the image's top-left corner, v grows downwards (the
@@ -299,7 +301,7 @@ class _Reader:
         v = obj.get(key, default)
         if not isinstance(v, list) or len(v) != n:
             self.fail(f"{where}.{key} must be an array of {n} numbers, got {show(v)}")
-        return tuple(self.number({key: c}, key, f"{where}", lo=lo, hi=hi) for c in v)
+        return tuple(self.number({f"{key}[{i}]": c}, f"{key}[{i}]", where, lo=lo, hi=hi) for i, c in enumerate(v))
 
     # -- buffers, views, accessors --------------------------------------------------------------
 
@@ -942,8 +944,8 @@ def _texture_ref(r: _Reader, info, where: str, color_space: str, num_images: int
     if isinstance(source, bool) or not isinstance(source, int) or not 0 <= source < num_images:
         r.fail(f"textures[{ti}].source must be an index into 'images' in [0, {num_images - 1}], got {show(source)}")
     texcoord = info.get("texCoord", 0)
-    if texcoord not in (0, 1):
-        r.fail(f"{where}.texCoord must be 0 or 1 (TEXCOORD_0, TEXCOORD_1), got {show(texcoord)}")
+    if isinstance(texcoord, bool) or not isinstance(texcoord, int) or texcoord < 0:
+        r.fail(f"{where}.texCoord must be an integer >= 0, got {show(texcoord)}")
     wrap_s = wrap_t = "repeat"
     filt = "linear"
     if "sampler" in tex:
@@ -962,9 +964,11 @@ def _texture_ref(r: _Reader, info, where: str, color_space: str, num_images: int
         rotation = r.number(tt, "rotation", wt_, default=0.0)
         scale = r.vector(tt, "scale", wt_, [1.0, 1.0], 2)
         if "texCoord" in tt:
-            texcoord = tt["texCoord"]
-            if texcoord not in (0, 1):
-                r.fail(f"{wt_}.texCoord must be 0 or 1, got {show(texcoord)}")
+            texcoord = r.integer(tt, "texCoord", wt_)
+    if texcoord > 1:
+        # only TEXCOORD_0 and TEXCOORD_1 are read
+        warnings.warn(f"{r.path}: {where} reads TEXCOORD_{texcoord}; TEXCOORD_0 is used instead", stacklevel=4)
+        texcoord = 0
     return TextureRef(image=source, texcoord=texcoord, wrap_s=wrap_s, wrap_t=wrap_t, filter=filt,
                       color_space=color_space, uv_offset=offset, uv_rotation_rad=rotation, uv_scale=scale)
 
