@@ -83,6 +83,11 @@ _MAG_FILTER = {9728: "nearest", 9729: "linear"}
 _MIME_BY_SUFFIX = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp"}
 
 
+def _known(value, table) -> bool:
+    """True when ``value`` is a str or int (not bool) among ``table``'s keys (JSON may hold any type there)."""
+    return isinstance(value, (str, int)) and not isinstance(value, bool) and value in table
+
+
 @dataclass(frozen=True)
 class GltfLight:
     """A ``KHR_lights_punctual`` light placed by its node.
@@ -400,11 +405,11 @@ class _Reader:
         a = self.item("accessors", index, where)
         w = f"accessors[{index}]"
         ctype = a.get("componentType")
-        if ctype not in _COMPONENT_DTYPES:
+        if not _known(ctype, _COMPONENT_DTYPES):
             self.fail(f"{w}.componentType must be one of {sorted(_COMPONENT_DTYPES)}, got {show(ctype)}")
         dtype = _COMPONENT_DTYPES[ctype]
         atype = a.get("type")
-        if atype not in _TYPE_SHAPES:
+        if not _known(atype, _TYPE_SHAPES):
             self.fail(f"{w}.type must be one of {list(_TYPE_SHAPES)}, got {show(atype)}")
         rows, cols = _TYPE_SHAPES[atype]
         count = self.integer(a, "count", w, lo=1)
@@ -445,7 +450,7 @@ class _Reader:
         if not isinstance(ind, dict) or not isinstance(val, dict):
             self.fail(f"{ws} must have 'indices' and 'values' objects")
         ictype = ind.get("componentType")
-        if ictype not in (5121, 5123, 5125):
+        if not _known(ictype, (5121, 5123, 5125)):
             self.fail(f"{ws}.indices.componentType must be 5121, 5123 or 5125, got {show(ictype)}")
         idx = self._read_raw(self.integer(ind, "bufferView", f"{ws}.indices"),
                              self.integer(ind, "byteOffset", f"{ws}.indices", default=0), n,
@@ -765,7 +770,7 @@ def _read_mesh(r: _Reader, mesh_i: int, material_of, skipped: dict, computed_nor
         if not isinstance(prim, dict):
             r.fail(f"{where} must be an object, got {show(prim)}")
         mode = prim.get("mode", 4)
-        if mode not in (0, 1, 2, 3, 4, 5, 6):
+        if not _known(mode, (0, 1, 2, 3, 4, 5, 6)):
             r.fail(f"{where}.mode must be an integer in [0, 6], got {show(mode)}")
         attrs = prim.get("attributes")
         if not isinstance(attrs, dict):
@@ -951,10 +956,11 @@ def _texture_ref(r: _Reader, info, where: str, color_space: str, num_images: int
     if "sampler" in tex:
         s = r.item("samplers", tex["sampler"], f"textures[{ti}].sampler")
         ws, wt = s.get("wrapS", 10497), s.get("wrapT", 10497)
-        if ws not in _WRAP or wt not in _WRAP:
+        if not _known(ws, _WRAP) or not _known(wt, _WRAP):
             r.fail(f"samplers[{tex['sampler']}] wrapS/wrapT must be in {sorted(_WRAP)}, got {show(ws)}/{show(wt)}")
         wrap_s, wrap_t = _WRAP[ws], _WRAP[wt]
-        filt = _MAG_FILTER.get(s.get("magFilter"), "linear")
+        mag = s.get("magFilter")
+        filt = _MAG_FILTER[mag] if _known(mag, _MAG_FILTER) else "linear"
     offset, rotation, scale = (0.0, 0.0), 0.0, (1.0, 1.0)
     iext = info.get("extensions", {})
     tt = iext.get("KHR_texture_transform") if isinstance(iext, dict) else None
