@@ -557,6 +557,23 @@ def test_extensions_used_one_warning_and_required_unsupported(tmp_path):
         read_gltf(path)
 
 
+def test_file_without_scenes_and_texcoord_fallback(tmp_path):
+    b = Builder()
+    b.doc["images"] = [{"bufferView": b.view(PNG_1PX), "mimeType": "image/png"}]
+    b.doc["textures"] = [{"source": 0}]
+    b.doc["materials"] = [{"emissiveTexture": {"index": 0, "texCoord": 2}}]
+    quad = b.mesh(quad_primitive(b, material=0))
+    child = b.node(root=False, mesh=quad, translation=[0, 0, 1])
+    b.node(mesh=quad, children=[child])
+    del b.doc["scenes"], b.doc["scene"]
+    with pytest.warns(UserWarning, match=r"emissiveTexture reads TEXCOORD_2; TEXCOORD_0 is used instead"):
+        scene = read_gltf(b.write_glb(tmp_path / "noscene.glb"))
+    # without scenes, every node that is nobody's child is a root: the child is placed once, under its parent
+    assert scene.num_triangles == 4
+    np.testing.assert_allclose(scene.vertices[4:], QUAD_P + [0, 0, 1])
+    assert scene.materials[0].emissive_texture.texcoord == 0
+
+
 # ---------------------------------------------------------------------------------------------------
 # bad input
 
