@@ -80,6 +80,8 @@ DIELECTRIC_F0 = wp.constant(0.04)
 # directions whose squared length is outside [LEN2_MIN, LEN2_MAX] count as degenerate
 LEN2_MIN = wp.constant(1.0e-30)
 LEN2_MAX = wp.constant(1.0e30)
+# |v|^2 within this of 1 counts as unit length (a few float32 ulps of a normalized vector)
+UNIT_TOL = wp.constant(1.0e-6)
 
 
 @wp.struct
@@ -135,8 +137,12 @@ def _unit_clamp(x: float) -> float:
 
 @wp.func
 def _safe_unit(v: wp.vec3) -> wp.vec3:
-    """v / |v|, or the zero vector when |v| is zero, tiny, huge, infinite or NaN."""
+    """v / |v|, or the zero vector when |v| is zero, tiny, huge, infinite or NaN. A v already of unit length
+    (to UNIT_TOL in |v|^2) is returned as it is, so that evaluating a sampled direction repeats the sampler's
+    arithmetic exactly (one more rounding moves the GGX peak's D by 1e-3 relatively at ALPHA_MIN)."""
     l2 = wp.dot(v, v)
+    if wp.abs(l2 - 1.0) <= UNIT_TOL:
+        return v
     if l2 >= LEN2_MIN and l2 <= LEN2_MAX:
         return v / wp.sqrt(l2)
     return wp.vec3(0.0, 0.0, 0.0)
