@@ -96,7 +96,7 @@ def ref_pdf(c, met, rough, spec, wo, wi):
 def ref_albedo(c, met, rough, spec, cos_o, n=600):
     """Directional albedo (RGB) int f cos dwi by midpoint rules on n x 2n cells: the specular part over half
     vectors in (x, phi) with tan theta_h = alpha tan(x pi / 2), which spreads the GGX peak over x for any alpha and
-    makes D sin theta_h dtheta_h into the bounded t sqrt(1 + alpha^2 t^2) / (2 (1 + t^2)) dx (t = tan(x pi / 2));
+    rewrites D sin theta_h dtheta_h as the bounded t sqrt(1 + alpha^2 t^2) / (2 (1 + t^2)) dx (t = tan(x pi / 2));
     the diffuse part over (cos theta_i, phi)."""
     c = np.asarray(c, np.float64)
     a = float(ref_alpha(rough))
@@ -398,9 +398,14 @@ def test_sample_pdf_and_value_equal_eval(device, rng):
     np.testing.assert_allclose(np.linalg.norm(wi[ok], axis=-1), 1.0, atol=1e-5)
     assert (wi[ok, 2] > 0.0).all()
     assert (f[~ok] == 0.0).all()
-    # the sample's f and pdf are bit for bit the evaluation's at its direction
-    np.testing.assert_array_equal(pdf, pdf_eval)
-    np.testing.assert_array_equal(f, f_eval)
+    # the sample's f and pdf are the evaluation's at its direction: bit for bit on the CPU (one compiled function
+    # body); on CUDA the two call sites may contract multiply-adds differently, which moves D at the GGX peak
+    if device == "cpu":
+        np.testing.assert_array_equal(pdf, pdf_eval)
+        np.testing.assert_array_equal(f, f_eval)
+    else:
+        np.testing.assert_allclose(pdf, pdf_eval, rtol=1e-3, atol=0.0)
+        np.testing.assert_allclose(f, f_eval, rtol=1e-3, atol=0.0)
     # and the reference's: a sampled direction lies on the GGX peak, where the float32 rounding of the half vector
     # moves D by ~1e-7 / alpha^2 relatively: largest error seen 2.2e-3 for roughness < 0.1, 1.1e-4 for 0.1 to 0.3,
     # 7e-6 above (CPU)
@@ -682,3 +687,19 @@ def test_grazing_and_mirror_cases_are_finite(device, rough, met):
     for u in ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (1.0, 0.0, 0.0), (0.5, 0.25, 0.999)):
         _, fs, ps, _, _ = run_sample(device, c, np.full(k, met), np.full(k, rough), np.ones(k), wo, np.tile(u, (k, 1)))
         assert np.isfinite(fs).all() and np.isfinite(ps).all() and (fs >= 0).all() and (ps >= 0).all()
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def _probe_kernel(a: wp.array(dtype=float)):
+    a[wp.tid()] = 1.0
+
+
+def test_kernels_compile_for_cuda(tmp_path):
+    """The BSDF functions compile for CUDA (sm_90 PTX through NVRTC), also where no GPU is present: kernels/bsdf.py
+    holds no kernel of its own, so the package's CUDA compile test does not reach it. Whether this Warp build can
+    compile CUDA at all is decided on a one-line kernel in a module of its own, compiled first."""
+    try:
+        wp.compile_aot_module(_probe_kernel.module, arch=90, module_dir=str(tmp_path / "probe"), use_ptx=True)
+    except Exception as e:  # noqa: BLE001 - whatever the build raises without a CUDA compiler
+        pytest.skip(f"this Warp build cannot compile CUDA without a GPU: {e}")
+    assert wp.compile_aot_module(_eval_kernel.module, arch=90, module_dir=str(tmp_path / "bsdf"), use_ptx=True)
