@@ -1,21 +1,21 @@
-"""The README runs, and the package works from a clean copy and from a wheel (issue 17).
+"""README.md and docs/: the README's commands run, every relative link resolves, the pages stay within their
+length and describe the package as it is (no process words).
 
-Both tests work on a temporary copy of the repository (the files git tracks plus untracked files it does not
-ignore; no virtual environments, no outputs), run in subprocesses whose environment has no ``FOVEAWARP_*``
-variable and whose ``PYTHONPATH`` starts with the copy, so the copy's ``foveawarp`` is imported, and with no
-``shared/scenes`` folder in reach: named meshes must come from the package's assets.
-
-README rule (also stated in README.md, "Command line"):
+The README is run from a temporary copy of the repository (the files git tracks plus untracked files it does not
+ignore), in subprocesses whose environment has no ``FOVEAWARP_*`` variable and whose ``PYTHONPATH`` starts with
+the copy, so the copy's ``foveawarp`` is imported and no ``shared/scenes`` folder is in reach: named meshes come
+from the package's assets. The rules:
 
 - every ```` ```python ```` block runs, all of them in order in one process, with ``width=<int>`` /
   ``height=<int>`` set to 64 / 36 and ``device="..."`` set to ``"cpu"``;
 - every ``foveawarp ...`` command of the ```` ```bash ```` blocks runs (through ``foveawarp.cli.main``) with
   ``--device cpu``; ``demo`` / ``render`` with ``--width 48 --height 32 --frames 1`` and ``--out`` a fresh
   temporary folder; ``bench`` with ``--quick``; ``view`` with ``--width 48 --height 32 --port 0
-  --serve-seconds 1``. Options are replaced where given and added where not;
-- ``pip install ...`` and ``python -m pytest ...`` are not run; any other command is reported as a warning;
-  ```` ```text ```` blocks (synopses) are not run. A ``foveawarp`` line with a placeholder (``[``, ``|``, ``<``)
-  in a bash block fails the test: bash blocks hold runnable commands.
+  --serve-seconds 1``; a command without a subcommand (``foveawarp --help``) as written. Options are replaced
+  where given and added where not;
+- ``pip install ...`` and ``python -m pytest ...`` lines are not run (``.ci/run`` runs both); any other command in
+  a bash block fails the test, and so does a ``foveawarp`` line with a placeholder (``[``, ``|``, ``<``): bash
+  blocks hold runnable commands, ```` ```text ```` blocks synopses and commands for other machines.
 """
 
 from __future__ import annotations
@@ -28,63 +28,23 @@ import shutil
 import subprocess
 import sys
 import textwrap
-import warnings
-import zipfile
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
+README = REPO / "README.md"
+DOCS = REPO / "docs"
 TOUR_SIZE = (64, 36)
 CLI_SIZE = (48, 32)
+README_MAX_LINES = 400
+DOCS_MAX_LINES = 1500
+IMAGE_MAX_BYTES = 1_100_000
 
 
-def _repo_files() -> list:
-    """Relative paths of the repository's files as a clean clone would have them (+ untracked, not ignored)."""
-    git = shutil.which("git")
-    if git and (REPO / ".git").exists():
-        r = subprocess.run([git, "-C", str(REPO), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-                           capture_output=True, check=False)
-        if r.returncode == 0:
-            return [p for p in r.stdout.decode().split("\0") if p and (REPO / p).is_file()]
-    skip = {".git", ".venv", ".ci", "build", "dist", "__pycache__", ".pytest_cache", ".hypothesis", "foveawarp-out",
-            "out", ".cache", ".device", ".gl", ".whl"}
-    out = []
-    for dirpath, dirnames, filenames in os.walk(REPO):
-        dirnames[:] = [d for d in dirnames if d not in skip and not d.endswith(".egg-info")]
-        for f in filenames:
-            if not f.endswith(".pyc"):
-                out.append(os.path.relpath(os.path.join(dirpath, f), REPO))
-    return out
-
-
-@pytest.fixture(scope="module")
-def clone(tmp_path_factory):
-    dst = tmp_path_factory.mktemp("clone") / "repo"
-    for rel in _repo_files():
-        target = dst / rel
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(REPO / rel, target)
-    assert (dst / "foveawarp" / "assets" / "bunny.ply").is_file(), "the assets are not in the repository"
-    return dst
-
-
-def _clean_env(pythonpath=None) -> dict:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FOVEAWARP_") and k != "PYTHONPATH"}
-    env["PYTHONUNBUFFERED"] = "1"
-    if pythonpath is not None:
-        env["PYTHONPATH"] = str(pythonpath)
-    return env
-
-
-def _run_py(code: str, cwd: Path, pythonpath, timeout=600) -> subprocess.CompletedProcess:
-    script = cwd / "_fw_readme_script.py"
-    script.write_text(code)
-    try:
-        return subprocess.run([sys.executable, str(script)], cwd=cwd, env=_clean_env(pythonpath), capture_output=True,
-                              text=True, timeout=timeout)
-    finally:
-        script.unlink()
+def _pages() -> list:
+    """README.md and every markdown page under docs/."""
+    return [README] + sorted(DOCS.rglob("*.md"))
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -116,9 +76,14 @@ def readme_python(text: str) -> str:
     return "\n".join(code)
 
 
-def readme_commands(text: str, out_dir: Path):
-    """(README line, argv for foveawarp.cli.main) for each foveawarp command; the other commands, not run."""
-    runs, others = [], []
+def _not_run(words: list) -> bool:
+    """The install and test lines, which ``.ci/run`` runs itself."""
+    return words[0] == "pip" or words[:3] == ["python", "-m", "pytest"]
+
+
+def readme_commands(text: str, out_dir: Path) -> list:
+    """(README line, argv for foveawarp.cli.main) for each foveawarp command of the bash blocks."""
+    runs = []
     for lang, body in _blocks(text):
         if lang not in ("bash", "sh", "shell", "console"):
             continue
@@ -129,16 +94,18 @@ def readme_commands(text: str, out_dir: Path):
                 if not cmd or cmd.startswith("#"):
                     continue
                 words = shlex.split(cmd, comments=True)
-                if not words:
+                if not words or _not_run(words):
                     continue
                 if words[0] != "foveawarp":
-                    if not (words[0] == "pip" or words[:3] == ["python", "-m", "pytest"]):
-                        others.append(cmd)
-                    continue
+                    raise AssertionError(f"README bash line is not a foveawarp command this test can run (move it to "
+                                         f"a ```text block): {cmd}")
                 if any(c in cmd.split("#")[0] for c in "[|<"):
                     raise AssertionError(f"README bash line is a synopsis, not a command (use a ```text block): {cmd}")
                 argv = words[1:]
                 sub = argv[0] if argv else ""
+                if sub.startswith("-") or not sub:  # foveawarp --help: as written
+                    runs.append((cmd, argv))
+                    continue
                 _set_opt(argv, "--device", "cpu")
                 if sub in ("demo", "render"):
                     _set_opt(argv, "--width", CLI_SIZE[0])
@@ -147,13 +114,13 @@ def readme_commands(text: str, out_dir: Path):
                     _set_opt(argv, "--out", out_dir / f"cmd{len(runs)}")
                 if sub == "bench" and "--quick" not in argv:
                     argv.append("--quick")
-                if sub == "view":   # the live viewer: a free port, a tiny size, stop after a second
+                if sub == "view":  # the live viewer: a free port, a tiny size, stop after a second
                     _set_opt(argv, "--width", CLI_SIZE[0])
                     _set_opt(argv, "--height", CLI_SIZE[1])
                     _set_opt(argv, "--port", 0)
                     _set_opt(argv, "--serve-seconds", 1)
                 runs.append((cmd, argv))
-    return runs, others
+    return runs
 
 
 def test_readme_rules_rewrite_as_documented(tmp_path):
@@ -162,55 +129,195 @@ def test_readme_rules_rewrite_as_documented(tmp_path):
         pip install -e .[dev] && foveawarp demo
         foveawarp render --scene bunny --width 1280 --height 720 \\
                          --device cuda:0 --out out/b   # a comment
+        foveawarp --help
         python -m pytest
         ```
         ```text
         foveawarp render [--scene NAME]
+        ssh -L 8765:127.0.0.1:8765 host
         ```
         ```python
         loop = fw.FrameLoop(s, width=1920, height=1080, device="cuda:0")
         ```
         """)
-    runs, others = readme_commands(text, tmp_path)
+    runs = readme_commands(text, tmp_path)
     assert [r[0] for r in runs][0] == "foveawarp demo"
     assert runs[0][1] == ["demo", "--device", "cpu", "--width", "48", "--height", "32", "--frames", "1", "--out",
                           str(tmp_path / "cmd0")]
     assert runs[1][1] == ["render", "--scene", "bunny", "--width", "48", "--height", "32", "--device", "cpu",
                           "--out", str(tmp_path / "cmd1"), "--frames", "1"]
-    assert others == [] and len(runs) == 2
+    assert runs[2][1] == ["--help"] and len(runs) == 3
     assert 'width=64, height=36, device="cpu"' in readme_python(text)
     with pytest.raises(AssertionError, match="synopsis"):
         readme_commands("```bash\nfoveawarp render [--scene NAME]\n```\n", tmp_path)
+    with pytest.raises(AssertionError, match="not a foveawarp command"):
+        readme_commands("```bash\nssh -L 1:2:3 host\n```\n", tmp_path)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the pages themselves
+
+
+def test_lengths():
+    n = len(README.read_text().splitlines())
+    assert n <= README_MAX_LINES, f"README.md has {n} lines, at most {README_MAX_LINES}"
+    per = {p.relative_to(REPO).as_posix(): len(p.read_text().splitlines()) for p in DOCS.rglob("*") if p.is_file()
+           and p.suffix.lower() in (".md", ".txt", ".rst")}
+    assert sum(per.values()) <= DOCS_MAX_LINES, f"docs/ has {sum(per.values())} lines, at most {DOCS_MAX_LINES}: {per}"
+
+
+_LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+
+
+def _relative_links(text: str) -> list:
+    out = []
+    for target in _LINK.findall(text):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target, flags=re.I) or target.startswith("#"):
+            continue  # http:, https:, mailto: and in-page anchors
+        out.append(target.split("#", 1)[0])
+    return out
+
+
+def test_relative_links_and_images_exist():
+    missing = []
+    for page in _pages():
+        for target in _relative_links(page.read_text()):
+            path = (page.parent / target).resolve()
+            if not path.exists():
+                missing.append(f"{page.relative_to(REPO)}: {target}")
+            elif path.suffix.lower() in (".png", ".jpg", ".jpeg", ".gif"):
+                size = path.stat().st_size
+                assert size <= IMAGE_MAX_BYTES, f"{page.relative_to(REPO)}: {target} is {size} bytes"
+    assert not missing, "links to missing files:\n" + "\n".join(missing)
+    assert "docs/images/overview.png" in _relative_links(README.read_text()), "the README's output picture"
+
+
+def test_link_check_sees_broken_links(tmp_path):
+    text = "![a](docs/images/overview.png) [b](docs/nothing-here.md#x) [c](https://example.org/x.md) [d](#top)"
+    assert _relative_links(text) == ["docs/images/overview.png", "docs/nothing-here.md"]
+
+
+# process words: what the tree is, not how it came to be
+_FORBIDDEN = [
+    (re.compile(r"\bsessions?\b", re.I), "'session'"),
+    (re.compile(r"\bissues?\s*#?\d", re.I), "an issue number"),
+    (re.compile(r"\bhelpers?\b", re.I), "'helper'"),
+    # a commit hash: 7-40 hex characters with at least one digit and one letter, as a word of its own
+    (re.compile(r"(?<![\w])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7,40}(?![\w])"), "a commit hash"),
+    (re.compile(r"\b(?:commit|commits) [0-9a-f]{6,}", re.I), "a commit hash"),
+    (re.compile(r"(?<![\w`])I (?=[a-z])|(?<![\w`])I'(?:m|ve|d|ll)\b"), "first person 'I'"),
+    (re.compile(r"\b(?:we|our|ours|ourselves)\b", re.I), "first person 'we'"),
+    (re.compile(r"(?<![\w.])/(?:work|tmp|home|root|Users)/"), "a machine path"),
+]
+
+
+def _process_words(text: str) -> list:
+    found = []
+    for i, line in enumerate(text.splitlines(), 1):
+        for rx, what in _FORBIDDEN:
+            m = rx.search(line)
+            if m:
+                found.append(f"line {i}: {what}: {m.group(0)!r} in {line.strip()[:100]!r}")
+    return found
+
+
+def test_no_process_words():
+    bad = []
+    for page in _pages():
+        bad += [f"{page.relative_to(REPO)} {b}" for b in _process_words(page.read_text())]
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("line", [
+    "Measured in session 33 on the H100.", "Issue 14's targets", "fixed in `a565fab`", "at 0c09545 the frame",
+    "I measured it", "we chose 4", "Our default", "a helper review", "see /work/main/README.md",
+    "(commit 7614501)", "results/cpu-16core-2e786dc-cpu.md",
+])
+def test_process_word_check_catches(line):
+    assert _process_words(line), line
+
+
+@pytest.mark.parametrize("line", [
+    "27 us per launch", "the viewer listens on 127.0.0.1", "0x2545F491", "float32 and 1e-30", "I_c = Phi",
+    "`tools/canonical.sh`", "(H, W, 3) float32", "deadbeef", "SSIM (sigma 1.5)", "benchmarks/results/frame-h200.md",
+])
+def test_process_word_check_passes(line):
+    assert not _process_words(line), _process_words(line)
 
 
 # --------------------------------------------------------------------------------------------------------------
 # running it
 
 
-def test_readme_runs_from_a_clean_copy(clone, tmp_path):
-    text = (clone / "README.md").read_text()
-    tour = readme_python(text)
-    assert "fw.load_scene" in tour and "FrameLoop" in tour, "the README's Python tour is missing"
-    runs, others = readme_commands(text, tmp_path)
-    for cmd in others:
-        warnings.warn(f"README command not run by tests/test_readme.py: {cmd}")
-    scenes = {a[a.index("--scene") + 1] for _, a in runs if "--scene" in a}
-    assert {"bunny", "spot"} <= scenes, f"the README should show the shipped named meshes, shows {scenes}"
-    assert {a[0] for _, a in runs} >= {"demo", "render", "warmup", "bench"}
+def _repo_files() -> list:
+    """Relative paths of the repository's files as a clean clone would have them (+ untracked, not ignored)."""
+    git = shutil.which("git")
+    if git and (REPO / ".git").exists():
+        r = subprocess.run([git, "-C", str(REPO), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                           capture_output=True, check=False)
+        if r.returncode == 0:
+            return [p for p in r.stdout.decode().split("\0") if p and (REPO / p).is_file()]
+    skip = {".git", ".venv", ".ci", "build", "dist", "__pycache__", ".pytest_cache", ".hypothesis", "foveawarp-out",
+            "out", ".cache", ".device", ".gl", ".whl"}
+    out = []
+    for dirpath, dirnames, filenames in os.walk(REPO):
+        dirnames[:] = [d for d in dirnames if d not in skip and not d.endswith(".egg-info")]
+        out += [os.path.relpath(os.path.join(dirpath, f), REPO) for f in filenames if not f.endswith(".pyc")]
+    return out
 
-    # the Python blocks, in one process, from the copy
+
+@pytest.fixture(scope="module")
+def clone(tmp_path_factory):
+    dst = tmp_path_factory.mktemp("clone") / "repo"
+    for rel in _repo_files():
+        if rel.startswith(("benchmarks/results/", "docs/images/")):
+            continue  # large outputs the README's code does not read
+        target = dst / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / rel, target)
+    assert (dst / "assets" / "bunny.ply").is_file(), "the assets are not in the repository"
+    return dst
+
+
+def _clean_env(pythonpath) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FOVEAWARP_") and k != "PYTHONPATH"}
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONPATH"] = str(pythonpath)
+    return env
+
+
+def _run_py(code: str, cwd: Path, timeout=600) -> subprocess.CompletedProcess:
+    script = cwd / "_fw_readme_script.py"
+    script.write_text(code)
+    try:
+        return subprocess.run([sys.executable, str(script)], cwd=cwd, env=_clean_env(cwd), capture_output=True,
+                              text=True, timeout=timeout)
+    finally:
+        script.unlink()
+
+
+def test_readme_python_runs_from_a_clean_copy(clone):
+    tour = readme_python((clone / "README.md").read_text())
+    assert "fw.load_scene" in tour and "FrameLoop" in tour and "frame.stats" in tour, "the quick start is missing"
     probe = ("import foveawarp as _fw, foveawarp.meshio as _mio\n"
              "print('FOVEAWARP_FILE', _fw.__file__)\n"
              "print('NEFERTITI', _mio.find_named_mesh('nefertiti'))\n")
-    r = _run_py(probe + tour, clone, clone)
-    assert r.returncode == 0, f"README Python tour failed:\n{r.stdout[-3000:]}\n{r.stderr[-5000:]}"
+    r = _run_py(probe + tour, clone)
+    assert r.returncode == 0, f"README Python block failed:\n{r.stdout[-3000:]}\n{r.stderr[-5000:]}"
     assert f"FOVEAWARP_FILE {clone / 'foveawarp' / '__init__.py'}" in r.stdout, r.stdout[-2000:]
     assert "NEFERTITI None" in r.stdout, "a shared scene folder is in reach: the test would not show a clean clone"
+    assert "PSNR against full resolution" in r.stdout, r.stdout[-2000:]
 
-    # the foveawarp commands, through the console script's main(), one process
+
+def test_readme_commands_run_from_a_clean_copy(clone, tmp_path):
+    runs = readme_commands((clone / "README.md").read_text(), tmp_path)
+    subs = {a[0] for _, a in runs if a}
+    assert {"demo", "render", "view", "--help"} <= subs, f"the README should show these commands, shows {subs}"
+    scenes = {a[a.index("--scene") + 1] for _, a in runs if "--scene" in a}
+    assert {"bunny", "spot"} <= scenes, f"the README should show the shipped named meshes, shows {scenes}"
     (tmp_path / "cmds.json").write_text(json.dumps([[c, a] for c, a in runs]))
     driver = textwrap.dedent(f"""\
-        import json, sys, traceback
+        import contextlib, io, json, sys, traceback
         import foveawarp
         from foveawarp.cli import main
         print("FOVEAWARP_FILE", foveawarp.__file__)
@@ -227,65 +334,13 @@ def test_readme_runs_from_a_clean_copy(clone, tmp_path):
                 sys.exit(f"README command failed (exit {{rc}}): {{line}}  [run as foveawarp {{' '.join(argv)}}]")
         print("ALL_OK")
         """)
-    r = _run_py(driver, clone, clone)
+    r = _run_py(driver, clone)
     assert r.returncode == 0 and "ALL_OK" in r.stdout, f"{r.stdout[-4000:]}\n{r.stderr[-5000:]}"
     assert f"FOVEAWARP_FILE {clone / 'foveawarp' / '__init__.py'}" in r.stdout
+    assert "usage: foveawarp" in r.stdout, "foveawarp --help printed no usage"
     for cmd, argv in runs:
-        if argv[0] in ("demo", "render"):
+        if argv and argv[0] in ("demo", "render"):
             out = Path(argv[argv.index("--out") + 1])
             assert (out / "frame_0000.png").is_file() and (out / "stats.json").is_file(), cmd
             stats = json.loads((out / "stats.json").read_text())
             assert stats["width"] == CLI_SIZE[0] and stats["device"] == "cpu"
-
-
-def _wheel_tools_ok() -> bool:
-    try:
-        import setuptools
-    except ImportError:
-        return False
-    major_minor = tuple(int(x) for x in re.findall(r"\d+", setuptools.__version__)[:2])
-    if major_minor >= (70, 1):
-        return True
-    try:
-        import wheel  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def test_wheel_carries_the_assets_and_renders_bunny(clone, tmp_path):
-    if not _wheel_tools_ok():
-        pytest.skip("needs setuptools >= 70.1 (declared in the dev extra) or the wheel package to build a wheel")
-    src = tmp_path / "src"
-    shutil.copytree(clone, src)
-    dist = tmp_path / "dist"
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "--no-build-isolation", "-q",
-                        "-w", str(dist)], capture_output=True, text=True, env=_clean_env(), timeout=600)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    (whl,) = dist.glob("foveawarp-*.whl")
-    names = set(zipfile.ZipFile(whl).namelist())
-    for f in ("bunny.ply", "spot.ply", "teapot.ply", "README.md"):
-        assert f"foveawarp/assets/{f}" in names, sorted(n for n in names if "assets" in n)
-    site = tmp_path / "site"
-    r = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
-                        str(site), str(whl)], capture_output=True, text=True, env=_clean_env(), timeout=600)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    work = tmp_path / "elsewhere"
-    work.mkdir()
-    code = textwrap.dedent(f"""\
-        import foveawarp as fw
-        from foveawarp.cli import main
-        from foveawarp.meshio import find_named_mesh
-        print("FILE", fw.__file__)
-        print("BUNNY", find_named_mesh("bunny"))
-        rc = main(["render", "--scene", "bunny", "--device", "cpu", "--width", "32", "--height", "24",
-                   "--frames", "1", "--no-panel", "--out", {str(work / "out")!r}])
-        print("RC", rc)
-        """)
-    r = _run_py(code, work, site)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert f"FILE {site / 'foveawarp' / '__init__.py'}" in r.stdout, r.stdout
-    assert f"BUNNY {site / 'foveawarp' / 'assets' / 'bunny.ply'}" in r.stdout, r.stdout
-    assert "RC 0" in r.stdout and (work / "out" / "frame_0000.png").is_file()
-    stats = json.loads((work / "out" / "stats.json").read_text())
-    assert stats["scene"] == "bunny" and stats["triangles"] == 69451 + 2
