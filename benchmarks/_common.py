@@ -1,50 +1,101 @@
-"""Shared benchmark helpers: device resolution, synchronized median timing, JSON/markdown output."""
+"""Shared benchmark code: the common options, device names, synchronized median timing, the progress bar and the
+JSON / markdown / PNG output every entry point writes."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
+import re
 import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import warp as wp
 
-RESULTS = Path(__file__).resolve().parent / "results"
 REPO = Path(__file__).resolve().parent.parent
+# the default --out: ignored by git, so that a plain run never touches the tracked tree
+OUT = REPO / "benchmarks" / "out"
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
+# what every JSON record carries (``write_results`` refuses a record without them)
+RECORD_KEYS = ("device", "width", "height", "scene")
 
 
-def base_parser(description: str) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=description)
+def base_parser(doc: str, canonical: str) -> argparse.ArgumentParser:
+    """The options of every entry point: ``--device``, ``--out``, ``--tag``, ``--quick``, ``--repeats``,
+    ``--warmup``. ``--help`` begins with ``canonical``, the command of the canonical run."""
+    p = argparse.ArgumentParser(description=f"canonical run: {canonical}\n\n{doc}",
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s default)')
+    p.add_argument("--out", default=str(OUT), help="output folder for JSON / markdown / PNG (default: benchmarks/out)")
+    p.add_argument("--tag", default=None,
+                   help="file name tag: <benchmark>-<tag>.json/.md/.png (default: cuda or cpu, from the device)")
     p.add_argument("--quick", action="store_true", help="tiny sizes and few repeats (CPU smoke run)")
     p.add_argument("--repeats", type=int, default=None, help="timed repeats (median reported)")
     p.add_argument("--warmup", type=int, default=3, help="untimed warm-up runs")
-    p.add_argument("--out", default=None, help="output folder for JSON/markdown (default benchmarks/results)")
     return p
 
 
+def parse_sizes(p: argparse.ArgumentParser, text: str, opt: str = "--sizes") -> list:
+    """[(width, height)] from a comma list of WxH, or a parser error naming the option, the value and the form."""
+    try:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in text.split(",") if s]
+        if not sizes or any(len(s) != 2 or min(s) < 1 for s in sizes):
+            raise ValueError
+    except ValueError:
+        p.error(f"{opt} must be a comma list of WxH with positive integers, got {text!r}")
+    return sizes
+
+
 def git_commit() -> str:
-    """The commit the results come from: $FOVEAWARP_COMMIT when set (a copied working tree, e.g. on a remote GPU
-    machine, may carry a stale .git), else ``git rev-parse --short HEAD``."""
+    """The commit the results come from: $FOVEAWARP_COMMIT when set (a copied working tree has no .git), else
+    ``git rev-parse HEAD``, else "unknown"."""
     env = os.environ.get("FOVEAWARP_COMMIT")
     if env:
         return env
     try:
-        return subprocess.check_output(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
+        return subprocess.check_output(["git", "rev-parse", "HEAD"], cwd=REPO, text=True,
                                        stderr=subprocess.DEVNULL).strip()
     except Exception:
         return "unknown"
 
 
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo on Linux), else platform.processor(), else "cpu"."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "cpu"
+
+
+def device_name(device) -> str:
+    """The device's name: the GPU's ("NVIDIA H200") or the CPU model."""
+    d = wp.get_device(device)
+    return d.name if d.is_cuda else cpu_model()
+
+
 def device_info(device) -> dict:
     d = wp.get_device(device)
-    return {"device": d.alias, "device_name": d.name if d.is_cuda else platform.processor() or "cpu",
-            "is_cuda": bool(d.is_cuda), "warp": wp.__version__}
+    return {"device": device_name(d), "device_alias": d.alias, "is_cuda": bool(d.is_cuda), "warp": wp.__version__,
+            "cpu_threads": os.cpu_count()}
+
+
+def default_tag(device) -> str:
+    return "cuda" if wp.get_device(device).is_cuda else "cpu"
+
+
+def progress(iterable, desc: str, total=None):
+    """A tqdm progress bar on stderr (the table goes to stdout)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, file=sys.stderr, leave=False, dynamic_ncols=True)
 
 
 def time_ms(fn, device, repeats: int = 20, warmup: int = 3) -> dict:
@@ -64,6 +115,93 @@ def time_ms(fn, device, repeats: int = 20, warmup: int = 3) -> dict:
     return {"median_ms": statistics.median(ts), "p10_ms": q(0.1), "p90_ms": q(0.9), "repeats": repeats}
 
 
+def _finite(v):
+    """``v`` with every non-finite float replaced by None (strict JSON has no NaN / Infinity)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if hasattr(v, "item") and not isinstance(v, (str, bytes)):  # numpy scalars
+        return _finite(v.item())
+    return v
+
+
+def write_results(name: str, device, records: list, table_md: str, out=None, tag=None, extra=None) -> Path:
+    """Write ``<out>/<name>-<tag>.json`` (top level: benchmark, commit, device info, ``extra``; ``records``, each
+    with its device name) and ``<name>-<tag>.md``; returns the JSON's path. A record without width, height and
+    scene is refused (a ValueError naming the record)."""
+    info = device_info(device)
+    recs = []
+    for i, r in enumerate(records):
+        r = {**r, "device": info["device"]}
+        missing = [k for k in RECORD_KEYS if k not in r]
+        if missing:
+            raise ValueError(f"records[{i}] of {name} lacks {missing}; every record carries {list(RECORD_KEYS)}")
+        recs.append(r)
+    folder = Path(out) if out else OUT
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = f"{name}-{tag or default_tag(device)}"
+    payload = {"benchmark": name, "commit": git_commit(), **info, **(extra or {}), "records": recs}
+    p = folder / f"{stem}.json"
+    p.write_text(json.dumps(_finite(payload), indent=1, default=float))
+    (folder / f"{stem}.md").write_text(f"# {name} on {info['device']} ({info['device_alias']}), commit "
+                                       f"{payload['commit'][:12]}\n\n{table_md}\n")
+    print(f"wrote {p} and {p.with_suffix('.md').name}", file=sys.stderr)
+    return p
+
+
+def plot_path(name: str, device, out=None, tag=None) -> Path:
+    """Where ``name``'s PNG goes: ``<out>/<name>-<tag>.png``."""
+    folder = Path(out) if out else OUT
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{name}-{tag or default_tag(device)}.png"
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, or None (with a line saying so) when matplotlib is missing."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except Exception:
+        print("matplotlib not installed: no plot", file=sys.stderr)
+        return None
+    return plt
+
+
+def md_table(rows: list, cols=None) -> str:
+    if not rows:
+        return "(no rows)\n"
+    cols = cols or list(rows[0])
+    head = "| " + " | ".join(cols) + " |\n|" + "|".join("---" for _ in cols) + "|\n"
+    body = ""
+    for r in rows:
+        cells = []
+        for c in cols:
+            v = r.get(c, "")
+            cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
+        body += "| " + " | ".join(cells) + " |\n"
+    return head + body
+
+
+def scenes_present(fw, names: str):
+    """The scenes of the comma list ``names`` that load here; a mesh missing on this machine is skipped with a
+    line saying so."""
+    for name in [s for s in names.split(",") if s]:
+        try:
+            yield fw.load_scene(name)
+        except (FileNotFoundError, ValueError) as e:
+            print(f"skip {name}: {e}", file=sys.stderr, flush=True)
+
+
+def slug(text: str) -> str:
+    """A file-name-safe form of ``text``."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-").lower()
+
+
 def launch_timer(device, repeats: int, inner: int, warmup: int):
     """``t_ms(fn)``: ms per call of ``fn``, from ``time_ms`` (synchronized, median of ``repeats``) over timed calls
     of ``inner`` calls each: launches too short to time one by one."""
@@ -78,31 +216,7 @@ def launch_timer(device, repeats: int, inner: int, warmup: int):
     return t_ms
 
 
-def write_results(name: str, device, payload: dict, table_md: str, out=None) -> Path:
-    d = wp.get_device(device)
-    folder = Path(out) if out else RESULTS
-    folder.mkdir(parents=True, exist_ok=True)
-    tag = "cuda" if d.is_cuda else "cpu"
-    payload = {"benchmark": name, "commit": git_commit(), **device_info(device), **payload}
-    p = folder / f"{name}-{tag}.json"
-    p.write_text(json.dumps(payload, indent=1, default=float))
-    (folder / f"{name}-{tag}.md").write_text(table_md + "\n")
-    return p
-
-
-def md_table(rows: list, cols: list) -> str:
-    head = "| " + " | ".join(cols) + " |\n|" + "|".join("---" for _ in cols) + "|\n"
-    body = ""
-    for r in rows:
-        cells = []
-        for c in cols:
-            v = r.get(c, "")
-            cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
-        body += "| " + " | ".join(cells) + " |\n"
-    return head + body
-
-
-# the two shadings the frame benchmarks compare: Config.with_ overrides by name
+# the two shadings the profiling tools compare: Config.with_ overrides by name
 SHADINGS = {"default": {}, "ao8": {"shading": {"ao_samples": 8}}}
 
 
@@ -117,20 +231,4 @@ def checked_shadings_sizes(p: argparse.ArgumentParser, args) -> tuple:
     shadings = [s for s in args.shadings.split(",") if s]
     if not shadings or any(s not in SHADINGS for s in shadings):
         p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
-    try:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
-        if not sizes or any(len(s) != 2 or min(s) < 1 for s in sizes):
-            raise ValueError
-    except ValueError:
-        p.error(f"--sizes must be a comma list of WxH with positive integers, got {args.sizes!r}")
-    return shadings, sizes
-
-
-def scenes_present(fw, names: str):
-    """The scenes of the comma list ``names`` that load here; a shared mesh missing on this machine is skipped
-    with a line saying so."""
-    for name in [s for s in names.split(",") if s]:
-        try:
-            yield fw.load_scene(name)
-        except (FileNotFoundError, ValueError) as e:
-            print(f"skip {name}: {e}", flush=True)
+    return shadings, parse_sizes(p, args.sizes)

@@ -1,52 +1,45 @@
-"""The frame benchmark: foveated against full-resolution tracing, timed the same way in one run, and the
-foveated frame's error in motion.
+"""Is the foveated frame faster than full-resolution tracing, and how close is it?
 
-Per scene x resolution:
-* quality: along the scene's own camera path with a moving gaze, ``--frames`` frames; per-frame PSNR, SSIM and
-  foveal PSNR (eccentricity <= 5 deg) against ``render_reference`` of the same frame, with history on (the
-  configuration under test) and off (``TemporalConfig.enabled=False``), and the sampling rate per frame;
-* timing, per shading ("default"; "ao8" = 8 AO rays per pixel): the reference is ``FrameLoop(policy="full")``
-  (every pixel traced, the same frame path and CUDA graph replay), the foveated frame ``policy="foveated"`` and
-  the default policy ("auto"); each the median of ``--timing-frames`` synchronized frames along the camera path
-  after warm-up, the three loops taking turns frame by frame in a new (seeded) order every frame (so clock and
-  load drift hit them alike, and no loop always follows the same other one); with ``--turns blocks`` they take
-  turns in blocks of consecutive frames instead (``_timed_blocks``: each loop's frames follow its own, as in an
-  application), and ``--turns frames,blocks`` records both (each record's ``turns``); per-stage ms from a
-  ``timing=True`` run;
-  ``overhead_ms`` = foveated frame - (G-buffer + traced shading + indirect) stage times; on CUDA also
-  ``stage_gpu_ms`` and ``overhead_gpu_ms``, the same from a ``timing="gpu"`` run (CUDA-event stage times);
-* stochastic (``--stochastic``): with ``ao_samples=4``, a static view's frame 0 and frame 29 against a converged
-  reference (256 AO rays), and a moving path with history on and off against the converged reference.
-* ao quality (part ``aoquality``): the heavy shading's error in motion. Along the same camera path and moving
-  gaze, the full-resolution frame with ``--ao-samples`` AO rays per pixel (``policy="full"``, the timing's
-  reference) and the foveated frame with as many are both compared with a converged frame (``--converged-ao``
-  rays per pixel, ``render_reference``); per-frame PSNR, SSIM and foveal PSNR of both; the full-resolution
-  frame with fewer AO rays (``--ao-sweep``) against the same converged frames, and all of them timed with the
-  foveated frame as the timing part times (``--timing-frames``; 0: none): brute force with fewer rays at its
-  error. The timing
-  records of "ao8" then carry the foveated frame's quality (``psnr``) and the reference's (``ref_psnr``).
+Per scene x size x shading (``--ao-samples``: AO rays per pixel, 0 = the default direct shading), along the
+scene's camera path (1/30 s a frame) with a moving gaze (a Lissajous figure):
 
-python benchmarks/frame.py --device cuda:0 [--scenes ...] [--sizes 1920x1080,3840x2160] [--frames 60]
+* timing: the full-resolution reference (``FrameLoop(policy="full")``), the foveated frame forced on
+  (``policy="foveated"``) and the default policy ("auto"), timed the same way in one run: synchronized frames
+  after warm-up (on CUDA each steady-state frame is one CUDA-graph replay), medians of ``--timing-frames``
+  frames, the three loops taking turns frame by frame in a new seeded order every frame (``--turns blocks``:
+  in blocks of consecutive frames); speed-up = reference ms / foveated ms; per-stage ms of a ``timing=True``
+  loop (and of ``timing="gpu"`` on CUDA);
+* quality: per-frame PSNR, SSIM, fovea PSNR (eccentricity <= 5 deg of the gaze) and FLIP (when the optional
+  ``flip-evaluator`` is installed) of the foveated frame, with their mean and min over ``--frames`` frames.
+  Target: ``render_reference`` of the same camera, time and gaze; with AO rays the target is a converged frame
+  (``--converged-ao`` rays per pixel), and the full-resolution frame with as many AO rays as the foveated one
+  gets its own error against it too (so both sit on the time-vs-error plot).
+* ``--configs``: other foveation settings as ``name=python-dict`` Config.with_ overrides, each its own record.
+
+Writes frame-<tag>.json / .md and frame-<tag>.png (x = frame ms, y = PSNR: foveated and reference points).
 """
 
 from __future__ import annotations
 
 import ast
 import math
-import os
 import sys
 import textwrap
 import time
 from pathlib import Path
 
-sys.path.append(str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, git_commit, md_table, write_results  # noqa: E402
+from benchmarks._common import (base_parser, md_table, parse_sizes, plot_path, progress, pyplot,  # noqa: E402
+                                scenes_present, write_results)
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
+CANONICAL = ("python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 "
+             "--scenes cornell,city,bunny,nefertiti --sizes 1920x1080,3840x2160 --ao-samples 0,8 "
+             "--frames 30 --timing-frames 30")
 
 
 def gaze_path(i, n, w, h):
@@ -102,105 +95,15 @@ def _summ(v):
             "finite_min": float(np.min(f)) if f.size else float("inf")}
 
 
-def quality(fw, scene, w, h, dev, cfg, frames, metrics):
-    fov = scene.camera.fov_y_deg
-    ref_loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
-    on = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
-    off = fw.FrameLoop(scene, w, h, config=cfg.with_(temporal={"enabled": False}), device=dev, timing=False,
-                       policy="foveated")
-    ref_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    rec = {"psnr": [], "ssim": [], "fovea_psnr": [], "psnr_off": [], "ssim_off": [], "fovea_psnr_off": [],
-           "sampling_rate": [], "cache_hit_rate": []}
-    for i in range(frames):
-        t = i / 30.0
-        cam = scene.camera_at(t)
-        g = gaze_path(i, frames, w, h)
-        wp.copy(ref_img, ref_loop.render_reference(cam, time=t, gaze_px=g).image)
-        f = on.render(cam, gaze_px=g, time=t)
-        m = metrics(f.image, ref_img, g, fov)
-        rec["psnr"].append(m["psnr"])
-        rec["ssim"].append(m["ssim"])
-        rec["fovea_psnr"].append(_fovea_key(m))
-        rec["sampling_rate"].append(f.stats["sampling_rate"])
-        rec["cache_hit_rate"].append(f.stats["cache_hit_rate"])
-        f = off.render(cam, gaze_px=g, time=t)
-        m = metrics(f.image, ref_img, g, fov)
-        rec["psnr_off"].append(m["psnr"])
-        rec["ssim_off"].append(m["ssim"])
-        rec["fovea_psnr_off"].append(_fovea_key(m))
-    d = np.asarray(rec["psnr"]) - np.asarray(rec["psnr_off"])
-    rec["history_gain_db_min"] = float(np.nanmin(np.where(np.isfinite(d), d, 100.0)))
-    return rec
-
-
-def _add_metrics(rec, prefix, m):
-    """Append one frame's whole-frame PSNR, SSIM and foveal PSNR (``metrics``' dict ``m``) to the series
-    ``{prefix}psnr``, ``{prefix}ssim`` and ``{prefix}fovea_psnr`` of ``rec``."""
-    rec[f"{prefix}psnr"].append(m["psnr"])
-    rec[f"{prefix}ssim"].append(m["ssim"])
-    rec[f"{prefix}fovea_psnr"].append(_fovea_key(m))
-
-
-def _last_record(records, kind, scene, width, config):
-    """The last record of ``kind`` for (scene, width, config), or None."""
-    return next((r for r in reversed(records) if r["kind"] == kind and r["scene"] == scene and r["width"] == width
-                 and r["config"] == config), None)
-
-
-def ao_quality(fw, scene, w, h, dev, cfg, frames, metrics, ao=8, converged_ao=256, sweep=(), timing_frames=0):
-    """The full-resolution frame and the foveated frame, both with ``ao`` AO rays per pixel, against a converged
-    frame (``converged_ao`` rays per pixel) of the same camera, time and gaze, along the camera path with a
-    moving gaze. Returns per-frame series for both and the per-frame difference (foveated - reference, dB).
-
-    ``sweep``: other AO ray counts of the full-resolution frame (brute force with fewer rays), each with its
-    PSNR series against the same converged frames; with ``timing_frames`` > 0, every full-resolution frame of
-    the sweep and the foveated frame are then timed the way ``timing`` times them (interleaved, medians), so
-    time can be set against error at equal footing."""
-    fov = scene.camera.fov_y_deg
-    cao = cfg.with_(shading={"ao_samples": int(ao)})
-    conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": int(converged_ao)}), device=dev,
-                        timing=False, policy="foveated")
-    full = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="full")
-    fovl = fw.FrameLoop(scene, w, h, config=cao, device=dev, timing=False, policy="foveated")
-    others = {int(a): fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": int(a)}), device=dev,
-                                   timing=False, policy="full") for a in sweep if int(a) != int(ao)}
-    conv_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    rec = {"ao_samples": int(ao), "converged_ao": int(converged_ao), "psnr": [], "ssim": [], "fovea_psnr": [],
-           "ref_psnr": [], "ref_ssim": [], "ref_fovea_psnr": [], "sampling_rate": [],
-           "sweep_psnr": {str(a): [] for a in others}}
-    for i in range(frames):
-        t = i / 30.0
-        g = gaze_path(i, frames, w, h)
-        wp.copy(conv_img, conv.render_reference(scene.camera_at(t), time=t, gaze_px=g).image)
-        f = fovl.render(scene.camera_at(t), gaze_px=g, time=t)
-        _add_metrics(rec, "", metrics(f.image, conv_img, g, fov))
-        rec["sampling_rate"].append(f.stats["sampling_rate"])
-        _add_metrics(rec, "ref_", metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, conv_img, g, fov))
-        for a, lp in others.items():
-            rec["sweep_psnr"][str(a)].append(metrics(lp.render(scene.camera_at(t), gaze_px=g, time=t).image,
-                                                     conv_img, g, fov)["psnr"])
-    d = np.asarray(rec["psnr"]) - np.asarray(rec["ref_psnr"])
-    rec["gain_db"] = d.tolist()
-    rec["gain_db_min"] = float(np.min(d))
-    if timing_frames > 0:
-        loops = {"foveated": fovl, str(int(ao)): full, **{str(a): lp for a, lp in others.items()}}
-        med = _timed_interleaved(loops, scene, w, h, timing_frames, {k: 8 for k in loops})
-        rec["fov_ms"] = med.pop("foveated")
-        rec["sweep_ms"] = med  # full-resolution frame ms per AO ray count (the timed ``ao`` one included)
-    return rec
-
-
 def _timed_interleaved(loops: dict, scene, w, h, n, warm: dict, seed: int = 0) -> dict:
     """Median synchronized frame ms of each loop, the loops taking turns frame by frame (frame i of every loop
     renders the same camera, time and gaze), so that clock and load drift hit them alike. ``warm``: frames each
     loop renders first, untimed (the "auto" loop's include its policy measurement).
 
     The turns come in a new order every frame (a permutation drawn from ``seed``): a loop that always renders
-    right after the same other loop pays for it. With a fixed order (full resolution, foveated, auto) the auto
-    loop always followed the foveated one, and its full-resolution frames measured 1.002-1.051x the
-    reference's; with shuffled turns the same loops measured 1.000-1.012x, and a second reference loop
-    0.999-1.011x (H100, `auto-order-e31-a251d8e-cuda.log`): the frame after the foveated loop's usually spends
-    more host time (median +5 us over 32 cases), the host's caches holding the other loop's state."""
+    right after the same other loop pays for it (the host's caches hold the other loop's state; with a fixed
+    order the auto loop's full-resolution frames measured up to 1.05x the reference's on an H100, shuffled
+    1.00-1.01x)."""
     t0_frame = _warm_up(loops, scene, w, h, n, warm)  # one timeline: every warm-up ends where the timed frames begin
     ms = {name: [] for name in loops}
     names = list(loops)
@@ -218,8 +121,8 @@ def _timed_frame(loop, scene, i: int, n: int, w: int, h: int) -> float:
     wp.synchronize_device(loop.device)
     t_start = time.perf_counter()
     # each loop gets its own camera object, made inside the timed region as an application would: a camera shared
-    # by the loops would carry its cached basis and kernel parameters from the first loop that used it to the others
-    # (c9cc304's run: the first loop, the reference, paid 0.10-0.20 ms more)
+    # by the loops carries its cached basis and kernel parameters from the first loop that used it to the others
+    # (the first loop paid 0.10-0.20 ms more per frame on an H100)
     loop.render(scene.camera_at(t), gaze_px=g, time=t)
     wp.synchronize_device(loop.device)
     return (time.perf_counter() - t_start) * 1e3
@@ -227,12 +130,6 @@ def _timed_frame(loop, scene, i: int, n: int, w: int, h: int) -> float:
 
 TURNS = ("frames", "blocks")
 BLOCK_FRAMES, BLOCK_SKIP = 10, 2
-
-
-def record_turns(rec: dict) -> str:
-    """The turn schedule that timed a timing record: its "turns", or "frames" for records written before
-    ``--turns`` existed (they were all timed frame by frame)."""
-    return rec.get("turns", "frames")
 
 
 def _warm_up(loops: dict, scene, w, h, n, warm: dict) -> int:
@@ -255,9 +152,8 @@ def _timed_blocks(loops: dict, scene, w, h, n, warm: dict, block: int = BLOCK_FR
     This is how an application runs one loop: frame after frame with nothing else on the GPU between them, so the
     data a frame leaves in the GPU's caches (the history, the previous depth, the BVH) is there for the next one.
     In ``_timed_interleaved`` every frame follows another loop's frame, which evicts it. Alternating blocks keeps
-    what that scheme is for: clock and load drift hit the loops alike. Measured on the H100 (session 34,
-    ``frame-s34-turns-c9f0667-run{1,2,3}``, 9 scenes x 2 sizes x 2 shadings): the two schedules' speed-ups agree
-    within 2.5%, so the frame-by-frame figures do not understate the foveated frame."""
+    what that scheme is for: clock and load drift hit the loops alike. The two schedules' speed-ups agree within
+    2.5 % (H100, 9 scenes x 2 sizes x 2 shadings)."""
     if not 0 <= skip < block:
         raise ValueError(f"skip must be in [0, block - 1] = [0, {block - 1}], got {skip}")
     t0_frame = _warm_up(loops, scene, w, h, n, warm)
@@ -338,270 +234,202 @@ def _timing_turns(fw, scene, w, h, dev, cfg, n, turns: str) -> dict:
     return out
 
 
-def stochastic(fw, scene, w, h, dev, cfg, frames, metrics):
-    """ao_samples=4: static view convergence and motion vs history off, against a 256-ray reference."""
-    fov = scene.camera.fov_y_deg
-    c4 = cfg.with_(shading={"ao_samples": 4})
-    conv = fw.FrameLoop(scene, w, h, config=cfg.with_(shading={"ao_samples": 256}), device=dev, timing=False,
-                        policy="foveated")
-    ref_img = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    cam = scene.camera_at(0.0)
-    g = (w * 0.5, h * 0.5)
-    wp.copy(ref_img, conv.render_reference(cam, time=0.0).image)
-    loop = fw.FrameLoop(scene, w, h, config=c4, device=dev, timing=False, policy="foveated")
-    static = []
-    for i in range(30):
-        f = loop.render(cam, gaze_px=g, time=0.0)
-        if i in (0, 29):
-            static.append(metrics(f.image, ref_img, g, fov)["psnr"])
-    on = fw.FrameLoop(scene, w, h, config=c4, device=dev, timing=False, policy="foveated")
-    off = fw.FrameLoop(scene, w, h, config=c4.with_(temporal={"enabled": False}), device=dev, timing=False,
-                       policy="foveated")
-    mon, moff = [], []
+def _with_flip(metrics):
+    """``metrics`` plus the mean FLIP error (host) where flip-evaluator is installed."""
+    from foveawarp.metrics import flip, flip_available
+
+    if not flip_available():
+        return metrics, False
+
+    def both(img, ref, g, fov):
+        m = dict(metrics(img, ref, g, fov))
+        m["flip"] = flip(img.numpy(), ref.numpy())
+        return m
+
+    return both, True
+
+
+SERIES = ("psnr", "ssim", "fovea_psnr", "flip")
+
+
+def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0):
+    """Per-frame error series along the camera path with the moving gaze: ``fov`` of the foveated frame (history
+    on, ``policy="foveated"``) and, with ``converged_ao`` > 0, ``ref`` of the full-resolution frame with ``cfg``'s
+    shading, both against a converged frame (``converged_ao`` AO rays per pixel); with 0 the target is
+    ``render_reference`` of ``cfg`` and ``ref`` is None (the reference is the target). Also the sampling rates."""
+    fov_deg = scene.camera.fov_y_deg
+    target_cfg = cfg.with_(shading={"ao_samples": int(converged_ao)}) if converged_ao else cfg
+    target = fw.FrameLoop(scene, w, h, config=target_cfg, device=dev, timing=False, policy="foveated")
+    fovl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
+    full = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full") if converged_ao else None
+    tgt = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+    out = {"fov": {k: [] for k in SERIES}, "ref": {k: [] for k in SERIES} if full else None, "sampling_rate": []}
+
+    def add(series, m):
+        series["psnr"].append(m["psnr"])
+        series["ssim"].append(m["ssim"])
+        series["fovea_psnr"].append(_fovea_key(m))
+        if "flip" in m:
+            series["flip"].append(m["flip"])
+
     for i in range(frames):
         t = i / 30.0
-        cam = scene.camera_at(t)
         g = gaze_path(i, frames, w, h)
-        wp.copy(ref_img, conv.render_reference(cam, time=t).image)
-        mon.append(metrics(on.render(cam, gaze_px=g, time=t).image, ref_img, g, fov)["psnr"])
-        moff.append(metrics(off.render(cam, gaze_px=g, time=t).image, ref_img, g, fov)["psnr"])
-    return {"static_psnr_frame0": static[0], "static_psnr_frame29": static[1],
-            "static_gain_db": static[1] - static[0], "motion_psnr_on": mon, "motion_psnr_off": moff,
-            "motion_min_gain_db": float(np.min(np.asarray(mon) - np.asarray(moff)))}
+        wp.copy(tgt, target.render_reference(scene.camera_at(t), time=t, gaze_px=g).image)
+        f = fovl.render(scene.camera_at(t), gaze_px=g, time=t)
+        add(out["fov"], metrics(f.image, tgt, g, fov_deg))
+        out["sampling_rate"].append(f.stats["sampling_rate"])
+        if full is not None:
+            add(out["ref"], metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, tgt, g, fov_deg))
+    return out
+
+
+def _summary(prefix: str, series: dict) -> dict:
+    """Mean and min (max for FLIP, an error) of each series; identical frames (inf dB) count as 100 dB in
+    means."""
+    out = {}
+    for k, v in series.items():
+        if not v:
+            continue
+        s = _summ(v)
+        out[f"{prefix}{k}_mean"] = s["mean"]
+        if k == "flip":
+            out[f"{prefix}flip_max"] = float(np.max(v))
+        else:
+            out[f"{prefix}{k}_min"] = s["min"]
+    return out
+
+
+def _parse_configs(p, text: str) -> list:
+    configs = []
+    for item in [s for s in text.split(";") if s.strip()]:
+        name, _, lit = item.partition("=")
+        try:
+            over = ast.literal_eval(lit) if lit.strip() else {}
+        except (ValueError, SyntaxError):
+            over = None
+        if not name.strip() or not isinstance(over, dict):
+            p.error(f"--configs must be ';'-separated name=python-dict items, got {item!r}")
+        configs.append((name.strip(), over))
+    return configs or [("default", {})]
 
 
 def main(argv=None):
-    p = base_parser(__doc__)
+    p = base_parser(__doc__, CANONICAL)
     p.add_argument("--scenes", default=ALL_SCENES)
     p.add_argument("--sizes", default="1920x1080,3840x2160")
-    p.add_argument("--frames", type=int, default=60)
-    p.add_argument("--timing-frames", type=int, default=50, help="timed frames per loop (0: the aoquality part times nothing)")
-    p.add_argument("--configs", default="default={}",
-                   help="';'-separated name=python-dict Config.with_ overrides (quality part per config)")
-    p.add_argument("--parts", default="quality,timing", help="quality,timing,aoquality,stochastic")
-    p.add_argument("--ao-samples", type=int, default=8, help="AO rays per pixel of the aoquality part (1-64)")
-    p.add_argument("--ao-sweep", default="1,2,4",
-                   help="other AO ray counts of the full-resolution frame in the aoquality part ('' for none)")
+    p.add_argument("--ao-samples", default="0,8", help="comma list of AO rays per pixel (0: the default shading)")
     p.add_argument("--converged-ao", type=int, default=256,
-                   help="AO rays per pixel of the aoquality part's converged frame (above --ao-samples, <= 4096)")
-    p.add_argument("--stochastic-scenes", default="cornell,city")
-    p.add_argument("--name", default="frame")
-    p.add_argument("--bvh", default=None, help="every scene's BVH as CTOR or CTOR-LEAF (e.g. sah-4; default: auto)")
-    p.add_argument("--psnr-only", action="store_true", help="skip SSIM (host PSNR only: fast sweeps)")
-    p.add_argument("--turns", default="frames",
-                   help="how the timing part's loops take turns: frames (one frame each, in a new order every "
-                        "frame), blocks (%d frames each, the first %d untimed), or both: frames,blocks"
-                        % (BLOCK_FRAMES, BLOCK_SKIP))
+                   help="AO rays per pixel of the quality target when --ao-samples > 0 (above every item, <= 4096)")
+    p.add_argument("--frames", type=int, default=30, help="frames of the quality series (0: no quality)")
+    p.add_argument("--timing-frames", type=int, default=30, help="timed frames per loop (0: no timing)")
+    p.add_argument("--turns", default="frames", choices=TURNS,
+                   help="the loops take turns frame by frame (frames) or in blocks of %d frames (blocks)"
+                        % BLOCK_FRAMES)
+    p.add_argument("--configs", default="default={}",
+                   help="';'-separated name=python-dict Config.with_ overrides, e.g. "
+                        "\"default={};mar0.034={'foveation': {'mar_slope': 0.034}}\"")
+    p.add_argument("--psnr-only", action="store_true", help="host PSNR only, no SSIM (fast sweeps)")
     args = p.parse_args(argv)
     import foveawarp as fw
 
     wp.config.quiet = True
     dev = wp.get_device(args.device)
-    metrics, where = _metric_fn(args.psnr_only)
-    parts = set(args.parts.split(","))
-    unknown = parts - {"quality", "timing", "aoquality", "stochastic"}
-    if unknown:
-        p.error(f"--parts items must be in [quality, timing, aoquality, stochastic], got {sorted(unknown)}")
-    if not 1 <= args.ao_samples <= 64:
-        p.error(f"--ao-samples must be in [1, 64], got {args.ao_samples}")
-    items = [v.strip() for v in args.ao_sweep.split(",") if v.strip()]
-    if not all(v.isdigit() and 1 <= int(v) <= 64 for v in items):
-        p.error(f"--ao-sweep items must be integers in [1, 64], got {args.ao_sweep!r}")
-    sweep = [int(v) for v in items]
-    if not args.ao_samples < args.converged_ao <= 4096:
-        p.error(f"--converged-ao must be in [{args.ao_samples + 1}, 4096] (above --ao-samples), got {args.converged_ao}")
-    bvh = None
-    if args.bvh:
-        from benchmarks.bvh import parse_configs
-
-        (bvh,) = parse_configs(p, args.bvh, "--bvh") if "," not in args.bvh else p.error("--bvh takes one choice")
-    configs = []
-    for item in args.configs.split(";"):
-        name, _, lit = item.partition("=")
-        configs.append((name.strip(), ast.literal_eval(lit) if lit.strip() else {}))
-    turns = tuple(v.strip() for v in args.turns.split(",") if v.strip())
-    if not turns or any(t not in TURNS for t in turns) or len(set(turns)) != len(turns):
-        p.error(f"--turns must be distinct items of {list(TURNS)}, got {args.turns!r}")
-    records, rows, arows = [], [], []
-    sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    if args.quick:
-        sizes, args.frames, args.timing_frames = [(96, 54)], 4, 3
-    for name in args.scenes.split(","):
-        try:
-            scene = fw.load_scene(name)
-            if bvh is not None:
-                scene.bvh_constructor, scene.bvh_leaf_size = bvh
-        except ValueError as e:
-            print(f"skip {name}: {e}", flush=True)
-            continue
-        for w, h in sizes:
-            for cname, over in configs:
-                cfg = fw.Config().with_(**over) if over else fw.Config()
-                base = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "config": cname,
-                        "overrides": over, "metrics_on": where, "commit": git_commit(),
-                        "bvh_requested": [scene.bvh_constructor, scene.bvh_leaf_size]}
-                t0 = time.perf_counter()
-                if "quality" in parts:
-                    q = quality(fw, scene, w, h, dev, cfg, args.frames, metrics)
-                    q["sampling_rate_series"] = q.pop("sampling_rate")
-                    rec = {**base, "kind": "quality", "sampling_rate": float(np.mean(q["sampling_rate_series"])), **q}
-                    records.append(rec)
-                    row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname,
-                           "rate": rec["sampling_rate"], "rate_max": float(np.max(q["sampling_rate_series"])),
-                           "psnr": _summ(q["psnr"])["mean"], "psnr_min": _summ(q["psnr"])["min"],
-                           "ssim": float(np.mean(q["ssim"])), "ssim_min": float(np.min(q["ssim"])),
-                           "fovea_min": _summ(q["fovea_psnr"])["min"],
-                           "psnr_off": _summ(q["psnr_off"])["mean"], "hist_gain_min": q["history_gain_db_min"]}
-                    rows.append(row)
-                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-                if "aoquality" in parts:
-                    aq = ao_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.ao_samples,
-                                    args.converged_ao, sweep, args.timing_frames)
-                    aq["sampling_rate_series"] = aq.pop("sampling_rate")
-                    rec = {**base, "kind": "ao_quality", "sampling_rate": float(np.mean(aq["sampling_rate_series"])),
-                           **aq}
-                    records.append(rec)
-                    row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname, "ao": args.ao_samples,
-                           "rate": rec["sampling_rate"],
-                           "ref_psnr": _summ(aq["ref_psnr"])["mean"], "ref_psnr_min": _summ(aq["ref_psnr"])["min"],
-                           "fov_psnr": _summ(aq["psnr"])["mean"], "fov_psnr_min": _summ(aq["psnr"])["min"],
-                           "ref_ssim": float(np.mean(aq["ref_ssim"])), "fov_ssim": float(np.mean(aq["ssim"])),
-                           "ref_fovea": _summ(aq["ref_fovea_psnr"])["mean"], "fov_fovea": _summ(aq["fovea_psnr"])["mean"],
-                           "gain_db_min": aq["gain_db_min"],
-                           **{f"ref{a}_psnr": _summ(v)["mean"] for a, v in aq["sweep_psnr"].items()},
-                           **({"fov_ms": aq["fov_ms"], **{f"ref{a}_ms": v for a, v in aq["sweep_ms"].items()}}
-                              if "fov_ms" in aq else {})}
-                    arows.append(row)
-                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-                if "timing" in parts:
-                    qrec = _last_record(records, "quality", scene.name, w, cname)
-                    qual = {} if qrec is None else {
-                        "psnr": _summ(qrec["psnr"])["mean"], "ssim": float(np.mean(qrec["ssim"])),
-                        "fovea_psnr": _summ(qrec["fovea_psnr"])["mean"], "quality_shading": "default"}
-                    arec = _last_record(records, "ao_quality", scene.name, w, cname)
-                    aqual = {} if arec is None or arec["ao_samples"] != 8 else {
-                        "psnr": _summ(arec["psnr"])["mean"], "ssim": float(np.mean(arec["ssim"])),
-                        "fovea_psnr": _summ(arec["fovea_psnr"])["mean"], "ref_psnr": _summ(arec["ref_psnr"])["mean"],
-                        "ref_ssim": float(np.mean(arec["ref_ssim"])),
-                        "quality_shading": f"ao8 against {arec['converged_ao']} AO rays"}
-                    for shading, sover in (("default", {}), ("ao8", {"shading": {"ao_samples": 8}})):
-                        c2 = cfg.with_(**sover) if sover else cfg
-                        for tm in timing(fw, scene, w, h, dev, c2, args.timing_frames, turns):
-                            rec = {**base, "kind": "timing", "shading": shading, "gbuffer_mode": c2.foveation.gbuffer,
-                                   "sampling_rate": tm["timing_sampling_rate"],
-                                   **(aqual if shading == "ao8" and aqual else qual), **tm}
-                            records.append(rec)
-                            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rec.items()
-                                   if k not in ("stage_ms", "stage_gpu_ms", "overrides", "auto_estimates")}, flush=True)
-                        print("   stages", {k: round(v, 3) for k, v in tm["stage_ms"].items()}, flush=True)
-                        if "stage_gpu_ms" in tm:
-                            print("   stages (gpu)", {k: round(v, 3) for k, v in tm["stage_gpu_ms"].items()}, flush=True)
-                if "stochastic" in parts and scene.name.split("+")[0] in args.stochastic_scenes.split(","):
-                    st = stochastic(fw, scene, w, h, dev, cfg, min(args.frames, 30), metrics)
-                    records.append({**base, "kind": "stochastic", **st})
-                    print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in st.items()
-                           if not isinstance(v, list)}, flush=True)
-                print(f"   ({time.perf_counter() - t0:.1f} s)", flush=True)
-                # keep what is measured so far (a run cut short by a time limit still leaves its records)
-                write_results(args.name, dev, {"records": records, "frames": args.frames,
-                                               "timing_frames": args.timing_frames, "partial": True}, "", args.out)
-    md = md_table(rows, list(rows[0])) if rows else ""
-    trows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "config": r["config"],
-              "shading": r["shading"], **({"turns": r["turns"]} if len(turns) > 1 else {}), "rate": r["sampling_rate"], "ref_ms": r["ref_ms"], "fov_ms": r["fov_ms"],
-              "speedup": r["speedup"], "auto_ms": r["auto_ms"], "auto_path": r["auto_path"],
-              "overhead_ms": r["overhead_ms"], **({"overhead_gpu_ms": r["overhead_gpu_ms"]}
-                                                   if "overhead_gpu_ms" in r else {})}
-             for r in records if r["kind"] == "timing"]
-    if arows:
-        md += "\n\n" + md_table(arows, list(arows[0]))
-    if trows:
-        md += "\n\n" + md_table(trows, list(trows[0]))
-    write_results(args.name, dev, {"records": records, "frames": args.frames, "timing_frames": args.timing_frames},
-                  md, args.out)
-    plot(records, Path(args.out) if args.out else Path(__file__).resolve().parent / "results", args.name, dev)
-    print(md)
-
-
-def pareto(points):
-    """Indices of (ms, psnr) points that no other point beats in both (less time and more PSNR)."""
-    return [i for i, (t, q) in enumerate(points)
-            if not any(t2 <= t and q2 >= q and (t2 < t or q2 > q) for j, (t2, q2) in enumerate(points) if j != i)]
-
-
-def plot(records, folder, name, dev):
-    """Time against error per scene and resolution: foveated points per configuration and shading, the
-    full-resolution reference's time as a vertical line, the Pareto front of the foveated points; where a
-    record carries the reference's own error (``ref_psnr``: heavy shading against a converged frame), the
-    reference as a cross at its time and error. Where the aoquality part timed its loops, that shading's panel
-    takes every time from that one loop (the foveated point, the reference line and the brute-force crosses)."""
     try:
-        import matplotlib
+        aos = [int(v) for v in args.ao_samples.split(",") if v.strip()]
+    except ValueError:
+        aos = []
+    if not aos or any(not 0 <= a <= 256 for a in aos):
+        p.error(f"--ao-samples must be a comma list of integers in [0, 256], got {args.ao_samples!r}")
+    if not max(aos) < args.converged_ao <= 4096:
+        p.error(f"--converged-ao must be in [{max(aos) + 1}, 4096] (above every --ao-samples), got "
+                f"{args.converged_ao}")
+    if args.frames < 0 or args.timing_frames < 0:
+        p.error(f"--frames and --timing-frames must be >= 0, got {args.frames} and {args.timing_frames}")
+    sizes = parse_sizes(p, args.sizes)
+    configs = _parse_configs(p, args.configs)
+    if args.quick:
+        sizes, args.frames, args.timing_frames = [(64, 36)], min(args.frames, 3), min(args.timing_frames, 3)
+        args.converged_ao = min(args.converged_ao, max(16, max(aos) + 1))
+    metrics, where = _metric_fn(args.psnr_only)
+    metrics, with_flip = _with_flip(metrics)
+    scenes = list(scenes_present(fw, args.scenes))
+    cases = [(s, wh, c, a) for s in scenes for wh in sizes for c in configs for a in aos]
+    records, rows = [], []
+    for scene, (w, h), (cname, over), ao in progress(cases, "frame"):
+        base_cfg = fw.Config().with_(**over) if over else fw.Config()
+        cfg = base_cfg.with_(shading={"ao_samples": ao}) if ao else base_cfg
+        t0 = time.perf_counter()
+        rec = {"scene": scene.name, "width": w, "height": h, "config": cname, "overrides": over, "ao_samples": ao,
+               "metrics_on": where + ("+flip" if with_flip else ""), "frames": args.frames,
+               "timing_frames": args.timing_frames}
+        if args.frames:
+            q = path_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.converged_ao if ao else 0)
+            rec.update(sampling_rate=float(np.mean(q["sampling_rate"])), sampling_rate_series=q["sampling_rate"],
+                       quality_target=f"{args.converged_ao} AO rays" if ao else "render_reference",
+                       **_summary("", q["fov"]), series={k: v for k, v in q["fov"].items() if v})
+            if q["ref"] is not None:
+                rec.update(**_summary("ref_", q["ref"]), ref_series={k: v for k, v in q["ref"].items() if v})
+        if args.timing_frames:
+            (tm,) = timing(fw, scene, w, h, dev, cfg, args.timing_frames, (args.turns,))
+            tm["auto_speedup"] = tm["ref_ms"] / tm["auto_ms"]
+            rec.update(tm)
+        rec["seconds"] = time.perf_counter() - t0
+        records.append(rec)
+        row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname, "ao": ao}
+        for k in ("sampling_rate", "ref_ms", "fov_ms", "speedup", "auto_ms", "auto_path", "psnr_mean", "psnr_min",
+                  "ssim_mean", "fovea_psnr_mean", "fovea_psnr_min", "flip_mean", "ref_psnr_mean"):
+            if k in rec:
+                row[k] = rec[k]
+        rows.append(row)
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    md = md_table(rows, cols)
+    write_results("frame", dev, records, md, args.out, args.tag,
+                  extra={"frames": args.frames, "timing_frames": args.timing_frames, "turns": args.turns})
+    plot(records, plot_path("frame", dev, args.out, args.tag), dev)
+    print(md)
+    return records
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except Exception:
-        print("matplotlib not installed: no plot")
+
+def plot(records, path, dev):
+    """Time against error per scene and size: x = frame ms, y = mean PSNR over the path; foveated points (one per
+    configuration and shading) and the reference's (its own error where it has one: AO shading against the
+    converged frame; a dashed line at its time where it is the target)."""
+    plt = pyplot()
+    recs = [r for r in records if "fov_ms" in r and "psnr_mean" in r]
+    if plt is None or not recs:
         return
-    tim = [r for r in records if r["kind"] == "timing" and "psnr" in r]
-    if not tim:
-        return
-    keys = sorted({(r["scene"], r["width"], r["height"]) for r in tim}, key=lambda k: (k[1], k[0]))
-    configs_seen = {r["config"] for r in tim}  # points are labelled by configuration only where there are several
-    n = len(keys)
-    cols = min(n, 6)
-    rows = (n + cols - 1) // cols
-    # one or two panels get more room than a panel of a grid, so their labels and legend stay readable
-    pw, ph = (5.0, 4.0) if cols <= 2 else (3.2, 2.8)
-    fig, axes = plt.subplots(rows, cols, figsize=(pw * cols, ph * rows), squeeze=False)
+    keys = sorted({(r["scene"], r["width"], r["height"]) for r in recs}, key=lambda k: (k[1], k[0]))
+    cols = min(len(keys), 4)
+    nrows = -(-len(keys) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.4 * nrows), squeeze=False)
     for ax, key in zip(axes.flat, keys):
-        rs = [r for r in tim if (r["scene"], r["width"], r["height"]) == key]
-        for shading, mk in (("default", "o"), ("ao8", "s")):
-            pts = [(r["fov_ms"], r["psnr"], r["config"]) for r in rs if r["shading"] == shading]
-            if not pts:
-                continue
-            ref = [r["ref_ms"] for r in rs if r["shading"] == shading][0]
-            aq = [r for r in records if r["kind"] == "ao_quality" and "sweep_ms" in r
-                  and (r["scene"], r["width"], r["height"]) == key and f"ao{r['ao_samples']}" == shading]
-            if aq:
-                # one timing loop for the whole panel of this shading: the aoquality part's, where the foveated
-                # frame and every full-resolution frame took turns
-                a = aq[-1]
-                pts = [(a["fov_ms"], p[1], p[2]) for p in pts]
-                ref = a["sweep_ms"][str(a["ao_samples"])]
-            line = ax.axvline(ref, ls="--", lw=1, color="C0" if shading == "default" else "C3")
-            ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=mk, color=line.get_color(),
-                       label=f"{shading} foveated (ref {ref:.2f} ms)")
-            refq = [(r["ref_ms"], r["ref_psnr"]) for r in rs if r["shading"] == shading and "ref_psnr" in r]
-            if refq and not aq:  # the reference's own error (heavy shading, both against a converged frame)
-                ax.scatter([q[0] for q in refq], [q[1] for q in refq], marker="x", color=line.get_color(),
-                           label=f"{shading} reference")
-            if aq:  # brute force with fewer AO rays: full-resolution frames at their time and error
-                series = {**a["sweep_psnr"], str(a["ao_samples"]): a["ref_psnr"]}
-                bf = sorted((a["sweep_ms"][k], _summ(v)["mean"], k) for k, v in series.items() if k in a["sweep_ms"])
-                ax.plot([b[0] for b in bf], [b[1] for b in bf], ls=":", marker="x", lw=1, color=line.get_color(),
-                        label="full resolution, " + "/".join(b[2] for b in bf) + " AO rays")
-            front = sorted(pareto([(p[0], p[1]) for p in pts]), key=lambda i: pts[i][0])
-            ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color=line.get_color(), lw=1)
-            for k, p in enumerate(pts):  # labels stepped up and down so that close points' labels part
-                ax.annotate(p[2] if len(configs_seen) > 1 else shading, (p[0], p[1]), fontsize=6,
-                            xytext=(4, 6 * (k % 3) - 6), textcoords="offset points")
+        for k, ao in enumerate(sorted({r["ao_samples"] for r in recs})):
+            color = f"C{k}"
+            rs = [r for r in recs if (r["scene"], r["width"], r["height"]) == key and r["ao_samples"] == ao]
+            ax.scatter([r["fov_ms"] for r in rs], [r["psnr_mean"] for r in rs], color=color, marker="o",
+                       label=f"foveated, {ao} AO")
+            for r in rs:
+                ax.annotate(r["config"], (r["fov_ms"], r["psnr_mean"]), fontsize=6, xytext=(3, 3),
+                            textcoords="offset points")
+            refs = [r for r in rs if "ref_psnr_mean" in r]
+            if refs:
+                ax.scatter([r["ref_ms"] for r in refs], [r["ref_psnr_mean"] for r in refs], color=color, marker="x",
+                           label=f"reference, {ao} AO")
+            elif rs:
+                ax.axvline(rs[0]["ref_ms"], color=color, ls="--", lw=1, label=f"reference, {ao} AO (target)")
         ax.set_title(f"{key[0]} {key[1]}x{key[2]}", fontsize=8)
         ax.set_xlabel("frame ms", fontsize=7)
         ax.set_ylabel("PSNR dB (mean over the path)", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=5)
-    for ax in list(axes.flat)[n:]:
+    for ax in list(axes.flat)[len(keys):]:
         ax.axis("off")
-    alias = dev if isinstance(dev, str) else wp.get_device(dev).alias  # a string: redraw from a JSON elsewhere
-    note = ("; circles: default shading against full-resolution tracing; squares and crosses: "
-            f"{int(aqs[0]['ao_samples'])} AO rays and fewer against {int(aqs[0]['converged_ao'])}-ray frames"
-            if (aqs := [r for r in records if r["kind"] == "ao_quality"]) else "")
-    # wrapped to the figure's width (about 15 characters an inch at this size): a long title was cut at both ends
-    title = f"foveated frame time vs PSNR; dashed: full-resolution reference ({alias}){note}"
+    title = f"frame time vs PSNR, foveated and full-resolution reference ({wp.get_device(dev).alias})"
     fig.suptitle(textwrap.fill(title, width=max(40, int(15 * fig.get_figwidth()))), fontsize=9)
     fig.tight_layout()
-    tag = "cuda" if alias.startswith("cuda") else "cpu"
-    fig.savefig(folder / f"{name}-{tag}.png", dpi=110)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
