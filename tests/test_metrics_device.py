@@ -234,13 +234,13 @@ def test_region_metrics_any_view(device, h, w, gx, gy, fov, seed):
 
 def test_benchmark_quick(device, tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "metrics.py"), "--quick", "--device", device,
-                        "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "stages.py"), "--parts", "metrics", "--quick",
+                        "--device", device, "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     tag = "cuda" if wp.get_device(device).is_cuda else "cpu"
-    res = json.loads((tmp_path / f"metrics-{tag}.json").read_text())
-    assert (tmp_path / f"metrics-{tag}.md").is_file()
-    assert res["benchmark"] == "metrics" and res["device"] == wp.get_device(device).alias
-    for row in res["rows"]:
+    res = json.loads((tmp_path / f"stages-{tag}.json").read_text())
+    assert (tmp_path / f"stages-{tag}.md").is_file()
+    assert res["benchmark"] == "stages" and res["device_alias"] == wp.get_device(device).alias
+    for row in res["records"]:
         assert row["device_ms"] > 0 and row["host_ms"] > 0
         assert row["max_abs_diff"] <= TOL
