@@ -1,20 +1,14 @@
-"""Reordered versus unreordered tracing of the sampled pixels (thesis A3).
+"""Is tracing the sampled pixels faster reordered than unreordered, compaction included?
 
-``--overhead`` (issue 14): the compaction alone, per strategy ("tile" (FrameLoop's default), "scan", "rows",
-"rows+balance"), on (a) a sparse foveated sample mask (~25 %) and (b) a mostly-filled mask (~95 %), at
-1920x1080 and 3840x2160: median synchronized wall time of ``ReorderStage.run`` (>= 20 repeats after warm-up),
-median replay of its captured CUDA graph, per-kernel GPU times from Warp's CUDA activity timing. No scene
-needed. Writes reorder-overhead-<cpu|cuda>.json/.md.
+For each scene, size, mask (foveated or scattered random, ~10 / 30 / 50 % sampling) and shading cost (light:
+direct light with shadow rays; heavy: + 8 ambient-occlusion rays), the median ms of: full-resolution shading,
+"none" (every pixel launched, unsampled threads exit: the masked launch), and each of the thesis's strategies
+"rows" (strategy 1, row CSR), "rows+balance" (strategy 2), "scan" and "tile" (8x8 screen tiles in Morton
+order), each as compaction + tracing (the sum of the two medians, both synchronized) and each part alone.
+Ratios to full and to "none"; "ideal" = rate x full.
 
-    python benchmarks/reorder.py --overhead --device cuda:0
-    python benchmarks/reorder.py --overhead --device cpu --sizes 320x180
-
-Without ``--overhead``: for each scene, resolution, mask (foveated or scattered random, ~10 / 30 / 50 %
-sampling) and shading cost (light: direct light with shadow rays; heavy: + 8 ambient-occlusion rays), the
-median ms of: full-resolution shading, "none" (every pixel launched, unsampled threads exit), and each strategy
-(compaction + tracing, and each part alone). Ratios to full and to "none"; "ideal" = rate x full.
-
-python benchmarks/reorder.py --device cuda:0
+``--overhead``: the compaction alone per strategy on a sparse foveated mask (~25 %) and a mostly-filled one
+(~95 %), with its CUDA graph's replay and per-kernel GPU times (CUDA). Writes reorder-<tag>.json / .md.
 """
 
 from __future__ import annotations
@@ -27,12 +21,12 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._common import base_parser, md_table, parse_sizes, progress, time_ms, write_results  # noqa: E402
 from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
 from benchmarks._masks import bench_masks  # noqa: E402
 
-if "--package-root" in sys.argv:  # time another checkout's foveawarp (e.g. the one before a change)
-    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--package-root") + 1]).resolve()))
+CANONICAL = ("python benchmarks/reorder.py --device cuda:0 --out benchmarks/results --tag h200 "
+             "--scenes cornell,city,bunny --sizes 1920x1080,3840x2160")
 
 STRATS = ["rows", "rows+balance", "scan", "tile"]
 
@@ -56,17 +50,14 @@ def foveated_mask(w, h, rate, rng, gaze=None):
 
 
 def overhead(args):
-    """Issue 14: compaction cost per strategy on sparse and mostly-filled masks, per kernel."""
+    """The compaction alone per strategy on sparse and mostly-filled masks, per kernel."""
     import foveawarp as fw
     from foveawarp.stages.reorder import ReorderStage
 
     wp.config.quiet = True
     wp.init()
     dev = wp.get_device(args.device)
-    if args.sizes:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    else:
-        sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
+    sizes = [(64, 36)] if args.quick else parse_sizes(args.parser, args.sizes)
     repeats = max(args.repeats or 20, 20)
     warmup = max(args.warmup, 1)
     rng = np.random.default_rng(1)
@@ -80,7 +71,7 @@ def overhead(args):
                 wall = time_ms(run, dev, repeats, warmup)
                 g = graph_time(run, dev, repeats, warmup)
                 k = kernel_times(run, dev, repeats, warmup)
-                rec = {"width": w, "height": h, "mask": name, "rate": float(m.mean()), "strategy": s,
+                rec = {"scene": "synthetic mask", "width": w, "height": h, "mask": name, "rate": float(m.mean()), "strategy": s,
                        "run_ms": wall["median_ms"], "run_p10_ms": wall["p10_ms"], "run_p90_ms": wall["p90_ms"],
                        "graph_ms": g["graph_ms"], "graph_error": g["error"],
                        "gpu_ms": None if k is None else k["gpu_ms"],
@@ -93,26 +84,24 @@ def overhead(args):
                              "launches": "n/a" if k is None else k["launches"],
                              "per kernel (ms, launches)": "n/a (CPU)" if k is None else "; ".join(
                                  f"{n} {v['median_ms']:.4f} x{v['launches']:g}" for n, v in k["kernels"].items())})
-                print(rows[-1], flush=True)
                 if g["error"] and dev.is_cuda:
                     print(f"graph capture failed: {g['error']}", flush=True)
     table = (f"## ReorderStage.run (compaction only); device {dev.alias}; medians of {repeats}\n\n"
              + md_table(rows, ["size", "mask", "rate", "strategy", "run ms", "graph ms", "GPU kernels ms",
                                "launches", "per kernel (ms, launches)"]))
     print(table)
-    path = write_results("reorder-overhead", dev, {"repeats": repeats, "cases": cases, "note": (
+    write_results("reorder", dev, cases, table, args.out, args.tag, extra={"mode": "overhead", "repeats": repeats, "note": (
         "run ms: synchronized wall time of one run; graph ms: replay of its captured CUDA graph; GPU kernels "
-        "ms: sum of the kernels' CUDA activity times")}, table, args.out)
-    print(f"wrote {path}")
+        "ms: sum of the kernels' CUDA activity times")})
 
 
-def main():
-    p = base_parser(__doc__)
+def main(argv=None):
+    p = base_parser(__doc__, CANONICAL)
     p.add_argument("--scenes", default="cornell,city,bunny")
-    p.add_argument("--sizes", default=None, help="e.g. 1920x1080,3840x2160")
-    p.add_argument("--overhead", action="store_true", help="issue 14: compaction cost per kernel, no tracing")
-    p.add_argument("--package-root", default=None, help="import foveawarp from this checkout instead")
-    args = p.parse_args()
+    p.add_argument("--sizes", default="1920x1080,3840x2160")
+    p.add_argument("--overhead", action="store_true", help="the compaction's cost per kernel, no tracing")
+    args = p.parse_args(argv)
+    args.parser = p
     if args.overhead:
         overhead(args)
         return
@@ -123,17 +112,13 @@ def main():
     wp.config.quiet = True
     wp.init()
     dev = wp.get_device(args.device)
-    if args.sizes:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    else:
-        sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
+    sizes = [(64, 36)] if args.quick else parse_sizes(args.parser, args.sizes)
     repeats = args.repeats or (2 if args.quick else 20)
     rates = [0.1, 0.3, 0.5]
     rng = np.random.default_rng(1)
     rows = []
-    for name in args.scenes.split(","):
-        if args.quick and name == "city":
-            continue
+    names = [n for n in args.scenes.split(",") if n]
+    for name in progress(names[:1] if args.quick else names, "reorder"):
         try:
             scene = fw.load_scene(name)
         except ValueError as e:
@@ -152,7 +137,7 @@ def main():
                             rng.random((h, w)) < rate).astype(np.uint8)
                         mask = wp.array(m_np, dtype=wp.uint8, device=dev)
                         real_rate = float(m_np.mean())
-                        row = {"scene": scene.name, "resolution": f"{w}x{h}", "shading": shading, "mask": kind,
+                        row = {"scene": scene.name, "width": w, "height": h, "resolution": f"{w}x{h}", "shading": shading, "mask": kind,
                                "rate": real_rate, "full_ms": full, "ideal_ms": real_rate * full}
                         row["none_ms"] = time_ms(lambda: loop.shade_masked(cam, mask), dev, repeats,
                                                  args.warmup)["median_ms"]
@@ -181,14 +166,13 @@ def main():
                         row["best_vs_ideal"] = row[f"{best}_trace_ms"] / max(row["ideal_ms"], 1e-9)
                         row["best_vs_full"] = row["best_ms"] / max(full, 1e-9)
                         rows.append(row)
-                        print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-    cols = ["scene", "resolution", "shading", "mask", "rate", "full_ms", "ideal_ms", "none_ms", "rows_ms",
+                    cols = ["scene", "resolution", "shading", "mask", "rate", "full_ms", "ideal_ms", "none_ms", "rows_ms",
             "rows+balance_ms", "scan_ms", "tile_ms", "best", "speedup_vs_none", "best_vs_ideal"]
     table = md_table(rows, cols)
     print(table)
-    write_results("reorder", dev, {"rows": rows, "repeats": repeats, "note": (
+    write_results("reorder", dev, rows, table, args.out, args.tag, extra={"mode": "tracing", "repeats": repeats, "note": (
         "X_ms = compaction + tracing (median of repeats, synchronized); X_trace_ms tracing alone; ideal_ms = "
-        "rate x full_ms; best_vs_ideal = best strategy's tracing time / ideal")}, table, args.out)
+        "rate x full_ms; best_vs_ideal = best strategy's tracing time / ideal")})
 
 
 if __name__ == "__main__":
