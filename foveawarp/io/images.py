@@ -4,7 +4,10 @@
   -> ``(H, W, 4)`` float32 RGBA in LINEAR values. ``srgb=True`` (base colour, emissive) decodes the RGB channels
   with the exact sRGB EOTF (IEC 61966-2-1, :func:`srgb_to_linear`); alpha is always linear. ``srgb=False`` (normal,
   metallic-roughness, occlusion) only scales the codes to [0, 1]. Grey, grey + alpha and RGB are expanded to RGBA
-  (grey to all three colour channels, a missing alpha to 1). Decoding goes through imageio (its Pillow plugin).
+  (grey to all three colour channels, a missing alpha to 1); palette images through their palette (and its
+  transparency), CMYK and YCbCr JPEGs to RGB. Decoding goes through Pillow (imageio's image backend), which reads
+  16-bit RGB and RGBA PNGs at 8 bits per channel: such a file loads with a warning; 16-bit grey keeps 16 bits.
+  The EXIF orientation tag is not applied (glTF textures are addressed as stored).
 - :func:`load_environment`: a Radiance ``.hdr`` (RGBE, flat or run-length encoded; read here, see
   :func:`decode_radiance_hdr`) or an OpenEXR ``.exr`` (read with the ``OpenEXR`` module of the ``openexr``
   package when it is installed) -> ``(H, W, 3)`` float32 linear radiance.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import io
 import math
+import warnings
 from pathlib import Path
 from typing import Optional, Union
 
@@ -110,6 +114,39 @@ def _codes_to_unit(a: np.ndarray, label: str) -> np.ndarray:
     raise ValueError(f"image {label!r}: pixel type must be 8- or 16-bit unsigned codes, got {a.dtype}")
 
 
+# Pillow modes read as they are (their arrays are grey, grey + alpha, RGB or RGBA codes); others are converted
+_DIRECT_MODES = ("1", "L", "LA", "RGB", "RGBA", "I;16", "I;16L", "I;16B", "I")
+_CONVERT_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "La": "LA", "RGBa": "RGBA",
+                  "RGBX": "RGB", "PA": "RGBA"}
+
+
+def _decode_pillow(data: bytes, fmt: str, label: str) -> np.ndarray:
+    """The first frame of encoded ``data`` as an array of grey, grey + alpha, RGB or RGBA codes."""
+    from PIL import Image
+
+    mode = None
+    try:
+        with Image.open(io.BytesIO(data), formats=[_PIL_FORMAT[fmt]]) as im:
+            im.load()
+            mode = im.mode
+            if mode == "P":  # through the palette, keeping a transparent entry as alpha
+                im = im.convert("RGBA" if "transparency" in im.info else "RGB")
+            elif mode in _CONVERT_MODES:
+                im = im.convert(_CONVERT_MODES[mode])
+            a = np.asarray(im) if mode == "P" or mode in _CONVERT_MODES or mode in _DIRECT_MODES else None
+    except Exception as e:  # Pillow raises OSError, SyntaxError, EOFError, ValueError ... on corrupt data
+        raise ValueError(f"image {label!r}: corrupt or unreadable {fmt.upper()} data ({type(e).__name__}: {e})") \
+            from None
+    if a is None:
+        raise ValueError(f"image {label!r}: pixel mode must be grey, grey + alpha, palette, RGB, RGBA or CMYK, got "
+                         f"Pillow mode {mode!r}")
+    # PNG header: bit depth at byte 24, colour type at byte 25 (2 = RGB, 6 = RGBA)
+    if fmt == "png" and len(data) > 25 and data[24] == 16 and data[25] in (2, 6):
+        warnings.warn(f"image {label!r}: a 16-bit {'RGBA' if data[25] == 6 else 'RGB'} PNG is decoded at 8 bits "
+                      "per channel (Pillow's PNG reader)", stacklevel=3)
+    return a
+
+
 def load_image(source: Union[str, Path, bytes], *, srgb: bool, name: Optional[str] = None,
                mime_type: Optional[str] = None) -> np.ndarray:
     """Decode a PNG, JPEG or WebP image to ``(H, W, 4)`` float32 linear RGBA (row 0 = the image's top).
@@ -136,13 +173,7 @@ def load_image(source: Union[str, Path, bytes], *, srgb: bool, name: Optional[st
     if fmt is None:
         what = f"a {_FORMAT_BY_EXTENSION[suffix].upper()} file" if suffix else "PNG, JPEG or WebP bytes"
         raise ValueError(f"image {label!r}: not {what} (unrecognized signature {data[:8]!r}, {len(data)} bytes)")
-    import imageio.v3 as iio
-
-    try:
-        a = np.asarray(iio.imread(data, index=0, plugin="pillow", extension="." + fmt))
-    except Exception as e:  # imageio and Pillow raise OSError, SyntaxError, ValueError, ... on bad data
-        raise ValueError(f"image {label!r}: corrupt or unreadable {fmt.upper()} data ({type(e).__name__}: {e})") \
-            from None
+    a = _decode_pillow(data, fmt, label)
     if a.ndim == 2:
         a = a[:, :, None]
     if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4) or a.shape[0] < 1 or a.shape[1] < 1:
