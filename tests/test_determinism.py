@@ -1,5 +1,6 @@
 """Determinism: two fresh FrameLoops on one device give bit-identical outputs for the same scene, seed and sequence;
-and benchmarks/parity.py agrees with itself (--save then --compare on one device: every array equal, exit 0)."""
+and the parity part of benchmarks/robustness.py agrees with itself (--save then --compare on one device: every
+array equal, exit 0)."""
 
 import json
 import os
@@ -69,22 +70,24 @@ def test_two_fresh_frame_loops_are_bit_identical(device, variant):
 
 
 def test_parity_script_self_parity(device, tmp_path):
-    """parity.py --save then --compare on the same device: every array bit-identical, exit status 0."""
+    """robustness.py --parts parity --save then --compare on the same device: every array bit-identical, exit
+    status 0."""
     npz = tmp_path / "parity.npz"
-    script = str(REPO / "benchmarks" / "parity.py")
+    script = str(REPO / "benchmarks" / "robustness.py")
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    r1 = subprocess.run([sys.executable, script, "--quick", "--device", device, "--save", str(npz), "--out",
-                         str(tmp_path)], capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
+    r1 = subprocess.run([sys.executable, script, "--parts", "parity", "--quick", "--device", device, "--save",
+                         str(npz), "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, env=env,
+                        timeout=600)
     assert r1.returncode == 0, r1.stdout[-3000:] + r1.stderr[-3000:]
     assert npz.is_file()
-    r2 = subprocess.run([sys.executable, script, "--device", device, "--compare", str(npz), "--out", str(tmp_path)],
-                        capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
+    r2 = subprocess.run([sys.executable, script, "--parts", "parity", "--device", device, "--compare", str(npz),
+                         "--out", str(tmp_path)], capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
     assert r2.returncode == 0, r2.stdout[-3000:] + r2.stderr[-3000:]
     tag = "cuda" if wp.get_device(device).is_cuda else "cpu"
-    res = json.loads((tmp_path / f"parity-{tag}.json").read_text())
+    (res,) = json.loads((tmp_path / f"robustness-{tag}.json").read_text())["records"]
     assert res["mode"] == "compare" and res["pass"] is True
     assert res["determinism"]["bit_identical"] is True
     assert res["all_bit_identical_to_saved"] is True
     assert all(c["pass"] for c in res["checks"])
     assert res["arrays"]["sampling.sample_map"]["equal_fraction"] == 1.0
-    assert (tmp_path / f"parity-{tag}.md").is_file()
+    assert (tmp_path / f"robustness-{tag}.md").is_file()

@@ -1,4 +1,5 @@
-"""Soak: many frames with a moving camera, a moving gaze and moving objects; memory flat, no NaN, stable frame time.
+"""The soak part of ``robustness.py``: many frames with a moving camera, a moving gaze and moving objects; memory
+flat, no NaN, stable frame time.
 
 One FrameLoop (timing=False, policy="foveated") renders ``--frames`` frames (the first ``--warmup`` of them are warm-up and excluded
 from every statistic). Per frame: the camera follows the scene's orbit path (``Scene.camera_at``), the gaze follows
@@ -22,10 +23,8 @@ memory is sampled:
 Verdicts: "memory flat" when Warp's pool use did not grow at all after warm-up (0 bytes: end and maximum equal the
 first sample after warm-up; CUDA), or when the process RSS grew by less than 1 MiB (CPU); "no NaN" when every
 checked image was finite; "frame time stable" when the median of the last tenth of the timed frames is within
-10 % of the median of the first tenth. The exit status is 1 when NaN/Inf was seen or memory was not flat.
-
-python benchmarks/soak.py --device cuda:0                 (10,000 frames at 1920x1080: results/soak-cuda.json, .md)
-python benchmarks/soak.py --quick --device cpu            (200 frames at 128x72)
+10 % of the median of the first tenth. The soak fails (``robustness.py`` exits 1) when NaN/Inf was seen or memory
+was not flat.
 """
 
 from __future__ import annotations
@@ -36,14 +35,11 @@ import os
 import resource
 import sys
 import time
-from pathlib import Path
 
-sys.path.append(str(Path(__file__).resolve().parent.parent))
+import numpy as np
+import warp as wp
 
-import numpy as np  # noqa: E402
-import warp as wp  # noqa: E402
-
-from benchmarks._common import base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import md_table
 
 MIB = 1024 * 1024
 RSS_FLAT_BYTES = 1 * MIB  # CPU verdict: RSS growth after warm-up below this
@@ -123,40 +119,47 @@ def load(fw, name: str, motion: bool):
     return fw.load_scene(name)
 
 
-def main() -> int:
-    p = base_parser(__doc__)
-    p.set_defaults(warmup=None)
-    p.add_argument("--frames", type=int, default=None, help="frames in all, warm-up included (default 10000; "
-                                                               "quick 200)")
-    p.add_argument("--width", type=int, default=None, help="default 1920 (quick 128)")
-    p.add_argument("--height", type=int, default=None, help="default 1080 (quick 72)")
-    p.add_argument("--scene", default="cornell", help="scene name or path (default cornell, loaded with motion)")
-    p.add_argument("--no-motion", dest="motion", action="store_false", help="load the scene without object motion")
-    p.add_argument("--fps", type=float, default=60.0, help="scene seconds per frame = 1 / fps (default 60)")
-    p.add_argument("--check-every", type=int, default=None, help="NaN check + memory sample period in frames "
-                                                                    "(default 100; quick 20)")
-    p.add_argument("--cut-every", type=int, default=None, help="force a camera cut every N frames (0: never; "
-                                                                  "default 1000; quick 50)")
-    p.add_argument("--ao", type=int, default=0, help="ShadingConfig.ao_samples (default 0)")
-    args = p.parse_args()
-    import foveawarp as fw
+def add_options(p) -> None:
+    """The soak's options on ``robustness.py``'s parser."""
+    g = p.add_argument_group("soak")
+    g.add_argument("--frames", type=int, default=None,
+                   help="soak frames in all, warm-up included (default 10000; quick 200)")
+    g.add_argument("--width", type=int, default=None, help="soak width (default 1920; quick 128)")
+    g.add_argument("--height", type=int, default=None, help="soak height (default 1080; quick 72)")
+    g.add_argument("--scene", default="cornell", help="soak scene name or path (default cornell, loaded with motion)")
+    g.add_argument("--no-motion", dest="motion", action="store_false", help="load the scene without object motion")
+    g.add_argument("--fps", type=float, default=60.0, help="scene seconds per frame = 1 / fps (default 60)")
+    g.add_argument("--check-every", type=int, default=None,
+                   help="NaN check + memory sample period in frames (default 100; quick 20)")
+    g.add_argument("--cut-every", type=int, default=None,
+                   help="force a camera cut every N frames (0: never; default 1000; quick 50)")
+    g.add_argument("--ao", type=int, default=0, help="ShadingConfig.ao_samples of the soak (default 0)")
 
-    wp.config.quiet = True
-    wp.init()
-    dev = wp.get_device(args.device)
-    w = args.width or (128 if args.quick else 1920)
-    h = args.height or (72 if args.quick else 1080)
-    frames = args.frames or (200 if args.quick else 10000)
-    warmup = args.warmup if args.warmup is not None else (20 if args.quick else 100)
-    check_every = args.check_every or (20 if args.quick else 100)
-    cut_every = args.cut_every if args.cut_every is not None else (50 if args.quick else 1000)
-    if not 0 <= warmup < frames:
-        p.error(f"--warmup must be in [0, frames), got {warmup} with {frames} frames")
+
+def settings(p, args) -> dict:
+    """The soak's sizes and periods from the options (``--quick`` defaults), or a parser error naming the option."""
+    s = {"width": args.width or (128 if args.quick else 1920), "height": args.height or (72 if args.quick else 1080),
+         "frames": args.frames or (200 if args.quick else 10000),
+         "warmup": args.warmup if args.warmup is not None else (20 if args.quick else 100),
+         "check_every": args.check_every or (20 if args.quick else 100),
+         "cut_every": args.cut_every if args.cut_every is not None else (50 if args.quick else 1000)}
+    if min(s["width"], s["height"], s["frames"], s["check_every"]) < 1 or s["cut_every"] < 0:
+        p.error(f"--width, --height, --frames and --check-every must be >= 1 and --cut-every >= 0, got {s}")
+    if not 0 <= s["warmup"] < s["frames"]:
+        p.error(f"--warmup must be in [0, frames), got {s['warmup']} with {s['frames']} frames")
+    return s
+
+
+def run(fw, dev, args, s: dict, bar=None) -> tuple:
+    """The soak of settings ``s`` on ``dev``: (record, markdown, passed). ``bar``: a progress bar advanced once per
+    frame."""
+    w, h, frames, warmup = s["width"], s["height"], s["frames"], s["warmup"]
+    check_every, cut_every = s["check_every"], s["cut_every"]
     scene = load(fw, args.scene, args.motion)
     cfg = fw.Config().with_(shading={"ao_samples": args.ao}) if args.ao else fw.Config()
     loop = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
     print(f"soak: {scene.summary()} at {w}x{h} on {dev.alias}: {frames} frames ({warmup} warm-up), "
-          f"check every {check_every}", flush=True)
+          f"check every {check_every}", file=sys.stderr, flush=True)
 
     # four consecutive forced cuts in the warm-up: on CUDA the frame body is a CUDA graph per configuration
     # (history on/off x ping-pong parity, ...) that runs eagerly once and is captured the second time, so each cut
@@ -166,9 +169,7 @@ def main() -> int:
     ms = np.zeros(frames, dtype=np.float64)  # preallocated: the soak itself must not grow host memory
     samples: list = []
     nan_frames: list = []
-    checks = 0
-    off_screen = 0
-    cuts = 0
+    checks = off_screen = cuts = 0
     rates = []
     t_start = time.perf_counter()
     for i in range(frames):
@@ -195,11 +196,8 @@ def main() -> int:
                 nan_frames.append({"frame": i, "non_finite_values": bad})
             rates.append(float(frame.stats["sampling_rate"]))
             samples.append(memory_sample(dev, i))
-            if (i - warmup) % (check_every * 10) == 0 or last:
-                s = samples[-1]
-                mem = (f"mempool {s['mempool_used'] / MIB:.2f} MiB" if "mempool_used" in s else
-                       f"rss {s['host_rss'] / MIB:.1f} MiB")
-                print(f"  frame {i}: {ms[i]:.3f} ms, {mem}, non-finite {bad}", flush=True)
+        if bar is not None:
+            bar.update(1)
     wall_s = time.perf_counter() - t_start
 
     timed = ms[warmup:]
@@ -228,38 +226,29 @@ def main() -> int:
                "host_rss_growth_bytes": int(host_growth), "host_rss_flat": bool(host_growth < RSS_FLAT_BYTES),
                "no_nan": not nan_frames, "frame_time_stable": ft.get("stable", True),
                "stable_criterion": f"last-tenth median / first-tenth median in [1/{STABLE_RATIO}, {STABLE_RATIO}]"}
-    row = {"scene": scene.name, "resolution": f"{w}x{h}", "frames": frames, "warmup": warmup,
-           "p50_ms": ft["p50_ms"], "p90_ms": ft["p90_ms"], "p99_ms": ft["p99_ms"], "max_ms": ft["max_ms"],
-           "drift_ratio": ft["drift_ratio"], "nan_frames": len(nan_frames),
-           "memory_growth_bytes": int(m["growth"]), "memory_flat": verdict["memory_flat"]}
-    payload = {
-        "scene": scene.name, "animated": scene.is_animated, "resolution": f"{w}x{h}", "width": w, "height": h,
+    passed = bool(flat and not nan_frames)
+    rec = {
+        "part": "soak", "scene": scene.name, "animated": scene.is_animated, "width": w, "height": h,
         "frames": frames, "warmup": warmup, "check_every": check_every, "fps": args.fps, "cut_every": cut_every,
-        "forced_cuts": cuts, "warmup_cuts": sorted(warm_cuts), "graph_states_after_warmup": graph_states, "gaze_off_screen_frames": off_screen, "ao_samples": args.ao, "wall_s": wall_s,
-        "frame_time": ft, "window_median_ms": windows, "memory": mem, "memory_samples": samples,
-        "nan_checks": checks, "nan_frames": nan_frames, "sampling_rate_mean": float(np.mean(rates)),
-        "verdict": verdict, "row": row,
+        "forced_cuts": cuts, "warmup_cuts": sorted(warm_cuts), "graph_states_after_warmup": graph_states,
+        "gaze_off_screen_frames": off_screen, "ao_samples": args.ao, "wall_s": wall_s, "frame_time": ft,
+        "window_median_ms": windows, "memory": mem, "memory_samples": samples, "nan_checks": checks,
+        "nan_frames": nan_frames, "sampling_rate_mean": float(np.mean(rates)), "verdict": verdict, "pass": passed,
         "method": "frame ms = host perf_counter between wp.synchronize_device calls around FrameLoop.render "
-                  "(timing=False, policy='foveated'); statistics over the frames after warm-up; memory sampled every check_every "
-                  "frames after warm-up with the device idle and after gc.collect()",
+                  "(timing=False, policy='foveated'); statistics over the frames after warm-up; memory sampled every "
+                  "check_every frames after warm-up with the device idle and after gc.collect()",
     }
-    mem_cols = "memory_growth_bytes"
-    table = md_table([row], ["scene", "resolution", "frames", "warmup", "p50_ms", "p90_ms", "p99_ms", "max_ms",
-                             "drift_ratio", "nan_frames", mem_cols, "memory_flat"])
-    lines = [f"- memory: {criterion}: " + ", ".join(f"{k} {v}" for k, v in m.items()),
-             f"- host RSS after warm-up: first {mem['host_rss']['first_after_warmup'] / MIB:.2f} MiB, end "
-             f"{mem['host_rss']['end'] / MIB:.2f} MiB, max {mem['host_rss']['max'] / MIB:.2f} MiB",
-             f"- NaN/Inf checks: {checks}, frames with non-finite values: {len(nan_frames)}",
-             f"- gaze off screen in {off_screen} of {frames} frames; {cuts} forced camera cuts; mean sampling rate "
-             f"{payload['sampling_rate_mean']:.3f}; frame body after warm-up: {graph_states}",
-             f"- verdict: memory {'flat' if flat else 'NOT flat'}, {'no NaN' if not nan_frames else 'NaN/Inf seen'}, "
-             f"frame time {'stable' if verdict['frame_time_stable'] else 'NOT stable'} (drift {ft['drift_ratio']:.3f})"]
-    table += "\n" + "\n".join(lines)
-    print(table)
-    path = write_results("soak", dev, payload, table, args.out)
-    print(f"wrote {path}")
-    return 0 if (flat and not nan_frames) else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    row = {"scene": scene.name, "resolution": f"{w}x{h}", "frames": frames, "warmup": warmup, "p50_ms": ft["p50_ms"],
+           "p90_ms": ft["p90_ms"], "p99_ms": ft["p99_ms"], "max_ms": ft["max_ms"], "drift_ratio": ft["drift_ratio"],
+           "nan_frames": len(nan_frames), "memory_growth_bytes": int(m["growth"]), "memory_flat": verdict["memory_flat"]}
+    md = "## Soak\n\n" + md_table([row])
+    md += "\n" + "\n".join([
+        f"- memory: {criterion}: " + ", ".join(f"{k} {v}" for k, v in m.items()),
+        f"- host RSS after warm-up: first {mem['host_rss']['first_after_warmup'] / MIB:.2f} MiB, end "
+        f"{mem['host_rss']['end'] / MIB:.2f} MiB, max {mem['host_rss']['max'] / MIB:.2f} MiB",
+        f"- NaN/Inf checks: {checks}, frames with non-finite values: {len(nan_frames)}",
+        f"- gaze off screen in {off_screen} of {frames} frames; {cuts} forced camera cuts; mean sampling rate "
+        f"{rec['sampling_rate_mean']:.3f}; frame body after warm-up: {graph_states}",
+        f"- verdict: memory {'flat' if flat else 'NOT flat'}, {'no NaN' if not nan_frames else 'NaN/Inf seen'}, "
+        f"frame time {'stable' if verdict['frame_time_stable'] else 'NOT stable'} (drift {ft['drift_ratio']:.3f})"]) + "\n"
+    return rec, md, passed

@@ -1,4 +1,4 @@
-"""CPU/CUDA parity and same-device determinism of the whole FrameLoop.
+"""The parity part of ``robustness.py``: CPU/CUDA parity and same-device determinism of the whole FrameLoop.
 
 A fixed, seeded sequence: scene ``cornell`` with object motion (the short block slides), 256x144, 6 frames of
 ``FrameLoop.render`` along the scene's camera path (``time = i / 10`` s) with a fixed gaze path (frame 2's gaze is
@@ -9,10 +9,11 @@ sample_map, cache_hit, prev_index, sample/cache-hit counters), the fresh shading
 (``Frame.extras``: sparse color and filled mask), the reconstruction before tone mapping, the display image of
 every frame, and the reference image.
 
-The Warp build on the GPU machine has no CPU compiler, so the comparison runs in two steps:
+A Warp build without a CPU compiler cannot render the CPU half on the GPU's machine, so the comparison runs in
+two steps (on one machine or two):
 
-    python benchmarks/parity.py --device cpu --save .device/parity-cpu.npz      # here: the CPU arrays
-    python benchmarks/parity.py --device cuda:0 --compare .device/parity-cpu.npz  # on the GPU machine
+    python benchmarks/robustness.py --parts parity --device cpu --save parity-cpu.npz       # the CPU arrays
+    python benchmarks/robustness.py --parts parity --device cuda:0 --compare parity-cpu.npz  # CUDA against them
 
 ``--compare`` re-renders the sequence stored in the file's settings (scene, size, frames, AO) on its device and
 compares every array. Every mode also renders the sequence twice on its own device, in two fresh FrameLoops, and
@@ -32,23 +33,18 @@ Tolerances (CPU vs CUDA; the exit status is 1 when one fails, or when two runs o
 - Final display image of the last frame and the reference image: PSNR >= 40 dB (the actual value is reported).
 - Everything else (saliency, velocity, temporal, reconstruction, ...) is reported without a tolerance: max / mean /
   p99 absolute and relative differences and the fraction of exactly equal values.
-
-Results: results/parity-<cpu|cuda>.json and .md.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
-sys.path.append(str(Path(__file__).resolve().parent.parent))
+import numpy as np
+import warp as wp
 
-import numpy as np  # noqa: E402
-import warp as wp  # noqa: E402
-
-from benchmarks._common import base_parser, device_info, git_commit, md_table, write_results  # noqa: E402
+from benchmarks._common import device_info, device_name, git_commit, md_table
 
 # -- the sequence (defaults; the saved file's settings win in --compare) ---------------------------------------------
 DEFAULT_SETTINGS = {"scene": "cornell", "motion": True, "width": 256, "height": 144, "frames": 6, "ao_samples": 4,
@@ -232,57 +228,52 @@ def _json_safe(o):
     return o
 
 
-def main() -> int:
-    p = base_parser(__doc__)
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--save", default=None, help="render on --device and save every array to this .npz")
-    g.add_argument("--compare", default=None, help="render on --device and compare with this saved .npz")
-    args = p.parse_args()
-    import foveawarp as fw
+def add_options(p) -> None:
+    """The parity part's options on ``robustness.py``'s parser."""
+    g = p.add_argument_group("parity").add_mutually_exclusive_group()
+    g.add_argument("--save", default=None, help="parity: render on --device and save every array to this .npz")
+    g.add_argument("--compare", default=None, help="parity: render on --device and compare with this saved .npz")
 
-    wp.config.quiet = True
-    wp.init()
-    dev = wp.get_device(args.device)
+
+def run(fw, dev, args) -> tuple:
+    """Determinism on ``dev`` and, with ``--save`` / ``--compare``, the saved arrays or the comparison with them:
+    (record, markdown, passed)."""
     if args.compare:
         saved, saved_meta = load_npz(Path(args.compare))
         settings = saved_meta["settings"]
     else:
         saved = saved_meta = None
         settings = dict(QUICK_SETTINGS if args.quick else DEFAULT_SETTINGS)
-    print(f"parity: {settings} on {dev.alias}", flush=True)
     run1 = render_sequence(fw, dev, settings)
     run2 = render_sequence(fw, dev, settings)
     det = determinism(run1, run2)
-    print(f"same device, two fresh FrameLoops: {det['arrays']} arrays, bit-identical: {det['bit_identical']}"
-          + (f" (differ: {det['differing']})" if det["differing"] else ""), flush=True)
-    payload = {"mode": "compare" if args.compare else ("save" if args.save else "determinism"),
-               "settings": settings, "resolution": f"{settings['width']}x{settings['height']}",
-               "scene": settings["scene"] + ("+motion" if settings["motion"] else ""), "frames": settings["frames"],
-               "tolerances": TOLERANCES, "determinism": det}
+    scene = settings["scene"] + ("+motion" if settings["motion"] else "")
+    rec = {"part": "parity", "mode": "compare" if args.compare else ("save" if args.save else "determinism"),
+           "settings": settings, "scene": scene, "width": int(settings["width"]), "height": int(settings["height"]),
+           "frames": settings["frames"], "tolerances": TOLERANCES, "determinism": det}
     ok = det["bit_identical"]
-    md = [f"Parity on {dev.alias} ({device_info(dev)['device_name']}), {payload['scene']} "
-          f"{payload['resolution']}, {settings['frames']} frames, AO {settings['ao_samples']}",
+    md = [f"## Parity: {scene} {settings['width']}x{settings['height']}, {settings['frames']} frames, "
+          f"AO {settings['ao_samples']}",
           "",
           f"Same device, two fresh FrameLoops: {det['arrays']} arrays, bit-identical: **{det['bit_identical']}**"
           + (f"; differing: {', '.join(det['differing'])}" if det["differing"] else "")]
     if args.save:
         meta = {"settings": settings, "commit": git_commit(), **device_info(dev)}
         save_npz(Path(args.save), run1, meta)
-        payload["saved"] = str(args.save)
-        md.append(f"\nSaved {len(run1)} arrays to `{args.save}`.")
-        print(f"saved {len(run1)} arrays to {args.save}")
+        rec["saved"] = Path(args.save).name
+        md.append(f"\nSaved {len(run1)} arrays to `{Path(args.save).name}`.")
     if args.compare:
         arrays, checks = compare(saved, run1)
         ok = ok and all(c["pass"] for c in checks)
         all_equal = all(a.get("bit_identical", False) for a in arrays.values())
-        payload.update(against={k: saved_meta.get(k) for k in ("device", "device_name", "commit", "warp")},
-                       checks=checks, arrays=arrays, all_bit_identical_to_saved=all_equal,
-                       frame_psnr_db=[arrays[f"image.frame{i}"]["psnr_db"] for i in range(settings["frames"])],
-                       sample_map_equal_fraction_per_frame=[arrays[f"sample_map.frame{i}"]["equal_fraction"]
-                                                           for i in range(settings["frames"])])
-        md.append(f"\nAgainst `{args.compare}` (rendered on {saved_meta.get('device')} "
-                  f"{saved_meta.get('device_name')}, commit {saved_meta.get('commit')}); every array bit-identical: "
-                  f"**{all_equal}**\n")
+        rec.update(against={k: saved_meta.get(k) for k in ("device", "device_alias", "commit", "warp")},
+                   checks=checks, arrays=arrays, all_bit_identical_to_saved=all_equal,
+                   frame_psnr_db=[arrays[f"image.frame{i}"]["psnr_db"] for i in range(settings["frames"])],
+                   sample_map_equal_fraction_per_frame=[arrays[f"sample_map.frame{i}"]["equal_fraction"]
+                                                       for i in range(settings["frames"])])
+        md.append(f"\nAgainst `{Path(args.compare).name}` (rendered on {saved_meta.get('device')}, "
+                  f"{saved_meta.get('device_alias')}, commit {saved_meta.get('commit')}); every array "
+                  f"bit-identical: **{all_equal}**\n")
         md.append(md_table([{k: _fmt(v) for k, v in c.items()} for c in checks],
                            ["check", "value", "limit", "pass", "note"]))
         rows = [{"array": k, **{c: _fmt(a.get(c, "")) for c in ("max_abs", "mean_abs", "p99_abs", "max_rel",
@@ -291,16 +282,6 @@ def main() -> int:
         md.append("\nPer array (max / mean / p99 absolute difference, max relative difference, fraction of equal "
                   "values, PSNR for images):\n")
         md.append(md_table(rows, ["array", "max_abs", "mean_abs", "p99_abs", "max_rel", "equal_fraction", "psnr_db"]))
-        for c in checks:
-            print(f"  {'ok  ' if c['pass'] else 'FAIL'} {c['check']}: {_fmt(c['value'])} (limit {c['limit']}) "
-                  f"{c['note']}")
-    payload["pass"] = bool(ok)
-    md.append(f"\nResult: **{'PASS' if ok else 'FAIL'}**")
-    table = "\n".join(md)
-    path = write_results("parity", dev, _json_safe(payload), table, args.out)
-    print(f"{'PASS' if ok else 'FAIL'}; wrote {path}")
-    return 0 if ok else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    rec["pass"] = bool(ok)
+    md.append(f"\nParity: **{'PASS' if ok else 'FAIL'}** on {device_name(dev)}\n")
+    return _json_safe(rec), "\n".join(md), bool(ok)
