@@ -144,7 +144,8 @@ def diff_stats(a: np.ndarray, b: np.ndarray, mask=None) -> dict:
     floor = max(1e-6, 1e-3 * float(mag.max()))
     rel = d / np.maximum(mag, floor)
     return {"n": int(d.size), "max_abs": float(d.max()), "mean_abs": float(d.mean()),
-            "p99_abs": float(np.percentile(d, 99)), "max_rel": float(rel.max()), "p99_rel": float(np.percentile(rel, 99)),
+            "p99_abs": float(np.percentile(d, 99)), "max_rel": float(rel.max()),
+            "p99_rel": float(np.percentile(rel, 99)),
             "equal_fraction": float(np.mean(d == 0))}
 
 

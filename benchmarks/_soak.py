@@ -1,10 +1,10 @@
 """The soak part of ``robustness.py``: many frames with a moving camera, a moving gaze and moving objects; memory
 flat, no NaN, stable frame time.
 
-One FrameLoop (timing=False, policy="foveated") renders ``--frames`` frames (the first ``--warmup`` of them are warm-up and excluded
-from every statistic). Per frame: the camera follows the scene's orbit path (``Scene.camera_at``), the gaze follows
-a Lissajous curve that leaves the screen part of the time, and ``time=`` advances at ``--fps`` so animated objects
-move (``cornell`` is loaded with ``motion=True``: the short block slides). Every ``--cut-every`` frames the frame is
+One FrameLoop (timing=False, policy="foveated") renders ``--frames`` frames (the first ``--warmup`` of them are
+warm-up and excluded from every statistic). Per frame: the camera follows the scene's orbit path
+(``Scene.camera_at``), the gaze follows a Lissajous curve that leaves the screen part of the time, and ``time=``
+advances at ``--fps`` so animated objects move (``cornell`` is loaded with ``motion=True``: the short block slides). Every ``--cut-every`` frames the frame is
 a forced camera cut (``cut=True``), so the history-reset path is soaked too. Four consecutive forced cuts fall in
 the warm-up: on CUDA the frame body is captured as one CUDA graph per configuration (history on/off, ping-pong
 parity, ...), run eagerly the first time and captured the second, so every configuration the soak visits is
@@ -240,7 +240,8 @@ def run(fw, dev, args, s: dict, bar=None) -> tuple:
     }
     row = {"scene": scene.name, "resolution": f"{w}x{h}", "frames": frames, "warmup": warmup, "p50_ms": ft["p50_ms"],
            "p90_ms": ft["p90_ms"], "p99_ms": ft["p99_ms"], "max_ms": ft["max_ms"], "drift_ratio": ft["drift_ratio"],
-           "nan_frames": len(nan_frames), "memory_growth_bytes": int(m["growth"]), "memory_flat": verdict["memory_flat"]}
+           "nan_frames": len(nan_frames), "memory_growth_bytes": int(m["growth"]),
+           "memory_flat": verdict["memory_flat"]}
     md = "## Soak\n\n" + md_table([row])
     md += "\n" + "\n".join([
         f"- memory: {criterion}: " + ", ".join(f"{k} {v}" for k, v in m.items()),
@@ -250,5 +251,6 @@ def run(fw, dev, args, s: dict, bar=None) -> tuple:
         f"- gaze off screen in {off_screen} of {frames} frames; {cuts} forced camera cuts; mean sampling rate "
         f"{rec['sampling_rate_mean']:.3f}; frame body after warm-up: {graph_states}",
         f"- verdict: memory {'flat' if flat else 'NOT flat'}, {'no NaN' if not nan_frames else 'NaN/Inf seen'}, "
-        f"frame time {'stable' if verdict['frame_time_stable'] else 'NOT stable'} (drift {ft['drift_ratio']:.3f})"]) + "\n"
+        f"frame time {'stable' if verdict['frame_time_stable'] else 'NOT stable'} "
+        f"(drift {ft['drift_ratio']:.3f})"]) + "\n"
     return rec, md, passed
