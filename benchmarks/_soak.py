@@ -4,12 +4,12 @@ flat, no NaN, stable frame time.
 One FrameLoop (timing=False, policy="foveated") renders ``--frames`` frames (the first ``--warmup`` of them are
 warm-up and excluded from every statistic). Per frame: the camera follows the scene's orbit path
 (``Scene.camera_at``), the gaze follows a Lissajous curve that leaves the screen part of the time, and ``time=``
-advances at ``--fps`` so animated objects move (``cornell`` is loaded with ``motion=True``: the short block slides). Every ``--cut-every`` frames the frame is
-a forced camera cut (``cut=True``), so the history-reset path is soaked too. Four consecutive forced cuts fall in
-the warm-up: on CUDA the frame body is captured as one CUDA graph per configuration (history on/off, ping-pong
-parity, ...), run eagerly the first time and captured the second, so every configuration the soak visits is
-captured before the first memory sample. ``graph_states_after_warmup`` counts FrameLoop's ``stats['graph']``
-("replayed", "captured", "warm-up", "eager") over the timed frames.
+advances at ``--fps`` so animated objects move (``cornell`` is loaded with ``motion=True``: the short block slides).
+Every ``--cut-every`` frames the frame is a forced camera cut (``cut=True``), so the history-reset path is soaked
+too. Four consecutive forced cuts fall in the warm-up: on CUDA the frame body is captured as one CUDA graph per
+configuration (history on/off, ping-pong parity, ...), run eagerly the first time and captured the second, so every
+configuration the soak visits is captured before the first memory sample. ``graph_states_after_warmup`` counts
+FrameLoop's ``stats['graph']`` ("replayed", "captured", "warm-up", "eager") over the timed frames.
 
 Each frame is timed on the host with ``wp.synchronize_device`` before and after ``render`` (perf_counter). Every
 ``--check-every`` frames (and after the last one) the display image is read back and checked for NaN / Inf, and
