@@ -1,4 +1,6 @@
-"""Depth of field by pixel-intensity scatter (ALGORITHMS.md B): speed and quality against a thin-lens reference.
+"""How fast is the depth-of-field pass, and how close does it come to a thin-lens ray-traced reference?
+
+The pass is the pixel-intensity scatter of ALGORITHMS.md B.
 
 Speed: median ms of one ``DofStage.run`` (prepare + tile max radius + dilation + gather; and the atomic scatter
 for comparison) at 1920x1080 and 3840x2160 (``--quick``: 160x90) for max CoC 8, 16, 32 px, on two synthetic
@@ -10,9 +12,8 @@ pinhole image, the scatter with no fix, the foreground fix only, the background 
 ``cornell`` (focus on the tall block, then on the short block) at 480x270 with 64 lens samples (``--quick``:
 96x54, 16 samples), and on "edges", a synthetic scene made for the two artifacts (a bright foreground bar in
 front of an in-focus checker wall, a bright far wall behind it). A PNG per case (pinhole, scatter, corrected
-scatter, thin-lens reference side by side; one row per case) is written next to the JSON.
-
-python benchmarks/dof.py --device cuda:0
+scatter, thin-lens reference side by side; one row per case) is written as dof-<tag>.png next to dof-<tag>.json
+and .md.
 """
 
 from __future__ import annotations
@@ -26,7 +27,9 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._common import base_parser, md_table, parse_sizes, plot_path, progress, time_ms, write_results  # noqa
+
+CANONICAL = "python benchmarks/dof.py --device cuda:0 --out benchmarks/results --tag h200"
 
 FOCAL_M = 0.05
 PX_PER_M = 20000.0
@@ -62,7 +65,8 @@ def time_stage(w, h, dev, repeats, warmup, rng):
             cw = wp.array(color, dtype=wp.vec3, device=dev)
             dw = wp.array(depth, dtype=float, device=dev)
             out = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-            row = {"image": kind, "resolution": f"{w}x{h}", "max_coc_px": max_coc}
+            row = {"part": "speed", "scene": f"synthetic {kind}", "image": kind, "width": w, "height": h,
+                   "resolution": f"{w}x{h}", "max_coc_px": max_coc}
             for method in ("gather", "scatter"):
                 cfg = fw.DofConfig(aperture_m=aperture, focal_length_m=FOCAL_M, focus_depth_m=focus,
                                    px_per_m=PX_PER_M, max_coc_px=max_coc)
@@ -75,7 +79,6 @@ def time_stage(w, h, dev, repeats, warmup, rng):
                     # mean half-width of the gather windows (isqrt of the dilated max floor(R^2) per tile)
                     row["mean_window_px"] = float(np.floor(np.sqrt(stage.tile_window.numpy())).mean())
             rows.append(row)
-            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
     return rows
 
 
@@ -117,61 +120,58 @@ def quality(w, h, samples, dev):
                                px_per_m=PX_PER_M * w / 480.0, max_coc_px=16.0)))
     rows, strips = [], []
     names = ["pinhole", *COMPARISON_VARIANTS]
-    for scene, label, gaze, cfg in cases:
+    for scene, label, gaze, cfg in progress(cases, "dof quality"):
         imgs = render_dof_comparison(scene, scene.camera, w, h, cfg, samples, dev, gaze_px=gaze)
         ref = imgs["thin_lens"]
         for name in names:
             fg, bg = COMPARISON_VARIANTS.get(name, (None, None))
-            rows.append({"case": label, "image": name, "foreground_fix": fg, "background_fix": bg,
+            rows.append({"part": "quality", "scene": scene.name, "width": w, "height": h, "lens_samples": samples,
+                         "case": label, "image": name, "foreground_fix": fg, "background_fix": bg,
                          "psnr_db": psnr(imgs[name], ref), "ssim": ssim(imgs[name], ref)})
-            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rows[-1].items()}, flush=True)
         strips.append(np.concatenate([imgs[k] for k in ("pinhole", "scatter", "corrected", "thin_lens")], axis=1))
     return rows, np.concatenate(strips, axis=0)
 
 
-def main():
-    p = base_parser(__doc__)
-    p.add_argument("--sizes", default=None, help="timing sizes, e.g. 1920x1080,3840x2160")
-    p.add_argument("--quality-size", default=None, help="quality image size, default 480x270 (quick 96x54)")
-    p.add_argument("--samples", type=int, default=None, help="thin-lens samples per pixel (default 64; quick 16)")
-    args = p.parse_args()
+def main(argv=None):
+    p = base_parser(__doc__, CANONICAL)
+    p.add_argument("--sizes", default="1920x1080,3840x2160", help="timing sizes, WxH comma list (quick 160x90)")
+    p.add_argument("--quality-size", default="480x270", help="quality image size WxH (quick 96x54)")
+    p.add_argument("--samples", type=int, default=64, help="thin-lens samples per pixel (quick 16)")
+    args = p.parse_args(argv)
     import imageio.v2 as imageio
 
     wp.config.quiet = True
     wp.init()
     dev = wp.get_device(args.device)
-    if args.sizes:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    else:
-        sizes = [(160, 90)] if args.quick else [(1920, 1080), (3840, 2160)]
-    qw, qh = (tuple(int(v) for v in args.quality_size.split("x")) if args.quality_size
-              else ((96, 54) if args.quick else (480, 270)))
-    samples = args.samples or (16 if args.quick else 64)
+    sizes = [(160, 90)] if args.quick else parse_sizes(p, args.sizes)
+    ((qw, qh),) = [(96, 54)] if args.quick else parse_sizes(p, args.quality_size, "--quality-size")
+    if args.samples < 1:
+        p.error(f"--samples must be >= 1, got {args.samples}")
+    samples = min(args.samples, 16) if args.quick else args.samples
     repeats = args.repeats or (3 if args.quick else 30)
     rng = np.random.default_rng(7)
 
     speed = []
-    for w, h in sizes:
+    for w, h in progress(sizes, "dof speed"):
         speed += time_stage(w, h, dev, repeats, args.warmup, rng)
     qrows, strip = quality(qw, qh, samples, dev)
 
     t1 = md_table(speed, ["image", "resolution", "max_coc_px", "mean_coc_px", "mean_window_px", "gather_ms",
                           "gather_p90_ms", "scatter_ms"])
     t2 = md_table(qrows, ["case", "image", "psnr_db", "ssim"])
-    table = (f"### DoF speed (one DofStage.run, median ms, {dev.alias})\n\n{t1}\n"
+    table = (f"### DoF speed (one DofStage.run, median ms of {repeats})\n\n{t1}\n"
              f"### DoF quality against the thin-lens reference ({qw}x{qh}, {samples} lens samples)\n\n{t2}")
-    print(table)
-    out = write_results("dof", dev, {
-        "speed": speed, "quality": qrows, "repeats": repeats, "quality_size": f"{qw}x{qh}",
-        "lens_samples": samples, "png": f"dof-comparison-{'cuda' if dev.is_cuda else 'cpu'}.png",
+    write_results("dof", dev, speed + qrows, table, args.out, args.tag, extra={
+        "repeats": repeats, "quality_size": f"{qw}x{qh}", "lens_samples": samples,
         "note": ("gather_ms: prepare + tile max radius + dilation + gather; scatter_ms: prepare + clear + atomic "
                  "scatter + normalize. Quality px_per_m is scaled with the width (20000 at 480 px) so the "
                  "blur is the same fraction of the image at every size. PNG columns: pinhole, scatter (no fix), "
-                 "corrected scatter, thin-lens reference; rows: the quality cases in order.")}, table, args.out)
-    png = Path(args.out or RESULTS) / f"dof-comparison-{'cuda' if dev.is_cuda else 'cpu'}.png"
-    imageio.imwrite(png, (np.clip(strip, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
-    print(f"wrote {out} and {png}")
+                 "corrected scatter, thin-lens reference; rows: the quality cases in order.")})
+    imageio.imwrite(plot_path("dof", dev, args.out, args.tag),
+                    (np.clip(strip, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
+    print(table)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
