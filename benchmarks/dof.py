@@ -11,9 +11,8 @@ Quality: PSNR / SSIM against the thin-lens ray-traced reference (``dof_reference
 pinhole image, the scatter with no fix, the foreground fix only, the background fix only, and both, on
 ``cornell`` (focus on the tall block, then on the short block) at 480x270 with 64 lens samples (``--quick``:
 96x54, 16 samples), and on "edges", a synthetic scene made for the two artifacts (a bright foreground bar in
-front of an in-focus checker wall, a bright far wall behind it). A PNG per case (pinhole, scatter, corrected
-scatter, thin-lens reference side by side; one row per case) is written as dof-<tag>.png next to dof-<tag>.json
-and .md.
+front of an in-focus checker wall, a bright far wall behind it). Writes dof-<tag>.json / .md and dof-<tag>.png:
+one row per quality case, pinhole, scatter, corrected scatter and thin-lens reference side by side.
 """
 
 from __future__ import annotations
