@@ -1,6 +1,6 @@
-"""Indirect light (ALGORITHMS.md C): the light tree against the sampled RSM at equal PERCEIVED quality, moving light.
+"""Does the light tree give indirect light cheaper than a sampled RSM at the same perceived quality, light moving?
 
-What a viewer sees. For each scene (``cornell``, ``bunny-in-box``, ``teapot-in-box``: the Cornell box with the
+Indirect light is ALGORITHMS.md C. For each scene (``cornell``, ``bunny-in-box``, ``teapot-in-box``: the Cornell box with the
 teapot mesh in place of the bunny; mesh scenes are skipped when the mesh is absent) and each RSM size
 (``--rsm``, default 256,512 on CUDA), the scene's spot light moves along an arc over ``--frames`` frames (default
 8): its position turns about the vertical through its rest position (radius 15% of the scene extent, -60 to +60
@@ -32,10 +32,9 @@ every ladder point is reported as a lower bound ``>=``), the sampled ``ms_frame`
 ``gather_speedup`` is the same ratio of ``ms_gather`` alone (a static light); ``count_speedup`` is the equal-quality
 sample count over the tree's ``sample_equiv`` (its gather time in sampled VPLs, timed interleaved with a
 1024-sample gather: robust to a shared machine's load, and the figure to read on the CPU).
-Side-by-side image (``indirect-side-by-side-{cpu,cuda}.png``): per scene at the first RSM size, the last frame:
-exact | tree (default) | sampled RSM at the tree's ``ms_frame`` (equal time), and below it |difference| x 8.
-
-python benchmarks/indirect.py --device cuda:0
+Writes indirect-<tag>.json / .md and the side-by-side image indirect-<tag>.png: per scene at the first RSM size,
+the last frame: exact | tree (default) | sampled RSM at the tree's ``ms_frame`` (equal time), and below it
+|difference| x 8.
 """
 
 from __future__ import annotations
@@ -53,7 +52,10 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import RESULTS, base_parser, md_table, time_ms, write_results  # noqa: E402
+from benchmarks._common import base_parser, md_table, parse_sizes, plot_path, progress, time_ms, write_results  # noqa
+
+CANONICAL = ("python benchmarks/indirect.py --device cuda:0 --out benchmarks/results --tag h200 "
+             "--scenes cornell,bunny-in-box --rsm 256")
 
 # (label, IndirectConfig overrides); the first is the default config
 VARIANTS = {
@@ -231,8 +233,8 @@ def bench(name, n, args, dev, pool, sizes):
 
     try:
         scene = load_named(name)
-    except ValueError as e:
-        print(f"skip {name}: {e}")
+    except (FileNotFoundError, ValueError) as e:
+        print(f"skip {name}: {e}", file=sys.stderr)
         return None
     (tw, th), (ew, eh) = sizes
     frames = args.frames
@@ -364,7 +366,8 @@ def bench(name, n, args, dev, pool, sizes):
             continue
         res = [f.result() for f in futures[lab]]
         flips = [r["flip"] for r in res]
-        row = {"scene": name, "rsm": n, "method": lab, "kind": "tree" if m == "lighttree" else "sampled",
+        row = {"part": "methods", "scene": name, "width": tw, "height": th, "eval_width": ew, "eval_height": eh,
+               "rsm": n, "method": lab, "kind": "tree" if m == "lighttree" else "sampled",
                "flip": None if any(f is None for f in flips) else float(np.mean(flips)),
                "dssim": float(np.mean([1.0 - r["ssim"] for r in res])),
                "rel_l2": float(np.mean([r["rel_l2"] for r in res])),
@@ -386,7 +389,7 @@ def bench(name, n, args, dev, pool, sizes):
     for r in rows:
         if r["kind"] != "tree":
             continue
-        c = {"scene": name, "rsm": n, "tree": r["method"], "tree_ms_frame": r["ms_frame"], "tree_flip": r["flip"],
+        c = {"part": "comparisons", "scene": name, "width": tw, "height": th, "rsm": n, "tree": r["method"], "tree_ms_frame": r["ms_frame"], "tree_flip": r["flip"],
              "tree_flicker": r["flicker"]}
         for key in ("flip", "flicker", "dssim"):
             if r[key] is None or any(x[key] is None for x in samp):
@@ -435,7 +438,7 @@ def side_by_side(panels):
 
 
 def main(argv=None):
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(__doc__, CANONICAL)
     p.add_argument("--scenes", default="cornell,bunny-in-box,teapot-in-box")
     p.add_argument("--rsm", default=None, help="RSM edges, comma separated (CUDA: 256,512; CPU: 64,128; --quick 32)")
     p.add_argument("--size", default=None, help="timing frame WxH (CUDA 1920x1080, CPU 240x135, --quick 96x54)")
@@ -448,28 +451,41 @@ def main(argv=None):
     p.add_argument("--workers", type=int, default=None, help="metric worker processes (default: cores, <= 8)")
     p.add_argument("--seed", type=int, default=0, help="Poisson-disk pattern seed")
     p.add_argument("--no-graphs", action="store_true", help="no CUDA graph replay")
-    p.add_argument("--name", default="indirect",
-                   help="output name: <name>-{cpu,cuda}.json/.md and <name>-side-by-side-{cpu,cuda}.png")
     args = p.parse_args(argv)
     if args.frames < 2:
-        raise SystemExit("--frames must be >= 2")
+        p.error(f"--frames must be >= 2, got {args.frames}")
+    bad = [v for v in (args.variants or "").split(",") if v and v not in VARIANTS]
+    if bad:
+        p.error(f"--variants must be a comma list of {', '.join(VARIANTS)}, got {bad}")
+    try:
+        rsms = [int(x) for x in args.rsm.split(",")] if args.rsm else None
+    except ValueError:
+        rsms = []
+    if rsms is not None and (not rsms or any(n < 4 or n & (n - 1) for n in rsms)):
+        p.error(f"--rsm must be a comma list of powers of two >= 4, got {args.rsm!r}")
     import foveawarp as fw  # noqa: F401  (initializes warp quietly)
     from foveawarp._util import get_device
 
     dev = get_device(args.device)
     cuda = dev.is_cuda
-    wh = lambda s: tuple(int(x) for x in s.lower().split("x"))  # noqa: E731
-    size = wh(args.size) if args.size else ((96, 54) if args.quick else (1920, 1080) if cuda else (240, 135))
-    esize = wh(args.eval_size) if args.eval_size else ((96, 54) if args.quick else (480, 270) if cuda else (240, 135))
-    rsms = [int(x) for x in args.rsm.split(",")] if args.rsm else ([32] if args.quick else [256, 512] if cuda
-                                                                   else [64, 128])
+    (size,) = parse_sizes(p, args.size, "--size") if args.size else [(96, 54) if args.quick else (1920, 1080) if cuda
+                                                                        else (240, 135)]
+    (esize,) = parse_sizes(p, args.eval_size, "--eval-size") if args.eval_size else [
+        (96, 54) if args.quick else (480, 270) if cuda else (240, 135)]
+    rsms = rsms or ([32] if args.quick else [256, 512] if cuda else [64, 128])
     have_flip = flip_available()
     args.have_flip = have_flip
     if not have_flip:
         print("FLIP unavailable (pip install flip-evaluator, or .[bench]): flip columns are null, no equal-FLIP "
-              "comparison; dssim (1 - SSIM) is reported as a separate, labelled comparison")
+              "comparison; dssim (1 - SSIM) is reported as a separate, labelled comparison", file=sys.stderr)
     workers = args.workers or max(1, min(8, (os.cpu_count() or 2)))
     results, panels = [], []
+    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
+            "ms_gather_p10", "ms_rebuild", "ms_frame", "timed"]
+    ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
+             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
+             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
+             "eq_dssim_samples", "speedup_eq_dssim"]
 
     def save(final):
         """Write the JSON / markdown / side-by-side so far (after every scene and RSM size, so that a run cut
@@ -484,44 +500,37 @@ def main(argv=None):
             md += ("Equal FLIP / equal flicker / equal 1-SSIM against the sampled RSM (speedup = sampled ms_frame / "
                    "tree ms_frame; bound '>=': the tree beats every ladder count, the ratio is a lower bound):\n\n")
             md += md_table(r["comparisons"], ccols) + "\n"
-        payload = {"quick": bool(args.quick), "flip_available": have_flip, "size": list(size),
-                   "eval_size": list(esize), "complete": bool(final), "results": results}
-        path = write_results(args.name, dev, payload, md, out=args.out)
+        records = [x for r in results for x in r["rows"] + r["comparisons"]]
+        runs = [{k: v for k, v in r.items() if k not in ("rows", "comparisons")} for r in results]
+        write_results("indirect", dev, records, md, args.out, args.tag, extra={
+            "quick": bool(args.quick), "flip_available": have_flip, "size": list(size), "eval_size": list(esize),
+            "complete": bool(final), "runs": runs})
         if panels:
             import imageio.v3 as iio
 
-            folder = Path(args.out) if args.out else RESULTS
-            png = folder / f"{args.name}-side-by-side-{'cuda' if cuda else 'cpu'}.png"
-            iio.imwrite(png, side_by_side(panels))
-            if final:
-                print(f"wrote {png}")
+            iio.imwrite(plot_path("indirect", dev, args.out, args.tag), side_by_side(panels))
         if final:
             print(md)
-            print(f"wrote {path}")
 
-    cols = ["scene", "rsm", "method", "clusters", "sample_equiv", "flip", "flicker", "dssim", "rel_l2", "ms_gather",
-            "ms_gather_p10", "ms_rebuild", "ms_frame", "timed"]
-    ccols = ["scene", "rsm", "tree", "tree_ms_frame", "tree_flip", "eq_flip_samples", "eq_flip_bound",
-             "speedup_eq_flip", "gather_speedup_eq_flip", "count_speedup_eq_flip", "tree_flicker", "eq_flicker_samples",
-             "eq_flicker_bound", "speedup_eq_flicker", "gather_speedup_eq_flicker", "count_speedup_eq_flicker",
-             "eq_dssim_samples", "speedup_eq_dssim"]
-    t_start = time.perf_counter()
+    cases = [(s.strip(), i, n) for s in args.scenes.split(",") if s.strip() for i, n in enumerate(rsms)]
+    skipped = set()
     # spawned (not forked) workers: the parent holds a CUDA context; the workers only run NumPy / FLIP / SSIM
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
-            for i, n in enumerate(rsms):
-                print(f"{name}: RSM {n}^2, timing {size[0]}x{size[1]}, quality {esize[0]}x{esize[1]}, "
-                      f"{args.frames} frames ({time.perf_counter() - t_start:.0f} s in)", flush=True)
-                out = bench(name, n, args, dev, pool, (size, esize))
-                if out is None:
-                    break
-                r, last = out
-                results.append(r)
-                if i == 0:
-                    panels.append(last)
-                save(False)
+        for name, i, n in progress(cases, "indirect"):
+            if name in skipped:
+                continue
+            out = bench(name, n, args, dev, pool, (size, esize))
+            if out is None:
+                skipped.add(name)
+                continue
+            r, last = out
+            results.append(r)
+            if i == 0:
+                panels.append(last)
+            save(False)
     save(True)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
