@@ -1,12 +1,12 @@
 """Does the light tree give indirect light cheaper than a sampled RSM at the same perceived quality, light moving?
 
-Indirect light is ALGORITHMS.md C. For each scene (``cornell``, ``bunny-in-box``, ``teapot-in-box``: the Cornell box with the
-teapot mesh in place of the bunny; mesh scenes are skipped when the mesh is absent) and each RSM size
+Indirect light is ALGORITHMS.md C. For each scene (``cornell``, ``bunny-in-box``, ``teapot-in-box``: the Cornell box
+with the teapot mesh in place of the bunny; mesh scenes are skipped when the mesh is absent) and each RSM size
 (``--rsm``, default 256,512 on CUDA), the scene's spot light moves along an arc over ``--frames`` frames (default
 8): its position turns about the vertical through its rest position (radius 15% of the scene extent, -60 to +60
-degrees), aimed at a fixed point 1.5 m along its rest axis, so the RSM and every VPL move every frame. Per
-frame, every method renders the full frame, direct (``FrameLoop.render_reference``, shadow rays) + indirect,
-tone-mapped (the frame loop's Hable operator), and is compared with the same frame with the EXACT all-VPL
+degrees), aimed at a fixed point 1.5 m along its rest axis, so the RSM and every VPL move every frame. Per frame,
+every method renders the full frame, direct (``FrameLoop.render_reference``, shadow rays) + indirect, tone-mapped
+(the frame loop's Hable operator), and is compared with the same frame with the EXACT all-VPL
 indirect sum:
   * ``flip``: mean FLIP (NVIDIA ``flip-evaluator``, LDR, sRGB inputs, pixels per degree 67 x eval_width / 1920:
     the eval frame seen at the size of a 1080p frame at FLIP's default 67 ppd); absent: ``null`` and the
@@ -389,7 +389,8 @@ def bench(name, n, args, dev, pool, sizes):
     for r in rows:
         if r["kind"] != "tree":
             continue
-        c = {"part": "comparisons", "scene": name, "width": tw, "height": th, "rsm": n, "tree": r["method"], "tree_ms_frame": r["ms_frame"], "tree_flip": r["flip"],
+        c = {"part": "comparisons", "scene": name, "width": tw, "height": th, "rsm": n, "tree": r["method"],
+             "tree_ms_frame": r["ms_frame"], "tree_flip": r["flip"],
              "tree_flicker": r["flicker"]}
         for key in ("flip", "flicker", "dssim"):
             if r[key] is None or any(x[key] is None for x in samp):
