@@ -1,5 +1,7 @@
-"""Live viewer speed: frames per second delivered to a WebSocket client on the same machine, and the gaze-to-frame
-latency, for `foveawarp view` started as its own process.
+"""How fast does the live viewer deliver frames, and how long from a gaze message to a frame rendered with it?
+
+Frames per second delivered to a WebSocket client on the same machine and the gaze-to-frame latency, for
+`foveawarp view` started as its own process.
 
 The client sends gaze messages (a Lissajous path, ``--gaze-hz`` per second, each with a sequence number) and
 reads every frame the server sends (header parsed; the JPEG of the first and last frame decoded and its size
@@ -20,13 +22,13 @@ checked). Reported per resolution:
 - ``render_ms`` / ``encode_ms``: the server's median render + copy and JPEG encode times per frame;
   ``encoder``: the JPEG encoder the server used.
 
-Targets (issue 20): >= 60 fps at 1280x720 on the H100 with p95 latency <= 2 frame times; >= 5 fps at 480x270 on
-the CPU.
+Targets: >= 60 fps at 1280x720 on CUDA with p95 latency <= 2 frame times; >= 5 fps at 480x270 on the CPU.
+Writes viewer-<tag>.json / .md.
 
     python benchmarks/viewer.py --device cuda:0                 # 1280x720 and 1920x1080
     python benchmarks/viewer.py --device cpu                    # 480x270
     python benchmarks/viewer.py --device cuda:0 --encoder pillow # the Pillow fallback
-    python benchmarks/viewer.py --device cpu --screenshot docs/viewer.png   # the README screenshot (chromium)
+    python benchmarks/viewer.py --device cpu --screenshot docs/images/viewer.png   # the README's image (chromium)
 """
 
 from __future__ import annotations
@@ -48,7 +50,9 @@ import numpy as np
 
 sys.path.append(str(Path(__file__).resolve().parent.parent))
 
-from benchmarks._common import REPO, base_parser, md_table, write_results  # noqa: E402
+from benchmarks._common import REPO, base_parser, md_table, parse_sizes, progress, write_results  # noqa: E402
+
+CANONICAL = "python benchmarks/viewer.py --device cuda:0 --out benchmarks/results --tag h200"
 
 URL_RE = re.compile(r"open (http://\S+/)")
 
@@ -96,14 +100,6 @@ class ViewerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(10)
-
-
-def _decode(msg):
-    from PIL import Image
-
-    n = int.from_bytes(msg[:4], "little")
-    header = json.loads(msg[4:4 + n])
-    return header, msg[4 + n:], Image
 
 
 async def measure(vp: ViewerProcess, width, height, seconds, warmup_s, gaze_hz, first_frame_timeout=600.0):
@@ -176,7 +172,11 @@ async def measure(vp: ViewerProcess, width, height, seconds, warmup_s, gaze_hz, 
     from PIL import Image
 
     sizes = {Image.open(io.BytesIO(j)).size for j in (first_jpeg, last_jpeg) if j is not None}
-    med = lambda k: float(np.median([h["stats"][k] for _, h in window if k in h["stats"]])) if window else None  # noqa: E731
+
+    def med(k):
+        v = [h["stats"][k] for _, h in window if k in h["stats"]]
+        return float(np.median(v)) if v else None
+
     p50 = server.get("latency_ms_p50")
     p95 = server.get("latency_ms_p95")
     m95 = server.get("latency_msg_ms_p95")
@@ -242,8 +242,8 @@ def screenshot(path: Path, device: str, width: int, height: int) -> None:
     print(f"screenshot: {path} ({path.stat().st_size / 1024:.0f} KB)")
 
 
-def main():
-    p = base_parser(__doc__.splitlines()[0])
+def main(argv=None):
+    p = base_parser(__doc__, CANONICAL)
     p.add_argument("--sizes", default=None, help="WxH list, e.g. 1280x720,1920x1080 (default: those on CUDA, "
                                                   "480x270 on the CPU)")
     p.add_argument("--scene", default="cornell")
@@ -253,8 +253,10 @@ def main():
     p.add_argument("--quality", type=int, default=80, help="JPEG quality (default 80)")
     p.add_argument("--encoder", default="auto", choices=("auto", "simplejpeg", "pillow"),
                    help="the server's JPEG encoder (default auto: simplejpeg when installed)")
-    p.add_argument("--screenshot", default=None, help="instead of measuring, save the README screenshot here")
-    args = p.parse_args()
+    p.add_argument("--screenshot", default=None, help="instead of measuring, save the README's viewer image here")
+    args = p.parse_args(argv)
+    if (args.seconds is not None and args.seconds <= 0) or args.gaze_hz <= 0:
+        p.error(f"--seconds and --gaze-hz must be > 0, got {args.seconds} and {args.gaze_hz}")
     import warp as wp
 
     from foveawarp._util import init_warp
@@ -264,29 +266,27 @@ def main():
     cuda = wp.get_device(device).is_cuda
     if args.screenshot:
         screenshot(Path(args.screenshot), device, 480, 270)
-        return
-    if args.sizes:
-        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes.split(",")]
-    else:
-        sizes = [(1280, 720), (1920, 1080)] if cuda else [(480, 270)]
+        return 0
     if args.quick:
         sizes = [(96, 54)]
+    elif args.sizes:
+        sizes = parse_sizes(p, args.sizes)
+    else:
+        sizes = [(1280, 720), (1920, 1080)] if cuda else [(480, 270)]
     seconds = args.seconds or (3.0 if args.quick else 10.0)
     warmup_s = args.warmup_s if args.warmup_s is not None else (1.0 if args.quick else 3.0)
     rows = []
-    for w, h in sizes:
+    for w, h in progress(sizes, "viewer"):
         vp = ViewerProcess(device, w, h, scene=args.scene, quality=args.quality, encoder=args.encoder)
         try:
             r = asyncio.run(measure(vp, w, h, seconds, warmup_s, args.gaze_hz))
         finally:
             vp.close()
-        r["scene"] = args.scene
-        rows.append(r)
-        print(md_table([r], COLS), flush=True)
+        rows.append({"scene": args.scene, "width": w, "height": h, **r})
     targets = []
     for r in rows:
         if cuda and r["resolution"] == "1280x720":
-            targets.append({"target": ">= 60 fps at 1280x720 (H100)", "value": r["fps_delivered"],
+            targets.append({"target": ">= 60 fps at 1280x720 (CUDA)", "value": r["fps_delivered"],
                             "met": r["fps_delivered"] >= 60.0})
             lp = r["latency_p95_frames"]
             targets.append({"target": "gaze-to-frame p95 <= 2 frame times at 1280x720", "value": lp,
@@ -297,11 +297,12 @@ def main():
     table = md_table(rows, COLS)
     if targets:
         table += "\n" + md_table(targets, ["target", "value", "met"])
-    print(table)
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
-    write_results("viewer", device, {"scene": args.scene, "rows": rows, "targets": targets,
-                                     "cpu_count": os.cpu_count(), "load_average": load,
-                                     "quality": args.quality, "encoder": args.encoder}, table, out=args.out)
+    write_results("viewer", device, rows, table, args.out, args.tag, extra={
+        "targets": targets, "cpu_count": os.cpu_count(), "load_average": load, "quality": args.quality,
+        "encoder": args.encoder, "seconds": seconds, "warmup_s": warmup_s, "gaze_hz": args.gaze_hz})
+    print(table)
+    return 0
 
 
 COLS = ["resolution", "fps_delivered", "frame_ms", "latency_server_p50_ms", "latency_server_p95_ms",
@@ -310,4 +311,4 @@ COLS = ["resolution", "fps_delivered", "frame_ms", "latency_server_p50_ms", "lat
         "sampling_rate", "jpeg_kb", "decoded_sizes_ok"]
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
