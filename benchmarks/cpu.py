@@ -1,4 +1,6 @@
-"""CPU device benchmark (issue 16): band-parallel CPU launches (``foveawarp.parallel``).
+"""How fast is the CPU device: how do frames scale with threads, and is the foveated frame faster there?
+
+The CPU device runs band-parallel launches (``foveawarp.parallel``). Parts:
 
 * thread scaling: median foveated and reference frame time at 1, 2, 4, ..., cores threads (cornell);
 * foveated vs the full-resolution reference per scene, default shading and ``ao_samples=8``, all threads;
@@ -15,7 +17,7 @@ others); the policy is fixed ("foveated" / the reference), ``timing=False``, exc
 frames, with the path it chose). With ``timing=False`` a loop replays its recorded frame body (``FrameLoop``'s
 ``graph``; the CPU's ``parallel.record``); the reference is timed both as ``render_reference`` (eager) and as a
 ``policy="full"`` loop (its body replayed), and the faster of the two is the one the ratios divide. Writes
-``results/cpu-<device>.json`` and ``.md`` and a scaling plot ``cpu-scaling-<device>.png`` (matplotlib).
+cpu-<tag>.json / .md and the thread-scaling plot cpu-<tag>.png (matplotlib).
 
     python benchmarks/cpu.py --device cpu                 # 640x360, cornell + bunny, 1..cores threads
     python benchmarks/cpu.py --device cpu --quick         # 96x54 smoke run
@@ -34,12 +36,14 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import RESULTS, base_parser, md_table, write_results  # noqa: E402
-import foveawarp as fw  # noqa: E402
-from foveawarp.kernels.packet import packet_ray_kernel  # noqa: E402
+from benchmarks._common import base_parser, md_table, plot_path, progress, pyplot, write_results  # noqa: E402
 from benchmarks.frame import gaze_path  # noqa: E402
+import foveawarp as fw  # noqa: E402
 from foveawarp import parallel  # noqa: E402
 from foveawarp._util import get_device  # noqa: E402
+from foveawarp.kernels.packet import packet_ray_kernel  # noqa: E402
+
+CANONICAL = "python benchmarks/cpu.py --device cpu --out benchmarks/results --tag h200   (the H200 machine's host CPU)"
 
 
 @wp.kernel(enable_backward=False)
@@ -167,7 +171,7 @@ def rays_bench(scene_name, w, h, dev, threads_all, repeats):
 
 
 def main(argv=None):
-    p = base_parser(__doc__.split("\n")[0])
+    p = base_parser(__doc__, CANONICAL)
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=360)
     p.add_argument("--scenes", default="cornell,bunny")
@@ -178,6 +182,16 @@ def main(argv=None):
     p.add_argument("--oversplit", default="1,2,4,8", help="bands per thread to compare at the most threads ('' = skip)")
     p.add_argument("--stages", action="store_true", help="per-stage ms at 1 and at the most threads")
     args = p.parse_args(argv)
+    try:
+        threads = [int(t) for t in args.threads.split(",")] if args.threads else None
+        oversplits = [int(v) for v in args.oversplit.split(",") if v]
+    except ValueError:
+        threads = oversplits = [0]
+    if (threads is not None and (not threads or min(threads) < 1)) or (oversplits and min(oversplits) < 1):
+        p.error(f"--threads and --oversplit must be comma lists of positive integers, got {args.threads!r} and "
+                f"{args.oversplit!r}")
+    if min(args.width, args.height) < 1:
+        p.error(f"--width and --height must be >= 1, got {args.width}x{args.height}")
     dev = get_device(args.device or "cpu")
     if args.quick:
         args.width, args.height = 96, 54
@@ -186,59 +200,64 @@ def main(argv=None):
     warmup = 2 if args.quick else args.warmup
     repeats = args.repeats or (3 if args.quick else 7)
     cores = parallel.usable_cores()
-    threads = [int(t) for t in args.threads.split(",")] if args.threads else thread_counts(cores)
+    threads = threads or thread_counts(cores)
     tmax = max(threads)
     w, h = args.width, args.height
     scenes = [s for s in args.scenes.split(",") if s]
-    payload = {"resolution": f"{w}x{h}", "usable_cores": cores, "threads": threads, "frames": frames,
-               "rounds": rounds, "warmup": warmup, "bands_per_thread": {t: parallel.bands_per_thread(t) for t in threads},
-               "load_average_at_start": os.getloadavg() if hasattr(os, "getloadavg") else None, "camera": "scene camera path, 1/30 s per frame; gaze at the centre"}
+    sscene = args.scaling_scene
+    where = {"scene": sscene, "width": w, "height": h}
+    extra = {"usable_cores": cores, "threads": threads, "frames": frames, "rounds": rounds, "warmup": warmup,
+             "bands_per_thread": {t: parallel.bands_per_thread(t) for t in threads},
+             "load_average_at_start": os.getloadavg() if hasattr(os, "getloadavg") else None,
+             "camera": "scene camera path, 1/30 s per frame; gaze at the centre"}
+    steps = (3 if dev.is_cpu else 0) + 2 * len(scenes) + (len(scenes) if dev.is_cpu else 0) + bool(args.stages)
+    bar = progress(None, "cpu", total=steps)
 
     scaling = []
     if dev.is_cpu:
         loops = {}
         for t in threads:
-            fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy="foveated", cpu_threads=t)
+            fl = fw.FrameLoop(sscene, w, h, device=dev, timing=False, policy="foveated", cpu_threads=t)
             loops[(t, False)] = (fl, False)
             loops[(t, True)] = (fl, True)
         m = interleaved(loops, frames, warmup, rounds)
         for t in threads:
             fo, re_ = m[(t, False)], m[(t, True)]
-            scaling.append({"threads": t, "foveated_ms": fo["median_ms"], "foveated_best_ms": fo["best_ms"],
-                            "reference_ms": re_["median_ms"], "reference_best_ms": re_["best_ms"]})
-            print(f"threads {t}: foveated {fo} ms, reference {re_} ms", flush=True)
+            scaling.append({"part": "scaling", **where, "threads": t, "foveated_ms": fo["median_ms"],
+                            "foveated_best_ms": fo["best_ms"], "reference_ms": re_["median_ms"],
+                            "reference_best_ms": re_["best_ms"]})
         b = scaling[0]
         for r in scaling:
             r["foveated_speedup"] = b["foveated_ms"] / r["foveated_ms"]
             r["foveated_speedup_best"] = b["foveated_best_ms"] / r["foveated_best_ms"]
             r["reference_speedup"] = b["reference_ms"] / r["reference_ms"]
             r["reference_speedup_best"] = b["reference_best_ms"] / r["reference_best_ms"]
-    payload["scaling_scene"] = args.scaling_scene
+        bar.update(1)
     oversplit = []
-    if dev.is_cpu and tmax > 1 and args.oversplit:
+    if dev.is_cpu and tmax > 1 and oversplits:
         # bands per thread at the most threads (parallel.OVERSPLIT): load balance against the cost of a band. A
         # loop's replayed body keeps the bands it was recorded with, so each value gets its own foveated and
         # full-resolution (policy "full") loops, recorded while it is set; the loops are then timed in turn
         default = parallel.OVERSPLIT
         loops = {}
-        for k in [int(v) for v in args.oversplit.split(",")]:
+        for k in oversplits:
             parallel.OVERSPLIT = k
             for name, policy in (("fov", "foveated"), ("ref", "full")):
-                fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=False, policy=policy, cpu_threads=tmax)
+                fl = fw.FrameLoop(sscene, w, h, device=dev, timing=False, policy=policy, cpu_threads=tmax)
                 frame_ms(fl, max(warmup, 3), False)
                 loops[(k, name)] = (fl, False)
         parallel.OVERSPLIT = default
         m = interleaved(loops, frames, warmup, rounds)
         sc0 = loops[next(iter(loops))][0].scene
-        for k in [int(v) for v in args.oversplit.split(",")]:
+        for k in oversplits:
             fo, re_ = m[(k, "fov")], m[(k, "ref")]
-            oversplit.append({"oversplit": k, "threads": tmax, "foveated_ms": fo["median_ms"],
-                              "foveated_best_ms": fo["best_ms"], "reference_ms": re_["median_ms"],
-                              "reference_best_ms": re_["best_ms"],
+            oversplit.append({"part": "oversplit", **where, "oversplit": k, "threads": tmax,
+                              "foveated_ms": fo["median_ms"], "foveated_best_ms": fo["best_ms"],
+                              "reference_ms": re_["median_ms"], "reference_best_ms": re_["best_ms"],
                               "reference_over_foveated": re_["median_ms"] / fo["median_ms"],
                               "foveated_body": loops[(k, "fov")][0].render(sc0.camera_at(0.0)).stats["graph"]})
-            print("oversplit", oversplit[-1], flush=True)
-    payload["oversplit_sweep"] = oversplit
+    if dev.is_cpu:
+        bar.update(1)
     variants = []
     if dev.is_cpu and tmax > 1:
         # the reorder compaction (tile kernels) runs on one thread; "none" (the CPU's "auto") shades every pixel's
@@ -248,99 +267,36 @@ def main(argv=None):
                            ("reorder=tile", fw.Config().with_(reorder={"strategy": "tile"})),
                            ("jfa_variant=disc", fw.Config().with_(reconstruction={"jfa_variant": "disc"})),
                            ("jfa_variant=1+jfa", fw.Config().with_(reconstruction={"jfa_variant": "1+jfa"}))):
-            loops[label] = (fw.FrameLoop(args.scaling_scene, w, h, config=cfg, device=dev, timing=False,
-                                         policy="foveated", cpu_threads=tmax), False)
+            loops[label] = (fw.FrameLoop(sscene, w, h, config=cfg, device=dev, timing=False, policy="foveated",
+                                         cpu_threads=tmax), False)
         m = interleaved(loops, frames, warmup, rounds)
         for label in loops:
-            variants.append({"variant": label, "threads": tmax, "foveated_ms": m[label]["median_ms"],
-                             "foveated_best_ms": m[label]["best_ms"]})
-            print("variant", variants[-1], flush=True)
-    payload["variants"] = variants
-    payload["scaling"] = scaling
+            variants.append({"part": "variants", **where, "variant": label, "threads": tmax,
+                             "foveated_ms": m[label]["median_ms"], "foveated_best_ms": m[label]["best_ms"]})
+    if dev.is_cpu:
+        bar.update(1)
 
     versus = []
     for sc in scenes:
         for label, cfg in (("default", fw.Config()), ("ao_samples=8", fw.Config().with_(shading={"ao_samples": 8}))):
-            fl = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
-            fl_ref = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",
-                                  cpu_threads=tmax)
-            # the default policy ("auto" with timing=False): its measurement (both paths, a few frames each)
-            # runs first, so the timed frames render the path it chose
-            fl_auto = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, cpu_threads=tmax)
-            frame_ms(fl_auto, fl_auto.policy_measurement_frames() + 1, False)
-            # the same two paths with frame.py's moving gaze (its own loops: a loop's history follows its gaze)
-            fl_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated", cpu_threads=tmax)
-            fl_ref_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="foveated",
-                                     cpu_threads=tmax)
-            # the reference two ways: render_reference (G-buffer and full shading, eager), and a loop with
-            # policy="full" (the same launches through render, its body replayed as the foveated loops' are);
-            # the faster of the two is the reference of the ratios
-            fl_full = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full", cpu_threads=tmax)
-            fl_full_mv = fw.FrameLoop(sc, w, h, config=cfg, device=dev, timing=False, policy="full",
-                                      cpu_threads=tmax)
-            m = interleaved({"fov": (fl, False), "ref_eager": (fl_ref, True), "ref_full": (fl_full, False),
-                             "auto": (fl_auto, False), "fov_mv": (fl_mv, False, True),
-                             "ref_eager_mv": (fl_ref_mv, True, True), "ref_full_mv": (fl_full_mv, False, True)},
-                            frames, warmup, rounds)
-            for suffix in ("", "_mv"):
-                a, b = m["ref_eager" + suffix], m["ref_full" + suffix]
-                m["ref" + suffix] = {"median_ms": min(a["median_ms"], b["median_ms"]),
-                                     "best_ms": min(a["best_ms"], b["best_ms"])}
-            frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
-            # how the loops ran their frame bodies (FrameLoop stats["graph"]: "replayed" once recorded)
-            body_state = fl.render(fl.scene.camera_at(0.0)).stats["graph"]
-            full_state = fl_full.render(fl_full.scene.camera_at(0.0)).stats["graph"]
-            fov, ref, auto = m["fov"]["median_ms"], m["ref"]["median_ms"], m["auto"]["median_ms"]
-            pol = fl_auto.render(fl_auto.scene.camera_at(0.0)).stats["policy"]  # the path it renders, estimates
-            row = {"scene": sc, "shading": label, "threads": tmax, "foveated_ms": fov, "reference_ms": ref,
-                   "reference_over_foveated": ref / fov, "foveated_best_ms": m["fov"]["best_ms"],
-                   "reference_best_ms": m["ref"]["best_ms"],
-                   "reference_over_foveated_best": m["ref"]["best_ms"] / m["fov"]["best_ms"],
-                   "sampled_fraction": frac, "auto_ms": auto, "auto_path": pol["path"],
-                   "reference_over_auto": ref / auto,
-                   "foveated_moving_ms": m["fov_mv"]["median_ms"], "reference_moving_ms": m["ref_mv"]["median_ms"],
-                   "reference_over_foveated_moving": m["ref_mv"]["median_ms"] / m["fov_mv"]["median_ms"],
-                   "reference_over_foveated_moving_best": m["ref_mv"]["best_ms"] / m["fov_mv"]["best_ms"],
-                   "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol},
-                   "reference_eager_ms": m["ref_eager"]["median_ms"], "reference_full_policy_ms": m["ref_full"]["median_ms"],
-                   "foveated_body": body_state, "reference_full_policy_body": full_state}
-            versus.append(row)
-            print(f"{sc} {label}: foveated {fov:.1f} ms, reference {ref:.1f} ms ({ref / fov:.2f}x), "
-                  f"default policy {auto:.1f} ms ({pol['path']}, {ref / auto:.2f}x)", flush=True)
-    payload["foveated_vs_reference"] = versus
+            versus.append(foveated_vs_reference(sc, label, cfg, w, h, dev, tmax, frames, warmup, rounds))
+            bar.update(1)
 
     rays = []
     if dev.is_cpu:
         for sc in scenes:
-            r = rays_bench(sc, w, h, dev, tmax, repeats)
-            rays.append(r)
-            print("rays", r, flush=True)
-    payload["primary_rays"] = rays
+            rays.append({"part": "rays", "width": w, "height": h, **rays_bench(sc, w, h, dev, tmax, repeats)})
+            bar.update(1)
 
     stages = []
     if dev.is_cpu and args.stages:
-        # where the time goes at 1 and at the most threads: per-stage ms of a timing=True loop (each stage
-        # synchronized), cornell foveated and reference; a stage that does not shrink with threads is serial
-        for t in sorted({1, tmax}):
-            for label, ref in (("foveated", False), ("reference", True)):
-                fl = fw.FrameLoop(args.scaling_scene, w, h, device=dev, timing=True, policy="foveated", cpu_threads=t)
-                acc = {}
-                for i in range(warmup + frames):
-                    tt = (i + 1) / 30.0
-                    cam = fl.scene.camera_at(tt)
-                    f = fl.render_reference(cam, time=tt) if ref else fl.render(cam, gaze_px=(w / 2, h / 2), time=tt)
-                    if i >= warmup:
-                        for k, v in f.stats.items():
-                            if k.startswith("ms_"):
-                                acc.setdefault(k[3:], []).append(v)
-                row = {"threads": t, "path": label, **{k: statistics.median(v) for k, v in acc.items()}}
-                stages.append(row)
-                print("stages", {k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-    payload["stages"] = stages
+        stages = stage_ms(sscene, w, h, dev, sorted({1, tmax}), frames, warmup)
+        bar.update(1)
+    bar.close()
 
-    md = f"## CPU device, {w}x{h}, {cores} usable cores, commit-tagged JSON alongside\n\n"
+    md = f"## CPU device, {w}x{h}, {cores} usable cores\n\n"
     if scaling:
-        md += (f"### Thread scaling ({args.scaling_scene}; median of all {frames * rounds} frames, and best = the "
+        md += (f"### Thread scaling ({sscene}; median of all {frames * rounds} frames, and best = the "
                f"least disturbed of {rounds} interleaved rounds)\n\n")
         md += md_table(scaling, ["threads", "foveated_ms", "foveated_speedup", "foveated_best_ms",
                                  "foveated_speedup_best", "reference_ms", "reference_speedup", "reference_best_ms",
@@ -349,9 +305,9 @@ def main(argv=None):
         md += (f"\n### Bands per thread (parallel.OVERSPLIT; default at {tmax} threads: "
                f"{parallel.bands_per_thread(tmax)}) at {tmax} threads\n\n")
         md += md_table(oversplit, ["oversplit", "threads", "foveated_ms", "foveated_best_ms", "reference_ms",
-                                     "reference_best_ms", "reference_over_foveated", "foveated_body"])
+                                   "reference_best_ms", "reference_over_foveated", "foveated_body"])
     if variants:
-        md += f"\n### Frame variants at {tmax} threads ({args.scaling_scene})\n\n"
+        md += f"\n### Frame variants at {tmax} threads ({sscene})\n\n"
         md += md_table(variants, ["variant", "threads", "foveated_ms", "foveated_best_ms"])
     md += f"\n### Foveated vs full-resolution reference ({tmax} threads)\n\n"
     md += md_table(versus, ["scene", "shading", "foveated_ms", "reference_ms", "reference_over_foveated",
@@ -367,38 +323,104 @@ def main(argv=None):
                 "packet_same_face_as_single", "same_hit_miss", "same_face", "max_rel_t_diff", "embree"]
         md += md_table(rays, [c for c in cols if any(c in r for r in rays)])
     if stages:
-        md += f"\n### Stage ms ({args.scaling_scene}, timing=True: each stage synchronized)\n\n"
+        md += f"\n### Stage ms ({sscene}, timing=True: each stage synchronized)\n\n"
         keys = []
         for r in stages:
-            keys += [k for k in r if k not in keys]
+            keys += [k for k in r if k not in keys and k not in ("part", "scene", "width", "height")]
         md += md_table(stages, keys)
-    path = write_results("cpu", dev, payload, md, args.out)
-    print(md)
-    print("wrote", path)
+    write_results("cpu", dev, scaling + oversplit + variants + versus + rays + stages, md, args.out, args.tag,
+                  extra=extra)
     if scaling:
-        try:
-            import matplotlib
+        plot(scaling, plot_path("cpu", dev, args.out, args.tag), sscene, w, h)
+    print(md)
+    return 0
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
-            print("matplotlib not installed: no plot")
-            return
-        fig, ax = plt.subplots(figsize=(5, 4))
-        ts = [r["threads"] for r in scaling]
-        ax.plot(ts, ts, "k:", label="ideal")
-        ax.plot(ts, [r["foveated_speedup"] for r in scaling], "o-", label="foveated frame (median)")
-        ax.plot(ts, [r["reference_speedup"] for r in scaling], "s-", label="reference frame (median)")
-        ax.plot(ts, [r["foveated_speedup_best"] for r in scaling], "o--", alpha=0.6, label="foveated (best round)")
-        ax.set_xlabel("threads")
-        ax.set_ylabel("speed-up over 1 thread")
-        ax.set_title(f"CPU scaling, {args.scaling_scene} {w}x{h}")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        folder = Path(args.out) if args.out else RESULTS
-        fig.tight_layout()
-        fig.savefig(folder / f"cpu-scaling-{'cuda' if dev.is_cuda else 'cpu'}.png", dpi=100)
+
+def foveated_vs_reference(sc, label, cfg, w, h, dev, tmax, frames, warmup, rounds) -> dict:
+    """One scene and shading at ``tmax`` threads: the foveated loop, the reference two ways, the default policy,
+    and both paths again with the moving gaze, timed in interleaved rounds."""
+    kw = dict(config=cfg, device=dev, timing=False, cpu_threads=tmax)
+    fl = fw.FrameLoop(sc, w, h, policy="foveated", **kw)
+    fl_ref = fw.FrameLoop(sc, w, h, policy="foveated", **kw)
+    # the default policy ("auto" with timing=False): its measurement (both paths, a few frames each) runs first,
+    # so the timed frames render the path it chose
+    fl_auto = fw.FrameLoop(sc, w, h, **kw)
+    frame_ms(fl_auto, fl_auto.policy_measurement_frames() + 1, False)
+    # the same two paths with frame.py's moving gaze (its own loops: a loop's history follows its gaze)
+    fl_mv = fw.FrameLoop(sc, w, h, policy="foveated", **kw)
+    fl_ref_mv = fw.FrameLoop(sc, w, h, policy="foveated", **kw)
+    # the reference two ways: render_reference (G-buffer and full shading, eager), and a loop with policy="full"
+    # (the same launches through render, its body replayed as the foveated loops' are); the faster of the two is
+    # the reference of the ratios
+    fl_full = fw.FrameLoop(sc, w, h, policy="full", **kw)
+    fl_full_mv = fw.FrameLoop(sc, w, h, policy="full", **kw)
+    m = interleaved({"fov": (fl, False), "ref_eager": (fl_ref, True), "ref_full": (fl_full, False),
+                     "auto": (fl_auto, False), "fov_mv": (fl_mv, False, True), "ref_eager_mv": (fl_ref_mv, True, True),
+                     "ref_full_mv": (fl_full_mv, False, True)}, frames, warmup, rounds)
+    for suffix in ("", "_mv"):
+        a, b = m["ref_eager" + suffix], m["ref_full" + suffix]
+        m["ref" + suffix] = {"median_ms": min(a["median_ms"], b["median_ms"]),
+                             "best_ms": min(a["best_ms"], b["best_ms"])}
+    frac = float(fl.sampling.sample_map.numpy().mean())  # the last timed foveated frame
+    # how the loops ran their frame bodies (FrameLoop stats["graph"]: "replayed" once recorded)
+    body_state = fl.render(fl.scene.camera_at(0.0)).stats["graph"]
+    full_state = fl_full.render(fl_full.scene.camera_at(0.0)).stats["graph"]
+    fov, ref, auto = m["fov"]["median_ms"], m["ref"]["median_ms"], m["auto"]["median_ms"]
+    pol = fl_auto.render(fl_auto.scene.camera_at(0.0)).stats["policy"]  # the path it renders, estimates
+    return {"part": "versus", "scene": sc, "width": w, "height": h, "shading": label, "threads": tmax,
+            "foveated_ms": fov, "reference_ms": ref, "reference_over_foveated": ref / fov,
+            "foveated_best_ms": m["fov"]["best_ms"], "reference_best_ms": m["ref"]["best_ms"],
+            "reference_over_foveated_best": m["ref"]["best_ms"] / m["fov"]["best_ms"],
+            "sampled_fraction": frac, "auto_ms": auto, "auto_path": pol["path"], "reference_over_auto": ref / auto,
+            "foveated_moving_ms": m["fov_mv"]["median_ms"], "reference_moving_ms": m["ref_mv"]["median_ms"],
+            "reference_over_foveated_moving": m["ref_mv"]["median_ms"] / m["fov_mv"]["median_ms"],
+            "reference_over_foveated_moving_best": m["ref_mv"]["best_ms"] / m["fov_mv"]["best_ms"],
+            "auto_estimates_ms": {k: pol[k] for k in ("foveated_ms", "full_ms") if k in pol},
+            "reference_eager_ms": m["ref_eager"]["median_ms"], "reference_full_policy_ms": m["ref_full"]["median_ms"],
+            "foveated_body": body_state, "reference_full_policy_body": full_state}
+
+
+def stage_ms(sscene, w, h, dev, thread_list, frames, warmup) -> list:
+    """Where the time goes at each thread count: per-stage ms of a timing=True loop (each stage synchronized),
+    foveated and reference; a stage that does not shrink with threads is serial."""
+    out = []
+    for t in thread_list:
+        for label, ref in (("foveated", False), ("reference", True)):
+            fl = fw.FrameLoop(sscene, w, h, device=dev, timing=True, policy="foveated", cpu_threads=t)
+            acc = {}
+            for i in range(warmup + frames):
+                tt = (i + 1) / 30.0
+                cam = fl.scene.camera_at(tt)
+                f = fl.render_reference(cam, time=tt) if ref else fl.render(cam, gaze_px=(w / 2, h / 2), time=tt)
+                if i >= warmup:
+                    for k, v in f.stats.items():
+                        if k.startswith("ms_"):
+                            acc.setdefault(k[3:], []).append(v)
+            out.append({"part": "stages", "scene": sscene, "width": w, "height": h, "threads": t, "path": label,
+                        **{k: statistics.median(v) for k, v in acc.items()}})
+    return out
+
+
+def plot(scaling, path, sscene, w, h):
+    """Speed-up over one thread against threads, foveated and reference, with the ideal line."""
+    plt = pyplot()
+    if plt is None:
+        return
+    fig, ax = plt.subplots(figsize=(5, 4))
+    ts = [r["threads"] for r in scaling]
+    ax.plot(ts, ts, "k:", label="ideal")
+    ax.plot(ts, [r["foveated_speedup"] for r in scaling], "o-", label="foveated frame (median)")
+    ax.plot(ts, [r["reference_speedup"] for r in scaling], "s-", label="reference frame (median)")
+    ax.plot(ts, [r["foveated_speedup_best"] for r in scaling], "o--", alpha=0.6, label="foveated (best round)")
+    ax.set_xlabel("threads")
+    ax.set_ylabel("speed-up over 1 thread")
+    ax.set_title(f"CPU scaling, {sscene} {w}x{h}")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
