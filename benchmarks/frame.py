@@ -17,6 +17,9 @@ scene's camera path (1/30 s a frame) with a moving gaze (a Lissajous figure):
 * ``--configs``: other foveation settings as ``name=python-dict`` Config.with_ overrides, each its own record.
 
 Writes frame-<tag>.json / .md and frame-<tag>.png (x = frame ms, y = PSNR: foveated and reference points).
+
+``--summarize FILE.json`` renders nothing: it prints the README's results table from a frame JSON (with
+``--readme README.md`` it writes the table between the README's results markers instead).
 """
 
 from __future__ import annotations
@@ -28,13 +31,13 @@ import textwrap
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.append(str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import (base_parser, md_table, parse_sizes, plot_path, progress, pyplot,  # noqa: E402
-                                scenes_present, write_results)
+from benchmarks._common import (REPO, base_parser, md_table, parse_sizes, plot_path, progress,  # noqa: E402
+                                pyplot, scenes_present, write_results)
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
 CANONICAL = ("python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 "
@@ -314,8 +317,84 @@ def _parse_configs(p, text: str) -> list:
     return configs or [("default", {})]
 
 
+# the README's results at a glance lie between these two lines; tests/test_readme.py checks them against the JSON
+README_BEGIN = ("<!-- results: python benchmarks/frame.py --summarize benchmarks/results/frame-h200.json "
+                "--readme README.md -->")
+README_END = "<!-- /results -->"
+
+
+def _num(v, fmt: str) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def summarize(json_path, base=REPO) -> str:
+    """The README's results table from a frame JSON: one row per record that was both timed and measured
+    (reference, foveated and default-policy ms, speed-up, PSNR mean / min, SSIM and FLIP means), a line naming the
+    device and the conditions, and the time-vs-error plot beside the JSON (its path relative to ``base``)."""
+    import json
+
+    path = Path(json_path)
+    d = json.loads(path.read_text())
+    if d.get("benchmark") != "frame":
+        raise ValueError(f"{path} is not a frame.py result (benchmark {d.get('benchmark')!r}); pass frame-<tag>.json")
+    recs = [r for r in d["records"] if "fov_ms" in r and "psnr_mean" in r]
+    if not recs:
+        raise ValueError(f"{path} has no record with both timing and quality (run frame.py with --frames and "
+                         f"--timing-frames > 0)")
+    configs = len({r["config"] for r in recs}) > 1
+    rows = []
+    for r in recs:
+        row = {"scene": r["scene"], "size": f"{r['width']}x{r['height']}"}
+        if configs:
+            row["config"] = r["config"]
+        row.update({"AO rays": str(r["ao_samples"]), "reference ms": _num(r["ref_ms"], ".2f"),
+                    "foveated ms": _num(r["fov_ms"], ".2f"), "speed-up": _num(r["speedup"], ".2f") + "x",
+                    "default policy": f"{_num(r['auto_ms'], '.2f')} ms ({r['auto_path']})",
+                    "PSNR dB mean / min": f"{_num(r['psnr_mean'], '.1f')} / {_num(r['psnr_min'], '.1f')}",
+                    "SSIM mean": _num(r.get("ssim_mean"), ".3f")})
+        if any("flip_mean" in x for x in recs):
+            row["FLIP mean"] = _num(r.get("flip_mean"), ".3f")
+        rows.append(row)
+    cols = list(rows[0])
+    table = "| " + " | ".join(cols) + " |\n|" + "|".join("---" for _ in cols) + "|\n"
+    table += "".join("| " + " | ".join(r[c] for c in cols) + " |\n" for r in rows)
+    png = path.with_suffix(".png")
+    try:
+        rel = png.resolve().relative_to(Path(base).resolve()).as_posix()
+    except ValueError:
+        rel = png.as_posix()
+    targets = sorted({r["quality_target"] for r in recs if r["ao_samples"]})
+    lead = (f"On {d['device']}, Warp {d['warp']}: frame ms are medians of {d['timing_frames']} synchronized frames "
+            f"along each scene's camera path with a moving gaze; errors are over {d['frames']} frames of the same "
+            f"path, against the full-resolution `render_reference` of the same camera, time and gaze"
+            + (f" (with AO rays: a frame converged with {' / '.join(targets)} per pixel)" if targets else "")
+            + f". From `{path.name}`; how it is measured: [docs/performance.md](docs/performance.md).")
+    lead = textwrap.fill(lead, 116, break_on_hyphens=False, break_long_words=False)
+    return f"{lead}\n\n{table}\n![frame time against PSNR]({rel})\n"
+
+
+def write_readme(readme, text: str) -> None:
+    """Replace what lies between the README's results markers with ``text``; a README without both markers is
+    refused (ValueError naming them)."""
+    readme = Path(readme)
+    s = readme.read_text()
+    a, b = s.find(README_BEGIN), s.find(README_END)
+    if a < 0 or b < a:
+        raise ValueError(f"{readme} lacks the results markers {README_BEGIN!r} ... {README_END!r}")
+    readme.write_text(s[:a + len(README_BEGIN)] + "\n" + text + s[b:])
+
+
+def readme_results(text: str):
+    """What lies between the results markers of a README's text (stripped), or None without the markers."""
+    a, b = text.find(README_BEGIN), text.find(README_END)
+    return None if a < 0 or b < a else text[a + len(README_BEGIN):b].strip()
+
+
 def main(argv=None):
     p = base_parser(__doc__, CANONICAL)
+    p.add_argument("--summarize", default=None, metavar="FILE.json",
+                   help="print the README's results table from a frame JSON (renders nothing)")
+    p.add_argument("--readme", default=None, help="with --summarize: write the table into this README instead")
     p.add_argument("--scenes", default=ALL_SCENES)
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--ao-samples", default="0,8", help="comma list of AO rays per pixel (0: the default shading)")
@@ -331,6 +410,19 @@ def main(argv=None):
                         "\"default={};mar0.034={'foveation': {'mar_slope': 0.034}}\"")
     p.add_argument("--psnr-only", action="store_true", help="host PSNR only, no SSIM (fast sweeps)")
     args = p.parse_args(argv)
+    if args.readme and not args.summarize:
+        p.error("--readme goes with --summarize FILE.json")
+    if args.summarize:
+        if not Path(args.summarize).is_file():
+            p.error(f"--summarize must name a frame JSON, got {args.summarize!r} (no such file)")
+        try:
+            text = summarize(args.summarize)
+            if args.readme:
+                write_readme(args.readme, text)
+        except ValueError as e:
+            p.error(str(e))
+        print(text, end="")
+        return []
     import foveawarp as fw
 
     wp.config.quiet = True
