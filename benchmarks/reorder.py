@@ -8,7 +8,8 @@ order), each as compaction + tracing (the sum of the two medians, both synchroni
 Ratios to full and to "none"; "ideal" = rate x full.
 
 ``--overhead``: the compaction alone per strategy on a sparse foveated mask (~25 %) and a mostly-filled one
-(~95 %), with its CUDA graph's replay and per-kernel GPU times (CUDA). Writes reorder-<tag>.json / .md.
+(~95 %), with its CUDA graph's replay and per-kernel GPU times (CUDA). Writes reorder-<tag>.json / .md and, for
+the tracing, reorder-<tag>.png (ms / full-resolution ms against the sampling rate, per shading and mask).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import base_parser, md_table, parse_sizes, progress, time_ms, write_results  # noqa: E402
+from benchmarks._common import (base_parser, md_table, parse_sizes, plot_path, progress, pyplot,  # noqa: E402
+                                time_ms, write_results)
 from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
 from benchmarks._masks import bench_masks  # noqa: E402
 
@@ -71,7 +73,8 @@ def overhead(args):
                 wall = time_ms(run, dev, repeats, warmup)
                 g = graph_time(run, dev, repeats, warmup)
                 k = kernel_times(run, dev, repeats, warmup)
-                rec = {"scene": "synthetic mask", "width": w, "height": h, "mask": name, "rate": float(m.mean()), "strategy": s,
+                rec = {"scene": "synthetic mask", "width": w, "height": h, "mask": name, "rate": float(m.mean()),
+                       "strategy": s,
                        "run_ms": wall["median_ms"], "run_p10_ms": wall["p10_ms"], "run_p90_ms": wall["p90_ms"],
                        "graph_ms": g["graph_ms"], "graph_error": g["error"],
                        "gpu_ms": None if k is None else k["gpu_ms"],
@@ -90,9 +93,10 @@ def overhead(args):
              + md_table(rows, ["size", "mask", "rate", "strategy", "run ms", "graph ms", "GPU kernels ms",
                                "launches", "per kernel (ms, launches)"]))
     print(table)
-    write_results("reorder", dev, cases, table, args.out, args.tag, extra={"mode": "overhead", "repeats": repeats, "note": (
-        "run ms: synchronized wall time of one run; graph ms: replay of its captured CUDA graph; GPU kernels "
-        "ms: sum of the kernels' CUDA activity times")})
+    write_results("reorder", dev, cases, table, args.out, args.tag, extra={
+        "mode": "overhead", "repeats": repeats,
+        "note": ("run ms: synchronized wall time of one run; graph ms: replay of its captured CUDA graph; GPU kernels "
+                 "ms: sum of the kernels' CUDA activity times")})
 
 
 def main(argv=None):
@@ -121,8 +125,8 @@ def main(argv=None):
     for name in progress(names[:1] if args.quick else names, "reorder"):
         try:
             scene = fw.load_scene(name)
-        except ValueError as e:
-            print(f"skip {name}: {e}")
+        except (FileNotFoundError, ValueError) as e:
+            print(f"skip {name}: {e}", file=sys.stderr)
             continue
         for w, h in sizes:
             for shading, ao in (("light", 0), ("heavy", 8)):
@@ -137,8 +141,9 @@ def main(argv=None):
                             rng.random((h, w)) < rate).astype(np.uint8)
                         mask = wp.array(m_np, dtype=wp.uint8, device=dev)
                         real_rate = float(m_np.mean())
-                        row = {"scene": scene.name, "width": w, "height": h, "resolution": f"{w}x{h}", "shading": shading, "mask": kind,
-                               "rate": real_rate, "full_ms": full, "ideal_ms": real_rate * full}
+                        row = {"scene": scene.name, "width": w, "height": h, "resolution": f"{w}x{h}",
+                               "shading": shading, "mask": kind, "rate": real_rate, "full_ms": full,
+                               "ideal_ms": real_rate * full}
                         row["none_ms"] = time_ms(lambda: loop.shade_masked(cam, mask), dev, repeats,
                                                  args.warmup)["median_ms"]
                         for s in STRATS:
@@ -166,13 +171,40 @@ def main(argv=None):
                         row["best_vs_ideal"] = row[f"{best}_trace_ms"] / max(row["ideal_ms"], 1e-9)
                         row["best_vs_full"] = row["best_ms"] / max(full, 1e-9)
                         rows.append(row)
-                    cols = ["scene", "resolution", "shading", "mask", "rate", "full_ms", "ideal_ms", "none_ms", "rows_ms",
+    cols = ["scene", "resolution", "shading", "mask", "rate", "full_ms", "ideal_ms", "none_ms", "rows_ms",
             "rows+balance_ms", "scan_ms", "tile_ms", "best", "speedup_vs_none", "best_vs_ideal"]
     table = md_table(rows, cols)
+    write_results("reorder", dev, rows, table, args.out, args.tag, extra={
+        "mode": "tracing", "repeats": repeats,
+        "note": ("X_ms = compaction + tracing (median of repeats, synchronized); X_trace_ms tracing alone; ideal_ms = "
+                 "rate x full_ms; best_vs_ideal = best strategy's tracing time / ideal")})
+    plot(rows, plot_path("reorder", dev, args.out, args.tag), dev)
     print(table)
-    write_results("reorder", dev, rows, table, args.out, args.tag, extra={"mode": "tracing", "repeats": repeats, "note": (
-        "X_ms = compaction + tracing (median of repeats, synchronized); X_trace_ms tracing alone; ideal_ms = "
-        "rate x full_ms; best_vs_ideal = best strategy's tracing time / ideal")})
+
+
+def plot(rows, path, dev):
+    """ms / full-resolution ms against the sampling rate: unreordered ("none"), each strategy (compaction
+    counted) and the ideal rate x full, one panel per shading and mask, every scene and size."""
+    plt = pyplot()
+    if plt is None or not rows:
+        return
+    panels = sorted({(r["shading"], r["mask"]) for r in rows})
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels), 3.2), squeeze=False)
+    for ax, (shading, mask) in zip(axes.flat, panels):
+        rs = sorted((r for r in rows if (r["shading"], r["mask"]) == (shading, mask)), key=lambda r: r["rate"])
+        ax.plot([0, 1], [0, 1], "k:", lw=1, label="ideal")
+        for k, s in enumerate(["none"] + STRATS):
+            ax.scatter([r["rate"] for r in rs], [r[f"{s}_ms"] / r["full_ms"] for r in rs], s=10, color=f"C{k}",
+                       label=s if s != "none" else "none (masked launch)")
+        ax.set_title(f"{shading} shading, {mask} mask", fontsize=8)
+        ax.set_xlabel("sampling rate", fontsize=7)
+        ax.set_ylabel("ms / full-resolution ms", fontsize=7)
+        ax.tick_params(labelsize=6)
+    axes.flat[0].legend(fontsize=5)
+    fig.suptitle(f"reordered vs unreordered tracing, compaction counted ({wp.get_device(dev).alias})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
