@@ -23,6 +23,8 @@ OUT = REPO / "benchmarks" / "out"
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
 # what every JSON record carries (``write_results`` refuses a record without them)
 RECORD_KEYS = ("device", "width", "height", "scene")
+# the process's start, near enough: the JSON's wall_s (what a canonical run costs) counts from here
+T0 = time.perf_counter()
 
 
 def base_parser(doc: str, canonical: str) -> argparse.ArgumentParser:
@@ -129,8 +131,8 @@ def _finite(v):
 
 
 def write_results(name: str, device, records: list, table_md: str, out=None, tag=None, extra=None) -> Path:
-    """Write ``<out>/<name>-<tag>.json`` (top level: benchmark, commit, device info, ``extra``; ``records``, each
-    with its device name) and ``<name>-<tag>.md``; returns the JSON's path. A record without width, height and
+    """Write ``<out>/<name>-<tag>.json`` (top level: benchmark, commit, device info, wall seconds so far,
+    ``extra``; ``records``, each with its device name) and ``<name>-<tag>.md``; returns the JSON's path. A record without width, height and
     scene is refused (a ValueError naming the record)."""
     info = device_info(device)
     recs = []
@@ -143,7 +145,8 @@ def write_results(name: str, device, records: list, table_md: str, out=None, tag
     folder = Path(out) if out else OUT
     folder.mkdir(parents=True, exist_ok=True)
     stem = f"{name}-{tag or default_tag(device)}"
-    payload = {"benchmark": name, "commit": git_commit(), **info, **(extra or {}), "records": recs}
+    payload = {"benchmark": name, "commit": git_commit(), **info, "wall_s": round(time.perf_counter() - T0, 1),
+               **(extra or {}), "records": recs}
     p = folder / f"{stem}.json"
     p.write_text(json.dumps(_finite(payload), indent=1, default=float))
     (folder / f"{stem}.md").write_text(f"# {name} on {info['device']} ({info['device_alias']}), commit "
