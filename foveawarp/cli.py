@@ -304,18 +304,29 @@ def cmd_warmup(args) -> int:
     return 0
 
 
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+def bench_names() -> list:
+    """The benchmark entry points of the source checkout (``benchmarks/NAME.py``, private modules left out); none
+    in an installed wheel."""
+    return sorted(f.stem for f in BENCHMARKS.glob("*.py") if not f.stem.startswith("_"))
+
+
 def cmd_bench(args) -> int:
     import runpy
 
-    script = Path(__file__).resolve().parent.parent / "benchmarks" / f"{args.name}.py"
-    if not script.is_file():
-        print(f"benchmark {args.name!r} not found at {script} (benchmarks ship with the source checkout)",
-              file=sys.stderr)
+    script = BENCHMARKS / f"{args.name}.py"
+    if args.name not in bench_names():
+        names = ", ".join(bench_names()) or "none: benchmarks ship with the source checkout, not the wheel"
+        print(f"benchmark {args.name!r} not found at {script} (entry points: {names})", file=sys.stderr)
         return 2
-    sys.argv = [str(script)] + (["--device", args.device] if args.device else []) + (["--quick"] if args.quick
-                                                                                      else [])
-    runpy.run_path(str(script), run_name="__main__")
-    return 0
+    argv = (["--device", args.device] if args.device else []) + (["--quick"] if args.quick else [])
+    if args.out:
+        argv += ["--out", args.out]
+    mod = runpy.run_path(str(script), run_name=f"benchmarks.{args.name}")
+    rc = mod["main"](argv)
+    return rc if isinstance(rc, int) else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -372,10 +383,15 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--device", default=None)
     w.set_defaults(func=cmd_warmup)
 
-    b = sub.add_parser("bench", help="run a benchmark script (default: quality, the time-versus-error sweep)")
-    b.add_argument("name", nargs="?", default="quality")
+    names = bench_names()
+    b = sub.add_parser("bench", help="run a benchmark entry point of the source checkout (default: frame)",
+                       description="Run benchmarks/NAME.py of the source checkout with its default sizes; each "
+                                   "script takes more options when run directly (python benchmarks/NAME.py --help). "
+                                   "Entry points: " + (", ".join(names) or "none (an installed wheel has none)"))
+    b.add_argument("name", nargs="?", default="frame", help="the entry point (default: frame)")
     b.add_argument("--device", default=None)
-    b.add_argument("--quick", action="store_true")
+    b.add_argument("--quick", action="store_true", help="tiny sizes and few repeats")
+    b.add_argument("--out", default=None, help="output folder (default: benchmarks/out)")
     b.set_defaults(func=cmd_bench)
     return p
 

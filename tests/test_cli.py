@@ -50,3 +50,37 @@ def test_render_debug_and_dof_views(tmp_path):
     assert (out / "debug_0000.png").is_file()  # probability | saliency | binary map | cache hits
     assert (out / "dof_comparison.png").is_file()
     assert "thin_lens" in (out / "dof_comparison.txt").read_text()
+
+
+def test_bench_help_lists_the_entry_points_that_exist(capsys):
+    """`foveawarp bench --help` names every benchmarks/NAME.py entry point (private modules left out) and no
+    other; the default, frame, is one of them."""
+    from pathlib import Path
+
+    from foveawarp.cli import build_parser
+
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "--help"])
+    assert e.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    listed = out.split("Entry points: ", 1)[1].split(" positional arguments", 1)[0]
+    names = {n.strip() for n in listed.split(",")}
+    on_disk = {f.stem for f in (Path(__file__).resolve().parent.parent / "benchmarks").glob("*.py")
+               if not f.stem.startswith("_")}
+    assert names == on_disk and "frame" in on_disk, (names, on_disk)
+    assert build_parser().parse_args(["bench"]).name == "frame"
+
+
+def test_bench_unknown_name_lists_the_entry_points(capsys):
+    assert main(["bench", "quality", "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert "'quality' not found" in err and "frame" in err and "robustness" in err
+
+
+def test_bench_runs_an_entry_point(tmp_path):
+    """`foveawarp bench robustness --quick` runs benchmarks/robustness.py with the options given and returns its
+    exit status: both parts pass and the JSON names the CPU device."""
+    assert main(["bench", "robustness", "--device", "cpu", "--quick", "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "robustness-cpu.json").read_text())
+    assert res["pass"] is True and res["device_alias"] == "cpu"
+    assert [r["part"] for r in res["records"]] == ["soak", "parity"]
