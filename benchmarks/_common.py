@@ -27,11 +27,12 @@ RECORD_KEYS = ("device", "width", "height", "scene")
 T0 = time.perf_counter()
 
 
-def base_parser(doc: str, canonical: str) -> argparse.ArgumentParser:
-    """The options of every entry point: ``--device``, ``--out``, ``--tag``, ``--quick``, ``--repeats``,
-    ``--warmup``. ``--help`` begins with ``canonical``, the command of the canonical run."""
-    p = argparse.ArgumentParser(description=f"canonical run: {canonical}\n\n{doc}",
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+def base_parser(doc: str, canonical: str | None = None) -> argparse.ArgumentParser:
+    """The options of every entry point (and of the tools): ``--device``, ``--out``, ``--tag``, ``--quick``,
+    ``--repeats``, ``--warmup``. ``--help`` begins with ``canonical``, the command of the canonical run, when
+    given (the tools have none)."""
+    head = f"canonical run: {canonical}\n\n" if canonical else ""
+    p = argparse.ArgumentParser(description=head + doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s default)')
     p.add_argument("--out", default=str(OUT), help="output folder for JSON / markdown / PNG (default: benchmarks/out)")
     p.add_argument("--tag", default=None,

@@ -6,12 +6,10 @@ A per-pixel kernel that is limited by memory latency needs many resident warps; 
 so with 256-thread blocks (Warp's default) it holds ``floor(65536 / (256 * registers))`` blocks (at most 8).
 A kernel with 136 registers holds one block (8 warps of 64); one with 32 holds eight.
 
-    python benchmarks/cuda_registers.py [--arch 90] [--modules foveawarp.kernels.temporal,...]
+    python tools/cuda_registers.py [--arch 90] [--modules foveawarp.kernels.temporal,...]
 
-(default: every module of foveawarp.kernels that holds kernels).
-
-Writes benchmarks/results/cuda-registers-cpu.{json,md} (the "cpu" tag: it ran on the host; the figures are
-for the named architecture).
+(default: every module of foveawarp.kernels that holds kernels). Writes cuda-registers-sm<arch>.{json,md} under
+``--out`` (default benchmarks/out); it runs on the host, the figures are for the named architecture.
 """
 
 from __future__ import annotations
@@ -121,15 +119,16 @@ def main(argv=None):
                 for k, v in sorted(cubin_kernels(path).items()):
                     r = v.get("registers", 0)
                     nb = blocks_per_sm(r)
-                    rows.append({"module": m.split(".")[-1], "kernel": k, "registers": r,
+                    rows.append({"scene": None, "width": None, "height": None, "module": m.split(".")[-1],
+                                 "kernel": k, "registers": r,
                                  "frame_bytes": v.get("frame_bytes", 0), "blocks_per_sm": nb,
                                  "occupancy": nb * BLOCK / MAX_THREADS_PER_SM})
     for r in rows:
         print(f"{r['kernel']:<45} regs {r['registers']:4d}  spill/stack {r['frame_bytes']:4d} B  "
               f"blocks/SM {r['blocks_per_sm']}  occupancy {r['occupancy']:.0%}")
-    write_results("cuda-registers", "cpu", {"arch": args.arch, "block": BLOCK, "records": rows},
+    write_results("cuda-registers", "cpu", rows,
                   md_table(rows, ["module", "kernel", "registers", "frame_bytes", "blocks_per_sm", "occupancy"]),
-                  args.out)
+                  args.out, args.tag or f"sm{args.arch}", extra={"arch": args.arch, "block": BLOCK})
 
 
 if __name__ == "__main__":

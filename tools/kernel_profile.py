@@ -1,7 +1,8 @@
 """Per-kernel GPU times of one foveated frame and one reference frame (CUDA activity timing, no host sync
-between kernels), to see where the rate-independent overhead goes.
+between kernels), to see where the rate-independent overhead goes. Writes kernel-profile-<tag>.{json,md} under
+``--out`` (default benchmarks/out).
 
-python benchmarks/kernel_profile.py --device cuda:0 [--scenes cornell,bunny,city] [--sizes 1920x1080,3840x2160]
+    python tools/kernel_profile.py --device cuda:0 [--scenes cornell,bunny,city] [--sizes 1920x1080,3840x2160]
 """
 
 from __future__ import annotations
@@ -79,7 +80,8 @@ def main(argv=None):
                 print(f"   ref {v:8.4f}  {k}")
             rows.append({"scene": scene.name, "resolution": f"{w}x{h}", "foveated_gpu_ms": rec["foveated_gpu_ms"],
                          "reference_gpu_ms": rec["reference_gpu_ms"]})
-    write_results("kernel-profile", dev, {"config": over, "records": payload}, md_table(rows, list(rows[0])), args.out)
+    write_results("kernel-profile", dev, payload, md_table(rows, list(rows[0])), args.out, args.tag,
+                  extra={"config": over})
 
 
 if __name__ == "__main__":

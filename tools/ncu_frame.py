@@ -1,7 +1,7 @@
 """Hardware counters of every kernel of one foveated frame and one reference frame (Nsight Compute), against
 the memory bound: how far each pass is from the time its DRAM traffic needs at the GPU's copy bandwidth.
 
-The mission's yardstick is that a pass over every pixel costs ~0.1 ms at 3840x2160 when it is bandwidth bound.
+A pass over every pixel costs about 0.1 ms at 3840x2160 when it is bound by memory bandwidth (H100).
 ``kernel_profile.py`` gives each kernel's time; this gives the bytes it moved, so each time can be set against
 its own floor: ``floor_ms = (DRAM bytes read + written) / copy bandwidth``, the copy bandwidth measured in the
 same run by a device-to-device copy of 1 GiB (read + write bytes over its time). A kernel near its floor can only
@@ -10,12 +10,13 @@ occupancy), which the SM throughput and achieved occupancy columns hint at.
 
 Run (a CUDA machine with ``ncu`` on the PATH; ``--clock-control none`` leaves the clocks alone)::
 
-    python benchmarks/ncu_frame.py --device cuda:0 --scenes cornell,bunny --sizes 1920x1080,3840x2160
+    python tools/ncu_frame.py --device cuda:0 --scenes cornell,bunny --sizes 1920x1080,3840x2160
 
 It starts ``ncu`` on itself with ``--drive``: the driver renders warm-up frames untimed (eager launches, no
 graphs, so every kernel is its own launch), then brackets a marker kernel, one foveated frame, a second marker and one
 reference frame with cuProfilerStart / cuProfilerStop. The kernels of both frames are then read back from the report.
-Results: ``ncu-frame[-NAME]-cuda.{json,md}``; each record names the device, scene, size, shading and commit.
+Results: ``ncu-frame-<tag>.{json,md}`` under ``--out`` (default benchmarks/out); each record names the device,
+scene, size and shading, the file the commit.
 """
 
 from __future__ import annotations
@@ -173,7 +174,6 @@ def main(argv=None) -> None:
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--shadings", default="default,ao8")
     p.add_argument("--warmup-frames", type=int, default=8, help="untimed frames before the profiled ones")
-    p.add_argument("--name", default="", help="suffix of the results file stem")
     p.add_argument("--drive", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--ncu", default=shutil.which("ncu") or "ncu", help="the ncu executable")
     args = p.parse_args(argv)
@@ -231,12 +231,9 @@ def main(argv=None) -> None:
     md = (f"Nsight Compute, one frame each, `--clock-control none`; copy bandwidth {bw / 1e9:.0f} GB/s "
           f"(1 GiB device copy, read + write); floor = DRAM bytes / copy bandwidth; profiling took {wall:.0f} s\n\n"
           + md_table(lines, cols))
-    name = "ncu-frame" + (f"-{args.name}" if args.name else "")
-    path = write_results(name, dev, {"config": {"scenes": args.scenes, "sizes": args.sizes,
-                                                "shadings": args.shadings, "metrics": list(METRICS)},
-                                     "records": records}, md, out=args.out)
+    write_results("ncu-frame", dev, records, md, args.out, args.tag, extra={"config": {
+        "scenes": args.scenes, "sizes": args.sizes, "shadings": args.shadings, "metrics": list(METRICS)}})
     print(md)
-    print(f"wrote {path}")
 
 
 def _split(kernels: list) -> list:

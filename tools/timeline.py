@@ -1,9 +1,9 @@
-"""Study (issue 14, session 36): where a frame's wall time goes on the GPU's own timeline, foveated against full
-resolution.
+"""Where a frame's wall time goes on the GPU's own timeline, foveated against full resolution (CUDA, PyTorch's
+profiler).
 
 ``frame.py`` times each frame as a user sees it: synchronized wall time, from ``render``'s call to the GPU's last
 work. Its per-stage GPU times come from another run with events between the stages, and never add up to the wall
-time. This study reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
+time. This tool reads the GPU's timeline itself (CUPTI, through PyTorch's profiler, which records every kernel,
 memset and copy of the process, CUDA-graph nodes included) while the loops render the same frames of the camera
 path, taking turns as in ``frame.py``: the reference (``policy="full"``), the foveated loop (forced), the default
 policy's loop past its measurement (``path`` says which path it rendered in the profiled frames) and a second
@@ -23,9 +23,11 @@ reference, ``control``, whose difference from the first is the spread of two ide
 them. The profiler slows the host (its callbacks on every CUDA call), so ``lead_us`` is larger than without it,
 alike for every loop: compare the loops with each other, not with ``plain_wall_ms``.
 
-    python benchmarks/timeline.py --device cuda:0 [--scenes bunny,nefertiti,cornell,city] [--sizes ...]
+    python tools/timeline.py --device cuda:0 [--scenes bunny,nefertiti,cornell,city] [--sizes ...] [--target 2]
 
-CUDA only, and PyTorch must import (the GPU machine's Python has it). Results: ``timeline[-NAME]-cuda.{json,md}``.
+CUDA only, and PyTorch must import. Writes timeline-<tag>.{json,md} under ``--out`` (default benchmarks/out); the
+accounting table (``--from-json`` prints it again from a results file, no device needed) sets each foveated frame
+against its reference and, with ``--target``, the ms it must lose to reach that speed-up.
 """
 
 from __future__ import annotations
@@ -37,11 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.append(str(Path(__file__).resolve().parent.parent))
 
 import warp as wp  # noqa: E402
 
-from benchmarks._common import (base_parser, checked_shadings_sizes, git_commit, md_table, scenes_present,  # noqa: E402
+from benchmarks._common import (base_parser, checked_shadings_sizes, md_table, scenes_present,  # noqa: E402
                                 shading_config, write_results)
 from benchmarks.frame import _timed_interleaved, render_path_frame  # noqa: E402
 
@@ -178,28 +180,14 @@ def kernel_group(name: str) -> str:
 
 
 GROUPS = ("scene", "gbuffer", "shading", "passes")
-# issue 14's speed targets (reference / foveated time) by shading and height: default shading on every scene (1.5 at
-# 4K on bunny and city), 8 AO rays on city, bunny and the shared meshes
-TARGETS = {("ao8", 2160): 3.0, ("ao8", 1080): 2.5, ("default", 2160): 1.0, ("default", 1080): 1.0}
-AO8_TARGET_SCENES = ("city", "bunny", "spot", "nefertiti", "ogre", "teapot")
 
 
-def target_of(scene: str, shading: str, height: int):
-    """Issue 14's speed-up target for a scene, shading and height (None: the issue sets none there)."""
-    if shading == "ao8" and scene not in AO8_TARGET_SCENES:
-        return None
-    if shading == "default" and height == 2160 and scene in ("bunny", "city"):
-        return 1.5
-    return TARGETS.get((shading, height))
-
-
-def accounting(rec: dict) -> dict:
-    """One record's foveated frame against its reference, as the target sees it: both plain wall times, the
-    speed-up, the target (``target_of``) and how many ms the foveated frame must lose to meet it (negative: met;
-    None without a target), and the foveated frame's kernels by ``kernel_group`` (ms, medians per kernel summed)
-    with its time off the kernels (wall under the profiler less busy, ms) beside the reference's."""
+def accounting(rec: dict, target=None) -> dict:
+    """One record's foveated frame against its reference: both plain wall times, the speed-up, and with a
+    ``target`` speed-up the ms the foveated frame must lose to reach it (negative: reached; None without a
+    target); the foveated frame's kernels by ``kernel_group`` (ms, medians per kernel summed) with its time off
+    the kernels (wall under the profiler less busy, ms) beside the reference's."""
     ref, fov = rec["reference"], rec["foveated"]
-    target = target_of(rec["scene"], rec["shading"], rec["height"])
     out = {"ref_ms": ref["plain_wall_ms"], "fov_ms": fov["plain_wall_ms"],
            "speedup": ref["plain_wall_ms"] / fov["plain_wall_ms"], "target": target,
            "cut_needed_ms": None if target is None else fov["plain_wall_ms"] - ref["plain_wall_ms"] / target}
@@ -214,10 +202,10 @@ ROW_KEYS = ("plain_wall_ms", "wall_ms", "lead_us", "busy_ms", "gaps_us", "tail_u
             "n_memsets", "n_copies")
 
 
-def accounting_table(records: list) -> str:
+def accounting_table(records: list, target=None) -> str:
     """``accounting`` of each record with a reference and a foveated loop, as a markdown table."""
-    rows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "shading": r["shading"], **accounting(r)}
-            for r in records if "reference" in r and "foveated" in r]
+    rows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}", "shading": r["shading"],
+             **accounting(r, target)} for r in records if "reference" in r and "foveated" in r]
     return md_table(rows, list(rows[0])) if rows else ""
 
 
@@ -229,14 +217,16 @@ def main(argv=None) -> list:
     p.add_argument("--frames", type=int, default=30, help="frames per loop, timed plain and again profiled")
     p.add_argument("--warm", type=int, default=12, help="untimed frames of each loop first")
     p.add_argument("--loops", default=",".join(LOOPS), help=f"a comma list of {', '.join(LOOPS)}")
-    p.add_argument("--name", default="timeline")
+    p.add_argument("--target", type=float, default=None, help="speed-up the accounting measures against (> 0)")
     p.add_argument("--from-json", default=None, help="print the accounting table of a results JSON of this script "
                    "(no device needed) and exit")
     args = p.parse_args(argv)
+    if args.target is not None and not args.target > 0:
+        p.error(f"--target must be a speed-up > 0, got {args.target}")
     if args.from_json:
         try:
             records = json.loads(Path(args.from_json).read_text())["records"]
-            table = accounting_table(records)
+            table = accounting_table(records, args.target)
             if not table:
                 raise ValueError("no record has both a reference and a foveated loop")
         except (OSError, ValueError, KeyError, TypeError) as e:
@@ -264,7 +254,7 @@ def main(argv=None) -> list:
     for scene in scenes_present(fw, args.scenes):
         for w, h in sizes:
             for shading in shadings:
-                r = {"device": dev.alias, "scene": scene.name, "width": w, "height": h, "commit": git_commit(),
+                r = {"scene": scene.name, "width": w, "height": h,
                      **study(fw, torch_profiler, scene, w, h, shading, dev, args.frames, args.warm, loops_on)}
                 records.append(r)
                 for name in loops_on:
@@ -272,8 +262,10 @@ def main(argv=None) -> list:
                                  **{k: r[name][k] for k in ROW_KEYS},
                                  "path": "/".join(r["auto_paths"]) if name == "auto" else ""})
                     print(rows[-1], flush=True)
-    md = (md_table(rows, list(rows[0])) + "\n" + accounting_table(records)) if rows else "no scene loaded\n"
-    write_results(args.name, dev, {"records": records, "frames": args.frames, "warm": args.warm}, md, args.out)
+    md = (md_table(rows, list(rows[0])) + "\n" + accounting_table(records, args.target)) if rows else \
+        "no scene loaded\n"
+    write_results("timeline", dev, records, md, args.out, args.tag,
+                  extra={"frames": args.frames, "warm": args.warm, "target": args.target})
     print(md)
     return records
 
