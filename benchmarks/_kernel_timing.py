@@ -1,5 +1,5 @@
-"""Per-kernel GPU timing for the overhead benchmarks (issue 14): Warp's CUDA activity timing, plus the
-synchronized wall time of a call and of its captured CUDA graph's replay."""
+"""Per-kernel GPU timing for the benchmarks that split a stage by kernel (reorder, stages): Warp's CUDA activity
+timing, plus the synchronized wall time of a call and of its captured CUDA graph's replay."""
 
 from __future__ import annotations
 

@@ -47,7 +47,7 @@ def test_shading_register_caps_reach_the_cubin(tmp_path):
     """The CUDA register caps of the shading kernels (kernels/shade.py, as measured on the H100) are in the
     compiled sm_90 code: the AO full-frame twin and the list's AO pass at most 64 registers, the other full-frame
     shading at most 80; the uncapped list shading above 80 (the cap is what lowers the others)."""
-    from benchmarks.cuda_registers import cubin_kernels
+    from tools.cuda_registers import cubin_kernels
 
     import foveawarp.kernels.shade as sh
 
