@@ -1,0 +1,122 @@
+#!/usr/bin/env bash
+# Regenerates the canonical results, benchmarks/results/<benchmark>-h200.{json,md,png}, on the H200 machine: each
+# entry point's canonical run (the command its --help begins with), then the README's results table from
+# frame-h200.json.
+#
+#   tools/canonical.sh [all | part1 | part2 | readme | ENTRY ...]
+#
+#   part1   frame, reorder, then readme (estimated 8 minutes of H200 time: one call of under 10 minutes)
+#   part2   stages, dof, indirect, viewer, robustness, cpu (estimated 7 minutes)
+#   all     part1 then part2 (the default)
+#   readme  only the README's results table, from benchmarks/results/frame-h200.json
+#   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu)
+#
+# The GPU machine has a copy of the working tree without .git: set FOVEAWARP_COMMIT to the commit it came from
+# (every JSON records it). Meshes that assets/ does not ship (nefertiti) are read from $FOVEAWARP_SCENES or a
+# shared/scenes folder in or beside the checkout; a missing one is skipped and named on stderr. cpu runs on the
+# host CPU of the H200 machine (--device cpu). The time estimates come from the sizes below; each JSON's wall_s
+# records what a run took. Exit status 1 when any run failed (the others still run).
+set -uo pipefail
+cd "$(dirname "$0")/.."
+
+if [ -z "${FOVEAWARP_COMMIT:-}" ]; then
+    if FOVEAWARP_COMMIT=$(git rev-parse HEAD 2>/dev/null); then
+        export FOVEAWARP_COMMIT
+    else
+        echo "canonical.sh: no .git and FOVEAWARP_COMMIT unset: the results will say commit 'unknown'" >&2
+        unset FOVEAWARP_COMMIT
+    fi
+fi
+export PYTHONUNBUFFERED=1
+mkdir -p benchmarks/results benchmarks/out
+failed=()
+
+run() {  # run NAME COMMAND...: the command, its time and its exit status
+    local name=$1 t0=$SECONDS
+    shift
+    echo "== $name: $*" >&2
+    if "$@"; then
+        echo "== $name: done in $((SECONDS - t0)) s" >&2
+    else
+        echo "== $name: FAILED (exit $?) after $((SECONDS - t0)) s" >&2
+        failed+=("$name")
+    fi
+}
+
+canonical_frame() {
+    run frame python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes cornell,city,bunny,nefertiti --sizes 1920x1080,3840x2160 --ao-samples 0,8 \
+        --frames 30 --timing-frames 30
+}
+canonical_reorder() {
+    run reorder python benchmarks/reorder.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes cornell,city,bunny --sizes 1920x1080,3840x2160
+}
+canonical_stages() {
+    run stages python benchmarks/stages.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --sizes 1920x1080,3840x2160 --scenes cornell,city,bunny,nefertiti
+}
+canonical_dof() {
+    run dof python benchmarks/dof.py --device cuda:0 --out benchmarks/results --tag h200
+}
+canonical_indirect() {
+    run indirect python benchmarks/indirect.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes cornell,bunny-in-box --rsm 256
+}
+canonical_viewer() {
+    run viewer python benchmarks/viewer.py --device cuda:0 --out benchmarks/results --tag h200
+}
+canonical_robustness() {
+    # parity: the CPU half saves its arrays on this machine's host, the CUDA run compares against them (without
+    # them, as when this Warp build has no CPU compiler, the CUDA run checks its own determinism only)
+    rm -f benchmarks/out/parity-cpu.npz
+    run robustness-cpu python benchmarks/robustness.py --parts parity --device cpu \
+        --save benchmarks/out/parity-cpu.npz --out benchmarks/out
+    if [ -f benchmarks/out/parity-cpu.npz ]; then
+        run robustness python benchmarks/robustness.py --device cuda:0 --out benchmarks/results --tag h200 \
+            --compare benchmarks/out/parity-cpu.npz
+    else
+        run robustness python benchmarks/robustness.py --device cuda:0 --out benchmarks/results --tag h200
+    fi
+}
+canonical_cpu() {
+    run cpu python benchmarks/cpu.py --device cpu --out benchmarks/results --tag h200
+}
+canonical_readme() {
+    if [ -f benchmarks/results/frame-h200.json ]; then
+        run readme python benchmarks/frame.py --summarize benchmarks/results/frame-h200.json --readme README.md
+    else
+        echo "== readme: benchmarks/results/frame-h200.json is missing: README left as it is" >&2
+        failed+=(readme)
+    fi
+}
+
+PART1=(frame reorder readme)
+PART2=(stages dof indirect viewer robustness cpu)
+ENTRIES=(frame reorder stages dof indirect viewer robustness cpu readme)
+
+todo=()
+[ $# -eq 0 ] && set -- all
+for arg in "$@"; do
+    case "$arg" in
+        all) todo+=("${PART1[@]}" "${PART2[@]}") ;;
+        part1) todo+=("${PART1[@]}") ;;
+        part2) todo+=("${PART2[@]}") ;;
+        *)
+            if [[ " ${ENTRIES[*]} " == *" $arg "* ]]; then
+                todo+=("$arg")
+            else
+                echo "canonical.sh: unknown part or entry point '$arg' (allowed: all, part1, part2, ${ENTRIES[*]})" >&2
+                exit 2
+            fi ;;
+    esac
+done
+
+for name in "${todo[@]}"; do
+    "canonical_$name"
+done
+if [ ${#failed[@]} -gt 0 ]; then
+    echo "canonical.sh: failed: ${failed[*]}" >&2
+    exit 1
+fi
+echo "canonical.sh: all done: ${todo[*]}" >&2
