@@ -89,13 +89,15 @@ class GBuffer:
         return self._albedo
 
     def numpy(self) -> dict:
-        return {k: getattr(self, k).numpy() for k in self.FIELDS}
+        """Every field as a NumPy array of its own (a copy: on the CPU device ``wp.array.numpy()`` is a view of
+        the buffer the next frame overwrites)."""
+        return {k: np.array(getattr(self, k).numpy(), copy=True) for k in self.FIELDS}
 
 
 class Frame:
     """One rendered frame: ``image`` (H, W, 3) float32 wp.array in [0, 1], ``sampling_map`` (H, W) uint8,
     ``gbuffer``, ``stats`` (dict). The arrays belong to the FrameLoop and are overwritten by the next
-    frame: call ``numpy()`` (or copy) to keep them."""
+    frame: ``numpy()`` returns a copy that keeps the image."""
 
     def __init__(self, image, sampling_map, gbuffer, stats, extras=None):
         self.image = image
@@ -105,8 +107,10 @@ class Frame:
         self.extras = extras or {}
 
     def numpy(self) -> np.ndarray:
-        """The display image as an (H, W, 3) float32 NumPy array."""
-        return self.image.numpy().reshape(self.image.shape[0], self.image.shape[1], 3)
+        """The display image as an (H, W, 3) float32 NumPy array of its own: a copy, which the next frame does not
+        change (on the CPU device ``wp.array.numpy()`` is a view of the loop's buffer)."""
+        return np.array(self.image.numpy(), dtype=np.float32, copy=True).reshape(self.image.shape[0],
+                                                                                 self.image.shape[1], 3)
 
     def to_uint8(self) -> np.ndarray:
         return (np.clip(self.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
