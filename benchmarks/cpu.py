@@ -43,7 +43,8 @@ from foveawarp import parallel  # noqa: E402
 from foveawarp._util import get_device  # noqa: E402
 from foveawarp.kernels.packet import packet_ray_kernel  # noqa: E402
 
-CANONICAL = "python benchmarks/cpu.py --device cpu --out benchmarks/results --tag h200   (the H200 machine's host CPU)"
+# on the H200 machine's host CPU (16 cores)
+CANONICAL = "python benchmarks/cpu.py --device cpu --out benchmarks/results --tag h200"
 
 
 @wp.kernel(enable_backward=False)

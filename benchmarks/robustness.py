@@ -28,9 +28,9 @@ from benchmarks import _parity, _soak  # noqa: E402
 from benchmarks._common import base_parser, plot_path, progress, pyplot, write_results  # noqa: E402
 
 PARTS = ("soak", "parity")
+# after the CPU half: robustness.py --parts parity --device cpu --save benchmarks/out/parity-cpu.npz
 CANONICAL = ("python benchmarks/robustness.py --device cuda:0 --out benchmarks/results --tag h200 "
-             "--compare benchmarks/out/parity-cpu.npz   (after: --parts parity --device cpu --save "
-             "benchmarks/out/parity-cpu.npz)")
+             "--compare benchmarks/out/parity-cpu.npz")
 
 
 def main(argv=None) -> int:

@@ -344,3 +344,88 @@ def test_readme_commands_run_from_a_clean_copy(clone, tmp_path):
             assert (out / "frame_0000.png").is_file() and (out / "stats.json").is_file(), cmd
             stats = json.loads((out / "stats.json").read_text())
             assert stats["width"] == CLI_SIZE[0] and stats["device"] == "cpu"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the paths they name, and the results at a glance
+
+# benchmarks/NAME.py and tools/NAME as the pages write them (placeholders such as NAME or <benchmark> left out)
+_TREE_PATH = re.compile(r"(?<![\w/.-])((?:benchmarks/[a-z0-9_]+\.py)|(?:tools/[a-z0-9_]+\.(?:py|sh)))(?![\w/-])")
+
+
+def _tree_paths(text: str) -> list:
+    return _TREE_PATH.findall(text)
+
+
+def test_named_benchmarks_and_tools_exist():
+    """Every benchmarks/*.py and tools/* path that README.md or a docs/ page names is in the tree, and the README
+    names every benchmark entry point."""
+    missing = [f"{page.relative_to(REPO)}: {path}" for page in _pages() for path in _tree_paths(page.read_text())
+               if not (REPO / path).is_file()]
+    assert not missing, "pages name files that are not in the tree:\n" + "\n".join(missing)
+    named = set(_tree_paths(README.read_text()))
+    entry_points = {f"benchmarks/{f.name}" for f in (REPO / "benchmarks").glob("*.py") if not f.stem.startswith("_")}
+    assert entry_points <= named, f"the README does not name {sorted(entry_points - named)}"
+
+
+def test_tree_path_check_sees_missing_paths():
+    text = ("run `benchmarks/frame.py` and tools/canonical.sh, not benchmarks/quality.py or tools/status.py; "
+            "benchmarks/NAME.py and benchmarks/results/frame-h200.md are not entry points")
+    assert _tree_paths(text) == ["benchmarks/frame.py", "tools/canonical.sh", "benchmarks/quality.py",
+                                 "tools/status.py"]
+
+
+def _frame_bench():
+    if str(REPO) not in sys.path:
+        sys.path.append(str(REPO))
+    from benchmarks import frame
+
+    return frame
+
+
+def results_problem(text: str, canonical: Path, ci: bool):
+    """What is wrong with a README's results at a glance: None when they are what ``benchmarks/frame.py
+    --summarize`` prints from ``canonical`` (relative to the repository), "skip: ..." when ``canonical`` is missing
+    and that is allowed, else the failure's message. Under CI a table without its JSON is a failure."""
+    frame = _frame_bench()
+    shown = frame.readme_results(text)
+    if shown is None:
+        return f"README.md lacks the results markers {frame.README_BEGIN!r} ... {frame.README_END!r}"
+    if not canonical.is_file():
+        if ci and any(line.startswith("|") for line in shown.splitlines()):
+            return f"README.md shows a results table but {canonical.name} is missing"
+        return f"skip: {canonical.name} is not in the tree (tools/canonical.sh part1 writes it)"
+    if shown != frame.summarize(canonical).strip():
+        return (f"README.md's results differ from {canonical.name}: run python benchmarks/frame.py --summarize "
+                f"benchmarks/results/frame-h200.json --readme README.md")
+    return None
+
+
+def test_readme_results_table_is_the_canonical_json():
+    """The README's results at a glance are what ``benchmarks/frame.py --summarize`` prints from
+    benchmarks/results/frame-h200.json, plot link included. Without that file: skipped, except under CI=true when
+    the README holds a table (figures that nothing in the tree backs)."""
+    problem = results_problem(README.read_text(), REPO / "benchmarks" / "results" / "frame-h200.json",
+                              os.environ.get("CI", "").lower() == "true")
+    if problem and problem.startswith("skip: "):
+        pytest.skip(problem[6:])
+    assert problem is None, problem
+
+
+def test_results_check_sees_a_stale_or_unbacked_table(tmp_path):
+    frame = _frame_bench()
+    rec = {"scene": "bunny", "width": 64, "height": 36, "config": "default", "ao_samples": 0,
+           "quality_target": "render_reference", "ref_ms": 2.0, "fov_ms": 1.0, "speedup": 2.0, "auto_ms": 1.0,
+           "auto_path": "foveated", "psnr_mean": 40.0, "psnr_min": 38.0, "ssim_mean": 0.99}
+    j = tmp_path / "frame-h200.json"
+    j.write_text(json.dumps({"benchmark": "frame", "device": "NVIDIA H200", "warp": "1.19.0", "frames": 30,
+                             "timing_frames": 30, "records": [rec]}))
+    good = f"{frame.README_BEGIN}\n{frame.summarize(j)}{frame.README_END}\n"
+    assert results_problem(good, j, ci=True) is None
+    assert "differ" in results_problem(good.replace("2.00x", "2.50x"), j, ci=True)
+    assert "lacks the results markers" in results_problem("no markers", j, ci=False)
+    gone = tmp_path / "missing.json"
+    assert "is missing" in results_problem(good, gone, ci=True)
+    assert results_problem(good, gone, ci=False).startswith("skip: ")
+    empty = f"{frame.README_BEGIN}\n{frame.README_END}\n"
+    assert results_problem(empty, gone, ci=True).startswith("skip: ")

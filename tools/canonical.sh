@@ -97,6 +97,10 @@ ENTRIES=(frame reorder stages dof indirect viewer robustness cpu readme)
 
 todo=()
 [ $# -eq 0 ] && set -- all
+if [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
+    sed -n '2,/^set -uo/p' "$0" | sed -e '$d' -e 's/^# \{0,1\}//'
+    exit 0
+fi
 for arg in "$@"; do
     case "$arg" in
         all) todo+=("${PART1[@]}" "${PART2[@]}") ;;
