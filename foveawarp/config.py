@@ -219,7 +219,7 @@ class FoveationConfig:
             thesis does; a number in (0, 180] normalizes by the MAR at this eccentricity instead (the smaller of
             the two), so the probability falls to about ``xi`` there. A foveawarp extension: with the thesis
             normalizer the mean probability is about 1/2 whatever the MAR slope (44-59% measured at 1080p and
-            4K). Default 12: 12-30% sampled at 1920x1080 on the built-in scenes and meshes (README table).
+            4K). Default 12: 12-30% sampled at 1920x1080 on the built-in scenes and meshes (H100).
         gbuffer: "full" (default) traces one primary ray per pixel for the G-buffer; "sparse" traces one per
             ``coarse_cell`` x ``coarse_cell`` cell for the saliency terms plus one per sampled pixel (traced with
             its shading), so the frame's primary rays scale with the sampling rate. The sparse mode has no
@@ -520,7 +520,7 @@ class IndirectConfig:
             surfaces at every ``rsm_size`` >= 128 (a smaller RSM needs a lower limit). The default (start 4,
             limit 7, extended emitters of scale 1.0, refinement at threshold 0.32, minimum angular size 0.25 and
             minimum radius 0.5 d_min, at most 512 splits) is the Pareto choice of ``benchmarks/indirect.py``
-            (README, "Indirect light").
+            (docs/pipeline.md, "Indirect light").
         d_min_rel: distance clamp of the irradiance form, fraction of the bounding-box diagonal, > 0.
         strength: scale of the indirect term, >= 0.
         cluster_radius_scale: a cluster of the tree methods is an extended emitter of radius

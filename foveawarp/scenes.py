@@ -4,7 +4,7 @@
 - ``city``: a seeded voxel city of more than 1M triangles (the large-scene performance case).
 - ``eyechart``: walls of high-contrast gratings and letters at many spatial frequencies and distances.
 - ``earth``: a low-poly sphere (960 triangles) with a procedural albedo.
-- ``bunny-in-box``: the Cornell box with the Stanford bunny (shipped in ``foveawarp/assets``) inside.
+- ``bunny-in-box``: the Cornell box with the Stanford bunny (shipped in ``assets/``) inside.
 
 Importing this module registers ``BUILTIN`` and :func:`mesh_on_ground` with :func:`foveawarp.scene.load_scene`
 (``scene`` never imports this module).

@@ -2,7 +2,7 @@
 render thread that turns it into compressed frames, off the event loop.
 
 It drives only the public API: ``load_scene``, ``Config.with_``, ``Camera``, ``FrameLoop.render`` /
-``render_reference`` and ``frame.stats``. All clients share one session (see README "Live viewer").
+``render_reference`` and ``frame.stats``. All clients share one session (docs/viewer.md).
 """
 
 from __future__ import annotations
