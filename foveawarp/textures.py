@@ -36,6 +36,7 @@ __all__ = [
     "TEXTURE_LOD_MODES",
     "SAMPLE_FILTERS",
     "MAX_TEXTURE_SIZE",
+    "MAX_ATLAS_TEXELS",
     "TextureSampler",
     "build_mip_chain",
     "mip_level_count",
@@ -54,6 +55,8 @@ _WRAP_CODE = {m: i for i, m in enumerate(WRAP_MODES)}
 _FILTER_CODE = {m: i for i, m in enumerate(FILTERS)}
 # largest width or height of an image: 16384 x 16384 RGBA float32 is 4 GiB, and indices stay within int32
 MAX_TEXTURE_SIZE = 16384
+# most texels of all levels of all textures of one atlas: the kernels index the atlas with int32
+MAX_ATLAS_TEXELS = 2**31 - 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,6 +217,9 @@ class TextureSet:
                 widths.append(lev.shape[1])
                 chunks.append(lev.reshape(-1, 4))
                 total += lev.shape[0] * lev.shape[1]
+            if total > MAX_ATLAS_TEXELS:
+                raise ValueError(f"the textures' mip levels must hold at most {MAX_ATLAS_TEXELS} texels in all "
+                                 f"(the atlas is indexed with int32), got {total} by images[{i}]")
         if not chunks:  # no texture: one white texel keeps every array non-empty
             chunks = [np.ones((1, 4), dtype=np.float32)]
             offsets, widths, heights = [0], [1], [1]
