@@ -1,8 +1,11 @@
 """glTF 2.0 files (``.gltf`` with ``.bin``/``data:`` buffers and image files, or ``.glb``) -> host arrays.
 
-:func:`read_gltf` returns a :class:`GltfScene`: the triangles of the chosen scene merged in world space (each
-mesh placed once per node that uses it), the materials (:class:`foveawarp.materials.Material`), the images
-(:class:`foveawarp.materials.ImageSource`, not decoded), the ``KHR_lights_punctual`` lights and the cameras.
+:func:`read_gltf` returns a :class:`~foveawarp.io.scenedata.SceneData` (alias ``GltfScene``): the triangles of
+the chosen scene merged in world space (each mesh placed once per node that uses it), the materials
+(:class:`foveawarp.materials.Material`), the images (:class:`foveawarp.materials.ImageSource`, not decoded), the
+``KHR_lights_punctual`` lights (:class:`~foveawarp.io.scenedata.LightData`, alias ``GltfLight``) and the cameras
+(:class:`~foveawarp.io.scenedata.CameraData`, alias ``GltfCamera``). Every warning issued is also kept in
+``SceneData.warnings``.
 
 Supported:
     - containers: JSON ``.gltf`` with external buffers (relative URIs) or ``data:`` base64 URIs; binary ``.glb``
@@ -45,7 +48,7 @@ import math
 import struct
 import urllib.parse
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
@@ -53,6 +56,10 @@ import numpy as np
 
 from ..config import show
 from ..materials import ImageSource, Material, TextureRef, default_material
+from .geometry import any_perpendicular as _any_perpendicular
+from .geometry import compute_normals, compute_tangents
+from .geometry import normalize_rows as _normalize_rows
+from .scenedata import CameraData, LightData, SceneData, ShapeData
 
 __all__ = ["GltfLight", "GltfCamera", "GltfScene", "read_gltf", "SUPPORTED_EXTENSIONS"]
 
@@ -88,118 +95,10 @@ def _known(value, table) -> bool:
     return isinstance(value, (str, int)) and not isinstance(value, bool) and value in table
 
 
-@dataclass(frozen=True)
-class GltfLight:
-    """A ``KHR_lights_punctual`` light placed by its node.
-
-    Attributes:
-        name: the light's name (may be empty).
-        kind: "point", "spot" or "directional".
-        color: linear RGB.
-        intensity: candela (point, spot) or lux (directional), as glTF defines them.
-        range_m: distance where the light's influence ends, world units; None = infinite.
-        position: world position (meaningless for a directional light, kept as its node's origin).
-        direction: unit world direction the light shines along (the node's -Z).
-        inner_cone_rad, outer_cone_rad: spot cone angles from the axis, radians (0 for other kinds).
-        node: index of the node that places the light.
-    """
-
-    name: str
-    kind: str
-    color: tuple
-    intensity: float
-    range_m: Optional[float]
-    position: tuple
-    direction: tuple
-    inner_cone_rad: float
-    outer_cone_rad: float
-    node: int
-
-
-@dataclass(frozen=True)
-class GltfCamera:
-    """A camera placed by its node: eye at the node's origin, looking along its -Z with +Y up.
-
-    Attributes:
-        name: the camera's name (may be empty).
-        kind: "perspective" or "orthographic".
-        eye: world position.
-        forward: unit world view direction (the node's -Z).
-        up: unit world up, orthogonal to ``forward`` (the node's +Y).
-        yfov_rad: vertical field of view, radians (perspective; 0 for orthographic).
-        aspect: width / height the file asks for, or None (then the viewport's).
-        znear: near plane distance, world units.
-        zfar: far plane distance, or None (infinite).
-        xmag, ymag: half width and half height of an orthographic view (0 for perspective).
-        camera: index into the file's ``cameras``; node: index of the node that places it.
-    """
-
-    name: str
-    kind: str
-    eye: tuple
-    forward: tuple
-    up: tuple
-    yfov_rad: float
-    aspect: Optional[float]
-    znear: float
-    zfar: Optional[float]
-    xmag: float
-    ymag: float
-    camera: int
-    node: int
-
-    @property
-    def fov_y_deg(self) -> float:
-        """Vertical field of view in degrees (perspective)."""
-        return math.degrees(self.yfov_rad)
-
-    def camera_kwargs(self, distance: float = 1.0) -> dict:
-        """Keyword arguments for ``foveawarp.Camera``: eye, a target ``distance`` along ``forward``, up, fov."""
-        target = tuple(e + distance * f for e, f in zip(self.eye, self.forward))
-        return {"eye": self.eye, "target": target, "up": self.up, "fov_y_deg": self.fov_y_deg}
-
-
-@dataclass
-class GltfScene:
-    """The host-side content of a glTF file, in world space.
-
-    Attributes:
-        path: the file read.
-        vertices: (V, 3) float32 world positions.
-        normals: (V, 3) float32 unit world normals.
-        tangents: (V, 4) float32: unit world tangent (xyz, orthogonal to the normal) and handedness w = +-1.
-        uvs: (V, 2) float32 TEXCOORD_0 as stored (v down from the image's top-left); 0 where a primitive has none.
-        uvs1: (V, 2) float32 TEXCOORD_1, or None when no primitive has one.
-        colors: (V, 4) float32 linear RGBA COLOR_0, or None when no primitive has one (1 where one lacks it).
-        triangles: (F, 3) int32 vertex indices, counter-clockwise seen from the front.
-        material_ids: (F,) int32 index into ``materials``.
-        materials: the materials (glTF's default material last when a primitive has none).
-        images: the images the materials' textures refer to (``TextureRef.image`` indexes this list).
-        lights: the placed ``KHR_lights_punctual`` lights, in traversal order.
-        cameras: the placed cameras, in the scene's depth-first traversal order.
-        camera: the chosen camera (``read_gltf``'s ``camera_index``), or None when the file has none.
-        extensions_ignored: the names of the extensions used by the file that were ignored.
-    """
-
-    path: Path
-    vertices: np.ndarray
-    normals: np.ndarray
-    tangents: np.ndarray
-    uvs: np.ndarray
-    uvs1: Optional[np.ndarray]
-    colors: Optional[np.ndarray]
-    triangles: np.ndarray
-    material_ids: np.ndarray
-    materials: list
-    images: list
-    lights: list = field(default_factory=list)
-    cameras: list = field(default_factory=list)
-    camera: Optional[GltfCamera] = None
-    extensions_ignored: tuple = ()
-
-    @property
-    def num_triangles(self) -> int:
-        return int(self.triangles.shape[0])
+# the glTF names of the format-independent description types
+GltfScene = SceneData
+GltfLight = LightData
+GltfCamera = CameraData
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -482,67 +381,6 @@ def _quat_matrix(q) -> np.ndarray:
     ])
 
 
-def _normalize_rows(v: np.ndarray, fallback) -> np.ndarray:
-    """Unit rows; a zero-length (or non-finite) row becomes ``fallback``."""
-    n = np.linalg.norm(v, axis=1, keepdims=True)
-    ok = (n[:, 0] > 1e-30) & np.isfinite(n[:, 0])
-    out = np.empty_like(v)
-    out[ok] = v[ok] / n[ok]
-    out[~ok] = fallback
-    return out
-
-
-def _any_perpendicular(n: np.ndarray) -> np.ndarray:
-    """A unit vector orthogonal to each unit row of ``n``."""
-    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    t = a - n * np.sum(a * n, axis=1, keepdims=True)
-    return _normalize_rows(t, (1.0, 0.0, 0.0))
-
-
-def _scatter_add(triangles: np.ndarray, per_triangle: np.ndarray, n: int) -> np.ndarray:
-    """(n, 3) sums over the triangles at each of their corners of the per-triangle (F, 3) vectors."""
-    idx = triangles.reshape(-1)
-    vals = np.repeat(per_triangle, 3, axis=0)
-    return np.stack([np.bincount(idx, weights=vals[:, c], minlength=n) for c in range(3)], axis=1)
-
-
-def compute_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals: the sum of the (unnormalized) face normals around each vertex, normalized;
-    (0, 0, 1) for a vertex of no or only degenerate triangles."""
-    p = positions[triangles]
-    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # length = twice the area
-    return _normalize_rows(_scatter_add(triangles, fn, positions.shape[0]), (0.0, 0.0, 1.0))
-
-
-def compute_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray,
-                     triangles: np.ndarray) -> np.ndarray:
-    """(V, 4) tangents from the UVs: ``T = dP/du`` and ``B = dP/dv_up`` (``v_up = -v``: glTF's v points down)
-    per triangle, summed per vertex; T made orthogonal to the normal; ``w = sign(dot(cross(N, T), B))``.
-    Vertices without a usable UV gradient get any tangent orthogonal to the normal and w = +1."""
-    p = positions[triangles]
-    t = uvs[triangles]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    du1, du2 = t[:, 1, 0] - t[:, 0, 0], t[:, 2, 0] - t[:, 0, 0]
-    dv1, dv2 = -(t[:, 1, 1] - t[:, 0, 1]), -(t[:, 2, 1] - t[:, 0, 1])
-    det = du1 * dv2 - du2 * dv1
-    ok = np.abs(det) > 1e-20
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
-    # Lengyel's per-triangle frame: [T B] = [e1 e2] [[du1 du2], [dv1 dv2]]^-1
-    ft = (e1 * dv2[:, None] - e2 * dv1[:, None]) * inv
-    fb = (e2 * du1[:, None] - e1 * du2[:, None]) * inv
-    acc_t = _scatter_add(triangles, ft, positions.shape[0])
-    acc_b = _scatter_add(triangles, fb, positions.shape[0])
-    tg = acc_t - normals * np.sum(acc_t * normals, axis=1, keepdims=True)
-    n = np.linalg.norm(tg, axis=1)
-    good = (n > 1e-12 * np.maximum(np.linalg.norm(acc_t, axis=1), 1e-30)) & (n > 1e-30)
-    out = np.empty((positions.shape[0], 4), dtype=np.float64)
-    out[:, :3] = _any_perpendicular(normals)
-    out[good, :3] = tg[good] / n[good, None]
-    w = np.sign(np.sum(np.cross(normals, out[:, :3]) * acc_b, axis=1))
-    out[:, 3] = np.where(w < 0, -1.0, 1.0)
-    return out
-
-
 def _strip_triangles(idx: np.ndarray) -> np.ndarray:
     """Triangle strip -> list (glTF 2.0 spec 3.7.2.1: triangle i is (i, i+1+i%2, i+2-i%2)); index-degenerate
     triangles (the strip's stitches) are dropped."""
@@ -583,7 +421,7 @@ class _LocalMesh:
 
 
 def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional[int] = None,
-              computed_normals: str = "smooth") -> GltfScene:
+              computed_normals: str = "smooth") -> SceneData:
     """Read a ``.gltf`` or ``.glb`` file into world-space host arrays (see the module docstring).
 
     Args:
@@ -599,6 +437,16 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
             accessor out of bounds, a bad index, ...) or requires an unsupported extension; the message names
             the file and what is wrong.
     """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = _read_gltf(path, camera_index, scene_index, computed_normals)
+    for w in caught:
+        warnings.warn(w.message, w.category, stacklevel=2)
+    scene.warnings = tuple(str(w.message) for w in caught)
+    return scene
+
+
+def _read_gltf(path, camera_index, scene_index, computed_normals) -> SceneData:
     if not isinstance(path, (str, Path)):
         raise ValueError(f"path must be a str or Path, got {show(path)}")
     path = Path(path)
@@ -623,7 +471,7 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
         r.fail(f"requires unsupported extension(s) {unsupported_required} (supported: {list(SUPPORTED_EXTENSIONS)})")
     ignored = tuple(sorted({str(e) for e in used if e not in SUPPORTED_EXTENSIONS}))
     if ignored:
-        warnings.warn(f"{path}: ignoring glTF extension(s) {list(ignored)}", stacklevel=2)
+        warnings.warn(f"{path}: ignoring glTF extension(s) {list(ignored)}")
 
     images = _read_images(r)
     materials = _read_materials(r, len(images))
@@ -687,12 +535,15 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
             materials.append(default_material())
         return default_index[0]
 
-    parts = []
+    parts, part_names = [], []
     for mesh_i, world, node_i in instances:
         if mesh_i not in local_cache:
             local_cache[mesh_i] = _read_mesh(r, mesh_i, material_of, skipped, computed_normals)
+        mesh_name = r.items("meshes")[mesh_i].get("name")
+        label = mesh_name if isinstance(mesh_name, str) and mesh_name else f"meshes[{mesh_i}]"
         for lm in local_cache[mesh_i]:
             parts.append(_to_world(lm, world))
+            part_names.append(f"{label}@nodes[{node_i}]")
     if skipped:
         warnings.warn(f"{path}: skipped primitive(s) that are not triangles: "
                       + ", ".join(f"{n} x {k}" for k, n in sorted(skipped.items())), stacklevel=2)
@@ -701,8 +552,14 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
     any_uv1 = any(p.uvs1 is not None for p in parts)
     any_col = any(p.colors is not None for p in parts)
     base = 0
-    for p in parts:
+    tri_base = 0
+    shapes = []
+    for p, pname in zip(parts, part_names):
         nv = p.positions.shape[0]
+        nt = p.triangles.shape[0]
+        shapes.append(ShapeData(name=pname, kind="gltf", vertex_range=(base, base + nv),
+                                triangle_range=(tri_base, tri_base + nt), material=int(p.material)))
+        tri_base += nt
         vert.append(p.positions)
         nrm.append(p.normals)
         tan.append(p.tangents)
@@ -726,7 +583,7 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
             raise ValueError(f"camera_index must be an integer in [0, {len(cameras) - 1}] ({path} places "
                              f"{len(cameras)} camera(s)), got {show(camera_index)}")
     chosen = cameras[int(camera_index)] if camera_index is not None else (cameras[0] if cameras else None)
-    return GltfScene(
+    return SceneData(
         path=path,
         vertices=cat(vert, 3),
         normals=cat(nrm, 3),
@@ -742,6 +599,7 @@ def read_gltf(path, *, camera_index: Optional[int] = None, scene_index: Optional
         cameras=cameras,
         camera=chosen,
         extensions_ignored=ignored,
+        shapes=shapes,
     )
 
 
@@ -944,7 +802,7 @@ def _texture_ref(r: _Reader, info, where: str, color_space: str, num_images: int
         source = ext["EXT_texture_webp"].get("source")
     if source is None:
         warnings.warn(f"{r.path}: textures[{ti}] has no image source this reader can use; {where} is ignored",
-                      stacklevel=4)
+                      stacklevel=2)
         return None
     if isinstance(source, bool) or not isinstance(source, int) or not 0 <= source < num_images:
         r.fail(f"textures[{ti}].source must be an index into 'images' in [0, {num_images - 1}], got {show(source)}")
@@ -973,7 +831,7 @@ def _texture_ref(r: _Reader, info, where: str, color_space: str, num_images: int
             texcoord = r.integer(tt, "texCoord", wt_)
     if texcoord > 1:
         # only TEXCOORD_0 and TEXCOORD_1 are read
-        warnings.warn(f"{r.path}: {where} reads TEXCOORD_{texcoord}; TEXCOORD_0 is used instead", stacklevel=4)
+        warnings.warn(f"{r.path}: {where} reads TEXCOORD_{texcoord}; TEXCOORD_0 is used instead", stacklevel=2)
         texcoord = 0
     return TextureRef(image=source, texcoord=texcoord, wrap_s=wrap_s, wrap_t=wrap_t, filter=filt,
                       color_space=color_space, uv_offset=offset, uv_rotation_rad=rotation, uv_scale=scale)
