@@ -22,7 +22,6 @@ HDR image) raises ``ValueError`` naming the image and what was wrong.
 from __future__ import annotations
 
 import io
-import math
 import warnings
 from pathlib import Path
 from typing import Optional, Union
