@@ -9,7 +9,7 @@ from .. import parallel
 from .._util import check_image_size, get_device
 from ..config import DofConfig, check_array, check_bool, check_range
 from ..kernels.dof import DofParams, coc_kernel
-from ..stages.dof import DofStage, check_focus
+from ..stages.dof import DofStage, check_focus, lens_scale
 
 __all__ = ["circle_of_confusion_px", "dof_scatter"]
 
@@ -60,7 +60,7 @@ def circle_of_confusion_px(depth_m, *, focal_length_m: float, focus_depth_m: flo
         return np.zeros(shape, dtype=np.float32)
     dw = _to_wp(d2, wp.float32, np.float32, dev, name="depth_m")
     p = DofParams()
-    p.coc_scale = float(e * f * k)
+    p.coc_scale = lens_scale(e, f, k)
     p.focal_m = f
     p.max_coc_px = float(cmax)
     p.tan_half_fov_y = 0.0

@@ -34,6 +34,13 @@ __all__ = ["DofStage", "DOF_METHODS", "check_focus", "disc_reach_host"]
 DOF_METHODS = ("gather", "scatter")
 
 
+def lens_scale(aperture_m: float, focal_m: float, px_per_m: float) -> float:
+    """E * F * px_per_m, the kernels' ``coc_scale``; a product below float32's smallest normal (1.2e-38) is 0, a
+    pinhole, since as a float32 denormal it would carry a relative error of up to 100%."""
+    s = float(aperture_m) * float(focal_m) * float(px_per_m)
+    return s if s >= float(np.finfo(np.float32).tiny) else 0.0
+
+
 def check_focus(focus_depth_m, focal_length_m: float) -> float:
     """Validate a host focus depth: a finite number of metres in (focal_length_m, inf)."""
     return check_range("focus_depth_m", focus_depth_m, float(focal_length_m), None, lo_open=True)
@@ -106,7 +113,7 @@ class DofStage:
         if p is None:
             c = self.config
             p = DofParams()
-            p.coc_scale = float(c.aperture_m * c.focal_length_m * c.px_per_m)
+            p.coc_scale = lens_scale(c.aperture_m, c.focal_length_m, c.px_per_m)
             p.focal_m = float(c.focal_length_m)
             p.max_coc_px = float(c.max_coc_px)
             p.gamma = float(c.gamma)
