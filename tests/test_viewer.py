@@ -374,6 +374,21 @@ def test_frames_follow_the_gaze_and_stats_report_it(server):
     asyncio.run(run())
 
 
+def test_a_client_joining_an_idle_session_gets_a_frame_unasked(server):
+    """A second client that sends nothing, joining once the session has rendered its state and gone idle, still
+    receives a frame of the current state (the page waits for one before it maps the mouse)."""
+    async def run():
+        async with _connect(server) as ws:
+            await ws.send(json.dumps({"type": "gaze", "x": 20.0, "y": 10.0, "seq": 7}))
+            await _until(ws, _frame_with_seq(7))
+            await asyncio.sleep(1.0)  # the convergence frames end: nothing is due
+            async with _connect(server) as ws2:
+                (h, img), texts = await _until(ws2, lambda m: isinstance(m, tuple), timeout=30.0)
+                assert texts and texts[0]["type"] == "state"
+                assert img.shape == (H, W, 3) and h["gaze"] == [20.0, 10.0] and img.std() > 1.0
+    asyncio.run(run())
+
+
 def test_modes_overlays_knobs_and_errors_keep_the_session(server):
     async def run():
         async with _connect(server) as ws:

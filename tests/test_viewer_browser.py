@@ -138,3 +138,62 @@ def test_mouse_over_canvas_steers_the_gaze_in_headless_chromium(browser, server)
         assert js_errors == []
     finally:
         page.close()
+
+
+def test_a_mouse_move_before_the_first_frame_maps_through_the_render_size(browser, server):
+    """The page holds the mouse until the first frame gives the canvas its real size: a move over the 640x360
+    placeholder canvas, with the frames held back (a WebSocket route that delays the server's binary messages),
+    becomes the gaze of the same spot in render pixels once they arrive, with no further move."""
+    page = browser.new_page(viewport={"width": 900, "height": 500})
+    js_errors = []
+    page.on("pageerror", lambda e: js_errors.append(str(e)))
+    hold = {"frames": True, "held": [], "route": None}
+
+    def route(ws):
+        srv = ws.connect_to_server()
+        hold["route"] = ws
+
+        def from_server(message):
+            if isinstance(message, (bytes, bytearray)) and hold["frames"]:
+                hold["held"].append(message)  # a frame while the test holds them, delivered later in order
+            else:
+                ws.send(message)
+
+        srv.on_message(from_server)
+
+    try:
+        page.route_web_socket("**/ws", route)
+        page.goto(server.url, timeout=60_000)
+        page.wait_for_function("document.getElementById('conn').textContent === 'live'", timeout=60_000)
+        for _ in range(600):  # Playwright's waits, not sleeps: the route's handler runs inside them
+            if hold["held"]:
+                break
+            page.wait_for_timeout(100)
+        assert hold["held"], "the server sent no frame"
+        assert page.evaluate("document.getElementById('view').width") == 640  # the placeholder: no frame yet
+        box = page.locator("#view").bounding_box()
+        mx, my = box["x"] + 0.8 * box["width"], box["y"] + 0.7 * box["height"]
+        page.mouse.move(mx, my)
+        page.wait_for_timeout(500)  # animation frames pass: a gaze mapped through 640x360 would be sent now
+        assert hold["held"], "no frame was held back: the test did not see the page before its first frame"
+        hold["frames"] = False
+        for message in hold["held"]:
+            hold["route"].send(message)
+        page.wait_for_function("document.getElementById('view').width === %d" % W, timeout=60_000)
+        box = page.locator("#view").bounding_box()
+        ex, ey = (mx - box["x"]) * W / box["width"], (my - box["y"]) * H / box["height"]
+        tol = 1.5 * W / box["width"] + 1e-6
+        assert 0 < ex < W and 0 < ey < H
+
+        def follows():
+            g = _stats(server)["gaze_px"]
+            return abs(g[0] - ex) <= tol and abs(g[1] - ey) <= tol
+
+        for _ in range(300):
+            if follows():
+                break
+            page.wait_for_timeout(100)
+        assert follows(), f"stats gaze {_stats(server)['gaze_px']} never reached {(ex, ey)}"
+        assert js_errors == []
+    finally:
+        page.close()

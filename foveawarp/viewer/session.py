@@ -152,7 +152,11 @@ class ViewerSession:
 
     # -- called from the event loop -----------------------------------------------------------------------
     def set_clients(self, n: int) -> None:
+        """The number of connected clients; one more than before renders a frame of the current state, so that
+        a client joining an idle session gets its first frame (the page maps the mouse through its size)."""
         with self._cond:
+            if int(n) > self._clients:
+                self._version += 1
             self._clients = int(n)
             self._cond.notify_all()
 
