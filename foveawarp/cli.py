@@ -185,7 +185,7 @@ def cmd_demo(args) -> int:
 
     cuda = wp.get_device(device).is_cuda
     # the CPU device runs its launches as row bands on every core (foveawarp.parallel): 24 frames at 480x270
-    # take 6 s on 2 cores with a warm kernel cache, 15 s with the first run's compilation (issue 16)
+    # take 6 s on 2 cores with a warm kernel cache, 15 s with the first run's compilation
     w = args.width or (1920 if cuda else 480)
     h = args.height or (1080 if cuda else 270)
     n = args.frames or (60 if cuda else 24)

@@ -369,7 +369,7 @@ def test_graph_replay_equals_eager_launches(strategy):
     assert any("trace" in s for s in [fg.stats["skipped"]])  # the refresh phase was reached (and replayed)
 
 
-# -- the cost policy (issue 14: never slower than full resolution) ------------------------------------------
+# -- the cost policy (never slower than full resolution) ------------------------------------------
 
 
 def test_policy_full_equals_reference_and_validation():
@@ -530,7 +530,8 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     the frames confirm is kept."""
     scene = fw.load_scene("cornell")
     loop = fw.FrameLoop(scene, 32, 24, device=device, policy="auto", timing=False, cpu_threads=1)
-    loop.POLICY_CLEAR = 0.0  # no confirming blocks: this test is about the check (test_policy_confirms_...)
+    pol = loop.cost_policy
+    pol.CLEAR = 0.0  # no confirming blocks: this test is about the check (test_policy_confirms_...)
     sync = lambda: wp.synchronize_device(device)  # noqa: E731 (a frame done before the next: its span is read)
     n = 2 * (loop.POLICY_WARM + loop.POLICY_TIMED)
     for i in range(n + 1):
@@ -541,8 +542,8 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     # a wrong choice: the other path's estimates far below anything a frame costs
     other = "full_ms" if choice == "foveated" else "foveated_ms"
     gpu = other.replace("_ms", "_gpu_ms")
-    # (the watch compares with the pooled medians, _pol_ref; the decision's estimates, _pol_est, are reported)
-    loop._pol_choice, loop._pol_ref[other], loop._pol_ref[gpu] = choice, 1e-6, 1e-6
+    # (the watch compares with the pooled medians, reference; the decision's estimates, estimates, are reported)
+    pol.choice, pol.reference[other], pol.reference[gpu] = choice, 1e-6, 1e-6
 
     def path(i):
         p = loop.render(scene.camera_at(i / 60.0)).stats["policy"]["path"]
@@ -551,10 +552,10 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
 
     # the first check that may act: at POLICY_RECHECK_MIN frames after the last measurement began; on CUDA the
     # watch samples one frame in POLICY_WATCH_EVERY, so its POLICY_WATCH samples take longer to gather
-    every = loop.POLICY_WATCH_EVERY if loop._watch_by_events() else 1
+    every = loop.POLICY_WATCH_EVERY if pol.by_events else 1
     latest = max(loop.POLICY_RECHECK_MIN, n + loop.POLICY_WATCH * every + every)
     paths, i = [], n + 1
-    while loop._pol_rechecks == 0:
+    while pol.rechecks == 0:
         paths.append(path(i))
         i += 1
         assert i <= latest + 1, "no re-measurement"
@@ -563,13 +564,13 @@ def test_policy_check_remeasures_a_wrong_choice(device, choice):
     # the re-measurement: its short form (POLICY_CLEAR 0 makes any two unequal estimates clear-cut)
     m = loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR
     paths += [path(i + k) for k in range(2 * m - 1)]
-    assert loop._pol_len == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
+    assert pol.length == (loop.POLICY_WARM_AGAIN, loop.POLICY_TIMED_CLEAR) and m < n // 2
     assert paths == [choice] * (start - n - 1) + ["foveated"] * m + ["full"] * m
     st = loop.render(scene.camera_at(1.0)).stats["policy"]
     assert st["rechecks"] == 1 and st["trigger"].startswith(f"check: the {choice} frames measured")
     assert st["measured_at_frame"] == start + 2 * m and st[other] > 1e-6
     # a choice its frames confirm stays until the period
-    loop._pol_choice, loop._pol_ref[other], loop._pol_ref[gpu] = choice, 1e9, 1e9
+    pol.choice, pol.reference[other], pol.reference[gpu] = choice, 1e9, 1e9
     for i in range(loop.POLICY_RECHECK_MIN + 2 * loop.POLICY_WATCH * every):
         st = loop.render(scene.camera_at(1.0 + i / 60.0)).stats["policy"]
         sync()
@@ -581,20 +582,20 @@ def _drive_policy(loop, block_ms, skip=()):
     the k-th block the time ``block_ms[k]`` (a list per block, cycled); the timed frames ``(block, k)`` in
     ``skip`` record nothing (a frame whose time was lost). Returns the paths of the frames up to and including
     the first frame after the decision."""
-    paths, counts = [], {}
+    pol, paths, counts = loop.cost_policy, [], {}
     for i in range(loop.POLICY_PERIOD):
-        path, timed, _ = loop._policy_mode()
+        path, timed, _ = pol.next_frame(i)
         paths.append(path)
-        if "measured_at_frame" in loop._pol_est:
+        if "measured_at_frame" in pol.estimates:
             return paths
         # the block of frame i, from the schedule as it stands after this frame's call
-        ends = np.cumsum([w + t for _, w, t in loop._pol_sched])
+        ends = np.cumsum([w + t for _, w, t in pol.schedule])
         block = int(np.searchsorted(ends, i, side="right"))
-        assert loop._pol_sched[block][0] == path
+        assert pol.schedule[block][0] == path
         if timed:
             k = counts.get(block, 0)
             if (block, k) not in skip:
-                loop._policy_record(path, block_ms[block][k % len(block_ms[block])])
+                pol.record(path, block_ms[block][k % len(block_ms[block])])
             counts[block] = k + 1
     raise AssertionError("no decision within a period")
 
@@ -619,7 +620,7 @@ def test_policy_confirms_a_close_measurement(case):
                        [1.25, 1.24, 1.26]],
         # block 0's first timed frame lost: block 1's frames must stay in block 1
         "lost_frame": [[0.7, 1.02, 0.98], [1.2, 1.25, 1.19], [0.9, 0.91, 0.89], [1.01, 1.0, 1.03]],
-        # one transient over both back-to-back full blocks (H100, session 35: 2.01 against 1.68 ms): the third
+        # one transient over both back-to-back full blocks (H100: 2.01 against 1.68 ms): the third
         # full block, later, decides
         "inflated_full_twice": [[1.0, 1.02, 0.98], [1.2, 1.25, 1.19], [1.22, 1.21, 1.2], [1.01, 1.0, 1.03],
                                 [0.9, 0.91, 0.89]],
@@ -628,7 +629,8 @@ def test_policy_confirms_a_close_measurement(case):
     }[case]
     skip = {(0, 0)} if case == "lost_frame" else set()
     paths = _drive_policy(loop, blocks, skip)
-    est = loop._pol_est
+    pol = loop.cost_policy
+    est = pol.estimates
     t = loop.POLICY_TIMED
     kept = [[b[k % len(b)] for k in range(t) if (j, k) not in skip] for j, b in enumerate(blocks)]
     meds = [float(np.median(v)) for v in kept]
@@ -641,9 +643,9 @@ def test_policy_confirms_a_close_measurement(case):
     assert est["foveated_ms"] == pytest.approx(fov) and est["full_ms"] == pytest.approx(full)
     pooled = {"foveated_ms": float(np.median(sum((kept[j] for j in fov_blocks), []))),
               "full_ms": float(np.median(sum((kept[j] for j in full_blocks), [])))}
-    assert loop._pol_ref == pytest.approx(pooled)
+    assert pol.reference == pytest.approx(pooled)
     expect = "foveated" if fov < (1 - loop.POLICY_MARGIN) * full else "full"
-    assert loop._pol_choice == expect and paths[-1] == expect
+    assert pol.choice == expect and paths[-1] == expect
     assert expect == {"inflated_full": "full", "clear": "foveated", "close_kept": "foveated",
                       "lost_frame": "full", "inflated_full_twice": "full", "close_full": "full"}[case]
     # the two back-to-back full blocks alone would have chosen foveation
@@ -656,12 +658,13 @@ def test_policy_measurement_length():
     per path and, after clear-cut estimates (the cheaper path >= POLICY_CLEAR cheaper), POLICY_TIMED_CLEAR timed
     ones, else POLICY_TIMED."""
     loop = fw.FrameLoop(fw.load_scene("cornell"), 16, 16, device="cpu", policy="auto")
-    assert loop._measurement_length() == (loop.POLICY_WARM, loop.POLICY_TIMED)
+    pol = loop.cost_policy
+    assert pol.measurement_length() == (loop.POLICY_WARM, loop.POLICY_TIMED)
     for fov, full, timed in ((1.0, 2.0, loop.POLICY_TIMED_CLEAR), (2.0, 1.0, loop.POLICY_TIMED_CLEAR),
                              (1.0, 1.2, loop.POLICY_TIMED), (1.2, 1.0, loop.POLICY_TIMED),
                              (0.75, 1.0, loop.POLICY_TIMED), (0.7499, 1.0, loop.POLICY_TIMED_CLEAR)):
-        loop._pol_est = {"foveated_ms": fov, "full_ms": full}
-        assert loop._measurement_length() == (loop.POLICY_WARM_AGAIN, timed), (fov, full)
+        pol.estimates = {"foveated_ms": fov, "full_ms": full}
+        assert pol.measurement_length() == (loop.POLICY_WARM_AGAIN, timed), (fov, full)
     assert loop.POLICY_WARM_AGAIN + loop.POLICY_TIMED_CLEAR < loop.POLICY_WARM + loop.POLICY_TIMED
 
 

@@ -1,15 +1,20 @@
-"""Bit-identity check of the foveated frame path across a code change: render a short sequence of a moving
-camera and gaze (deterministic shading, and 2 AO rays) and save, or compare against a saved run, every
-per-frame output: image, temporal sparse colour and filled mask, sampling map, cache hits, previous-pixel
-index, reconstruction input counts, the G-buffer's velocity and albedo.
+"""Frame identity across a code change: every output of foveated, full and reference frames, saved or compared.
 
-    # on the old code (its checkout as the working directory, this file copied anywhere):
-    python identity_frames.py --device cpu --save old.npz
-    # on the new code:
-    python benchmarks/identity_frames.py --device cpu --compare old.npz
+Renders a short sequence of a moving camera and gaze per scene and case (deterministic shading, 2 AO rays, a
+small fovea, a still view that reaches the refresh budget, depth of field with the light-tree indirect term, the
+full-resolution policy, the default "auto" policy through its first measurement, and the full-resolution reference
+frame) and saves, or compares against a saved run byte for byte, every output: image, temporal sparse colour and
+filled mask, sampling map, cache hits, previous-pixel index, the rates, and the G-buffer's channels (position,
+normal, depth, face, hit, reprojection UV, velocity, albedo).
 
-Runs on ``--device cuda:0`` too (CUDA results are compared the same way, byte for byte). Exit status 1 when
-any array differs.
+    # the old code, imported through PYTHONPATH (a worktree of the old commit), this file from the new tree:
+    PYTHONPATH=OLD_TREE python tools/identity_frames.py --device cpu --save old.npz
+    # the new code:
+    python tools/identity_frames.py --device cpu --compare old.npz
+
+Runs on ``--device cuda:0`` too (compared the same way). ``--compare`` prints one line per case (scene.case: max
+abs difference, differing pixels of the images and differing values of all arrays) and exits with status 1 when
+any array differs or is missing.
 """
 
 from __future__ import annotations
@@ -19,16 +24,29 @@ import sys
 
 import numpy as np
 
-CONFIGS = {
-    "default": {},
-    "ao2": {"shading": {"ao_samples": 2}},
+# depth of field (a lens of 4 mm, focused at the gaze) with the light-tree indirect term
+DOF_INDIRECT = {"dof": {"aperture_m": 0.004}, "shading": {"indirect": "lighttree"}}
+# case -> (config overrides, policy, frames: None = --frames; "reference": render_reference)
+CASES = {
+    "default": ({}, "foveated", None),
+    "ao2": ({"shading": {"ao_samples": 2}}, "foveated", None),
     # a small fovea (more pixels resolved from history), and a still view that reaches the refresh budget
-    "periphery": {"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}},
-    "periphery-ao2": {"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}, "shading": {"ao_samples": 2}},
-    "still-ao2": {"foveation": {"block": 2}, "temporal": {"max_history_frames": 3}, "shading": {"ao_samples": 2}},
+    "periphery": ({"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}}, "foveated", None),
+    "periphery-ao2": ({"foveation": {"fovea_deg": 1.0, "falloff_deg": 4.0}, "shading": {"ao_samples": 2}},
+                      "foveated", None),
+    "still-ao2": ({"foveation": {"block": 2}, "temporal": {"max_history_frames": 3}, "shading": {"ao_samples": 2}},
+                  "foveated", None),
+    "dof-indirect": (DOF_INDIRECT, "foveated", None),
+    "full": ({}, "full", None),
+    "full-dof-indirect": (DOF_INDIRECT, "full", None),
+    # the default policy: its first measurement renders 12 foveated frames, then 12 full ones, whatever the times
+    "auto": ({}, None, 16),
+    "reference": ({}, "reference", None),
+    "reference-dof-indirect": (DOF_INDIRECT, "reference", None),
 }
-STILL_FROM = 3  # "still" configs: the camera and gaze stop moving at this frame
+STILL_FROM = 3  # "still" cases: the camera and gaze stop moving at this frame
 SCENES = ("cornell", "city", "earth")
+GBUFFER = ("position", "normal", "depth", "face", "hit", "reproj_uv", "velocity", "albedo")
 
 
 def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> dict:
@@ -40,11 +58,13 @@ def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> d
         scene = fw.load_scene(scene_name)
         if bvh is not None:  # (constructor, leaf size): the Scene fields (trees from 1f42f5e on)
             scene.bvh_constructor, scene.bvh_leaf_size = bvh
-        for cname, over in CONFIGS.items():
+        for cname, (over, policy, n) in CASES.items():
             cfg = fw.Config().with_(**over) if over else fw.Config()
+            reference = policy == "reference"
             loop = fw.FrameLoop(scene, width, height, config=cfg, device=device, timing=False, graph=False,
-                                policy="foveated", cpu_threads=1)
-            for i in range(frames):
+                                policy="full" if reference else policy, cpu_threads=1)
+            for i in range(frames if n is None else n):
+                j = i  # the frame's number in the sequence (render_reference does not count frames)
                 if cname.startswith("still"):
                     i = min(i, STILL_FROM)
                 t = i / 20.0
@@ -53,20 +73,63 @@ def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> d
                     cam = fw.Camera(eye=tuple(e + (0.03 * i if k == 0 else 0.0) for k, e in enumerate(cam.eye)),
                                     target=cam.target, up=cam.up, fov_y_deg=cam.fov_y_deg)
                 gaze = (width * (0.5 + 0.25 * np.sin(0.7 * i)), height * (0.5 + 0.2 * np.cos(0.5 * i)))
-                f = loop.render(cam, gaze_px=gaze, time=t)
-                key = f"{scene_name}.{cname}.{loop.frame_index - 1}"
+                if reference:
+                    f = loop.render_reference(cam, gaze_px=gaze, time=t)
+                    key = f"{scene_name}.{cname}.{j}"
+                else:
+                    f = loop.render(cam, gaze_px=gaze, time=t)
+                    key = f"{scene_name}.{cname}.{loop.frame_index - 1}"
                 out[key + ".image"] = f.numpy().copy()
-                out[key + ".sparse"] = f.extras["sparse"].numpy().copy()
-                out[key + ".filled"] = f.extras["filled"].numpy().copy()
                 out[key + ".sample_map"] = f.sampling_map.numpy().copy()
-                out[key + ".cache_hit"] = loop.sampling.cache_hit.numpy().copy()
-                out[key + ".prev_index"] = loop.sampling.prev_index.numpy().copy()
                 out[key + ".rates"] = np.array([f.stats["sampling_rate"], f.stats["cache_hit_rate"]])
-                out[key + ".hit"] = f.gbuffer.hit.numpy().copy()
-                for name in ("velocity", "albedo"):  # derived on read (session 22), stored before
+                if "sparse" in f.extras:  # foveated frames
+                    out[key + ".sparse"] = f.extras["sparse"].numpy().copy()
+                    out[key + ".filled"] = f.extras["filled"].numpy().copy()
+                    out[key + ".cache_hit"] = loop.sampling.cache_hit.numpy().copy()
+                    out[key + ".prev_index"] = loop.sampling.prev_index.numpy().copy()
+                for name in GBUFFER:  # velocity and albedo derived on read, the others stored
                     out[key + ".gbuffer_" + name] = getattr(f.gbuffer, name).numpy().copy()
                 out[key + ".skipped"] = np.array(sorted(f.stats["skipped"]))
     return out
+
+
+def compare(ref: dict, got: dict) -> list:
+    """One line per case (scene.case) of ``ref``: arrays compared, max abs difference, differing image pixels and
+    differing values, marked DIFFERS where any array differs or is missing. Returns (lines, whether any differs)."""
+    cases: dict = {}
+    for k in sorted(ref):
+        cases.setdefault(".".join(k.split(".")[:2]), []).append(k)
+    lines, any_bad = [], False
+    for case, keys in cases.items():
+        worst, pixels, values, bad = 0.0, 0, 0, []
+        for k in keys:
+            a, b = ref[k], got.get(k)
+            if b is None or a.shape != b.shape or a.dtype != b.dtype:
+                bad.append(k.split(".", 2)[2] + (" missing" if b is None else " shape/dtype"))
+                continue
+            if a.tobytes() == b.tobytes():
+                continue
+            bad.append(k.split(".", 2)[2])
+            if a.dtype.kind in "fiub":
+                d = np.abs(a.astype(np.float64) - b.astype(np.float64))
+                d = np.where(np.isnan(d), np.inf, d)
+                worst = max(worst, float(d.max()))
+                values += int((a != b).sum())
+                if k.endswith(".image"):
+                    pixels += int((a != b).reshape(a.shape[0], a.shape[1], -1).any(axis=-1).sum())
+            else:
+                values += int((a != b).sum())
+        any_bad |= bool(bad)
+        line = (f"{case}: {len(keys)} arrays, {'DIFFERS' if bad else 'identical'}: max abs {worst:.3g}, "
+                f"{pixels} image pixels, {values} values differ")
+        if bad:
+            line += " (" + ", ".join(bad[:6]) + (", ..." if len(bad) > 6 else "") + ")"
+        lines.append(line)
+    extra = sorted(set(got) - set(ref))
+    if extra:
+        more = ", ..." if len(extra) > 4 else ""
+        lines.append(f"not in the saved run: {len(extra)} arrays ({', '.join(extra[:4])}{more})")
+    return lines, any_bad
 
 
 def main(argv=None) -> int:
@@ -94,27 +157,10 @@ def main(argv=None) -> int:
         np.savez_compressed(a.save, **got)
         print(f"saved {len(got)} arrays to {a.save}")
         return 0
-    ref = dict(np.load(a.compare))
-    bad = []
-    for k in sorted(ref):
-        if k not in got:
-            bad.append(f"{k}: missing")
-        elif ref[k].shape != got[k].shape or ref[k].tobytes() != got[k].tobytes():
-            d = np.abs(ref[k].astype(np.float64) - got[k].astype(np.float64)) if ref[k].shape == got[k].shape else None
-            bad.append(f"{k}: differs" + ("" if d is None else f" (max abs {d.max():.3g}, {int((d > 0).sum())} values)"))
-    print(f"{len(ref)} arrays compared, {len(bad)} differ")
-    for b in bad[:40]:
-        print("  ", b)
-    if bad:  # per scene: arrays that differ, and how far the displayed images moved
-        for scene in sorted({k.split(".")[0] for k in ref}):
-            keys = [k for k in ref if k.split(".")[0] == scene and k in got and ref[k].shape == got[k].shape]
-            diff = [k for k in keys if ref[k].tobytes() != got[k].tobytes()]
-            img = [np.abs(ref[k].astype(np.float64) - got[k].astype(np.float64)) for k in diff
-                   if k.endswith(".image")]
-            n_img = sum(1 for k in keys if k.endswith(".image"))
-            print(f"   {scene}: {len(diff)} of {len(keys)} arrays differ; {len(img)} of {n_img} images, "
-                  f"{max((int((d > 0).any(axis=-1).sum()) for d in img), default=0)} pixels at most, "
-                  f"max abs {max((float(d.max()) for d in img), default=0.0):.3g}")
+    lines, bad = compare(dict(np.load(a.compare)), got)
+    for line in lines:
+        print(line)
+    print("frames differ" if bad else "all frames identical")
     return 1 if bad else 0
 
 

@@ -1,4 +1,4 @@
-"""Sparse G-buffer mode (issue 14): primary rays only where they are needed.
+"""Sparse G-buffer mode: primary rays only where they are needed.
 
 A coarse G-buffer (one primary ray through the centre pixel of every ``cell`` x ``cell`` cell) feeds the saliency
 terms of thesis eq. 3 at coarse resolution; the per-pixel sampling map combines them with the per-pixel

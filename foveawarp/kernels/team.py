@@ -2,7 +2,7 @@
 
 A band-parallel CPU launch is a list of bands, each a call of the kernel's CPU entry point with its own launch
 bounds and argument struct. With Python threads, every launch wakes the team's threads through locks, and every
-band takes the GIL: at 16 threads a launch that does nothing costs 0.2-0.45 ms (session 18), several times a
+band takes the GIL: at 16 threads a launch that does nothing costs 0.2-0.45 ms (16 cores), several times a
 light kernel's own work. Here each worker thread of the team makes one call into native code when it starts
 (``team_worker_kernel``) and stays there: it watches a control block for jobs, spinning for a while after its
 last job and then napping in short sleeps, so a launch reaches it without a lock, a wake-up or the GIL. The

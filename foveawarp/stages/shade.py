@@ -60,9 +60,8 @@ class ShadeStage:
 
     # CUDA: the AO lanes launch of ``list`` in blocks of AO_BLOCK_DIM threads, at most AO_THREADS_PER_SM threads per SM
     # (a grid-stride launch: a thread takes an entry lane, then the one a grid later). The other list launches keep
-    # 256-thread blocks and ``_list_blocks``. Measured on the H100 (session 28, ``list-launch-shape-e27-ac1fa8a-
-    # cuda.log``: the foveated list of frame 12 of each camera path, 8 AO rays, three interleaved rounds, the outputs
-    # compared equal): against 256-thread blocks at 8192 threads per SM, the AO pass took 0.90-0.99x the time at
+    # 256-thread blocks and ``_list_blocks``. Measured on the H100 (the foveated list of frame 12 of each camera path,
+    # 8 AO rays, three interleaved rounds, the outputs compared equal): against 256-thread blocks at 8192 threads per SM, the AO pass took 0.90-0.99x the time at
     # 3840x2160 on bunny, spot, teapot, nefertiti, ogre, city and cornell (at that size a 4-lane list of ~8% of the
     # pixels needs more than 8192 threads per SM, so some threads took two entries), and 0.97-1.02x at 1920x1080.
     # At 4K 128-thread blocks alone gave 0.97-0.99x, the larger grid with 256-thread blocks 0.93-1.00x

@@ -1,4 +1,4 @@
-"""Sparse G-buffer stage (issue 14): a coarse G-buffer for the saliency terms, the sampling map from it, and
+"""Sparse G-buffer stage: a coarse G-buffer for the saliency terms, the sampling map from it, and
 the primary rays of the sampled pixels traced together with their shading (kernels/sparse.py)."""
 
 from __future__ import annotations
