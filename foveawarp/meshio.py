@@ -7,7 +7,10 @@
   winding), ASCII and binary: :func:`read_ply`, :func:`strips_to_triangles`.
 - Scenes of several meshes with transforms (glTF / GLB, OBJ with several objects or materials, ...): each mesh is
   placed by its node transform and keeps its colour (glTF base colour factor times vertex colours, OBJ ``Kd``,
-  PLY vertex or face colours), averaged per face: :func:`load_mesh_parts`. Textures are not read.
+  PLY vertex or face colours), averaged per face: :func:`load_mesh_parts`. Textures are not read here; textured
+  scene files go through the readers of ``foveawarp.io`` (:func:`scene_file_kind` says which files do).
+- Named textured scenes (``suzanne``, ``wicker`` ship in ``assets/gltf-models/``; ``barrel``, ``milk-truck``,
+  ``grey-white-room`` are read from the shared scenes folder, ``$FOVEAWARP_SCENES_DIR``): :func:`find_textured_scene`.
 
 This module depends on NumPy, trimesh and ``config`` only (no scene classes), so ``scene`` and ``scenes`` can both
 import it.
@@ -28,11 +31,19 @@ from .config import check_array, check_vec, show
 __all__ = [
     "ASSET_MESHES",
     "NAMED_MESHES",
+    "SCENE_FILE_EXTENSIONS",
+    "TEXTURED_SCENES",
+    "ASSET_TEXTURED_SCENES",
     "MeshPart",
     "assets_dir",
     "scene_search_dirs",
     "find_named_mesh",
     "named_mesh_help",
+    "textured_scene_dirs",
+    "find_textured_scene",
+    "textured_scene_help",
+    "obj_material_libraries",
+    "scene_file_kind",
     "ply_has_tristrips",
     "read_ply",
     "strips_to_triangles",
@@ -54,6 +65,25 @@ NAMED_MESHES = {
     "nefertiti": "nefertiti.obj",
     "ogre": "ogre.obj",
     "teapot": "teapot.obj",
+}
+
+# the file extensions load_scene reads: .gltf / .glb (foveawarp.io.gltf), .obj (with an .mtl: foveawarp.io.obj),
+# .xml (Mitsuba scenes: foveawarp.io.mitsuba), and .ply / .stl / .obj without materials as meshes on a ground
+SCENE_FILE_EXTENSIONS = (".gltf", ".glb", ".obj", ".ply", ".stl", ".xml")
+
+# named textured scene -> its file under the shared scenes folder's textured/ (see textured_scene_dirs)
+TEXTURED_SCENES = {
+    "suzanne": "Suzanne/Suzanne.gltf",
+    "wicker": "ClearcoatWicker/ClearcoatWicker.glb",
+    "barrel": "Barrel/barrel.glb",
+    "milk-truck": "CesiumMilkTruck/CesiumMilkTruck.glb",
+    "grey-white-room": "GreyWhiteRoom/scene.xml",
+}
+
+# the textured scenes whose licence (CC0) lets them ship: file in the package's assets folder
+ASSET_TEXTURED_SCENES = {
+    "suzanne": "gltf-models/Suzanne/Suzanne.gltf",
+    "wicker": "gltf-models/ClearcoatWicker/ClearcoatWicker.glb",
 }
 
 
@@ -103,6 +133,85 @@ def named_mesh_help(name: str) -> str:
     return (f"scene {name!r} needs {NAMED_MESHES.get(name, name)!r}, not found in the package assets "
             f"({shipped} ship there) nor in {[str(d) for d in scene_search_dirs()[1:]]}; set FOVEAWARP_SCENES to "
             f"the folder holding it")
+
+
+def textured_scene_dirs() -> list:
+    """Folders searched for the named textured scenes' files (:data:`TEXTURED_SCENES`), after the package's
+    assets: with ``$FOVEAWARP_SCENES_DIR`` set, its ``textured/`` subfolder and the folder itself; otherwise
+    ``shared/scenes/textured`` beside the checkout (``<repo>/../shared/scenes/textured``)."""
+    env = os.environ.get("FOVEAWARP_SCENES_DIR")
+    if env:
+        return [Path(env) / "textured", Path(env)]
+    return [Path(__file__).resolve().parent.parent.parent / "shared" / "scenes" / "textured"]
+
+
+def find_textured_scene(name: str) -> Optional[Path]:
+    """The file of a named textured scene: the shipped copy in the package's assets when there is one, else the
+    first of :func:`textured_scene_dirs` holding ``TEXTURED_SCENES[name]``; None when absent."""
+    if not isinstance(name, str) or name not in TEXTURED_SCENES:
+        raise ValueError(f"name must be a named textured scene {sorted(TEXTURED_SCENES)}, got {show(name)}")
+    if name in ASSET_TEXTURED_SCENES:
+        p = assets_dir() / ASSET_TEXTURED_SCENES[name]
+        if p.is_file():
+            return p
+    for d in textured_scene_dirs():
+        p = d / TEXTURED_SCENES[name]
+        if p.is_file():
+            return p
+    return None
+
+
+def textured_scene_help(name: str) -> str:
+    """Where a named textured scene was looked for and how to point at it, for error messages."""
+    shipped = ", ".join(sorted(ASSET_TEXTURED_SCENES))
+    return (f"scene {name!r} needs {TEXTURED_SCENES.get(name, name)!r}, not found in the package assets "
+            f"({shipped} ship there) nor in {[str(d) for d in textured_scene_dirs()]}; set FOVEAWARP_SCENES_DIR "
+            f"to the shared scenes folder (the one holding textured/{TEXTURED_SCENES.get(name, name)})")
+
+
+def obj_material_libraries(path) -> list:
+    """The material libraries (``mtllib``) an OBJ file names that exist beside it, as Paths (empty when none)."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError:
+        return []
+    out = []
+    for line in raw.splitlines():
+        tok = line.strip()
+        if not tok.startswith(b"mtllib"):
+            continue
+        name = tok[6:].strip().decode("utf-8", errors="replace")
+        if name and (p.parent / name).is_file():
+            out.append(p.parent / name)
+    return out
+
+
+def _obj_reader_available() -> bool:
+    try:
+        from .io import obj
+    except ImportError:
+        return False
+    return callable(getattr(obj, "read_obj", None))
+
+
+def scene_file_kind(path) -> str:
+    """How ``load_scene`` reads the file ``path``: "scene" (a scene file with materials: .gltf, .glb, .xml, and
+    .obj with an existing .mtl once ``foveawarp.io.obj.read_obj`` is there) or "mesh" (.ply, .stl, .obj without
+    materials: a mesh on a ground). ValueError naming the file and :data:`SCENE_FILE_EXTENSIONS` for any other
+    extension."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"scene path must be a file path (str or os.PathLike), got {show(path)}")
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in SCENE_FILE_EXTENSIONS:
+        raise ValueError(f"scene file {str(p)!r} could not be read: its extension {ext or '(none)'!r} is not one of "
+                         f"{list(SCENE_FILE_EXTENSIONS)}")
+    if ext in (".gltf", ".glb", ".xml"):
+        return "scene"
+    if ext == ".obj" and obj_material_libraries(p) and _obj_reader_available():
+        return "scene"
+    return "mesh"
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -5,14 +5,23 @@
 - ``eyechart``: walls of high-contrast gratings and letters at many spatial frequencies and distances.
 - ``earth``: a low-poly sphere (960 triangles) with a procedural albedo.
 - ``bunny-in-box``: the Cornell box with the Stanford bunny (shipped in ``assets/``) inside.
+- ``room``: a textured room (brick wall, wooden floor, a framed picture, a metallic sphere and rough plastic
+  objects), open on one side to a sky; its textures are made in NumPy at load time.
 
-Importing this module registers ``BUILTIN`` and :func:`mesh_on_ground` with :func:`foveawarp.scene.load_scene`
-(``scene`` never imports this module).
+Named textured scenes read from files (:func:`file_scene`): ``suzanne``, ``wicker`` (shipped in
+``assets/gltf-models/``), ``barrel``, ``milk-truck`` (glTF models in the shared scenes folder,
+``$FOVEAWARP_SCENES_DIR``), each framed by a camera that orbits it, and ``grey-white-room`` (the Mitsuba scene,
+with ``foveawarp.io.mitsuba``).
+
+Importing this module registers ``BUILTIN``, :func:`mesh_on_ground` and :func:`file_scene` with
+:func:`foveawarp.scene.load_scene` (``scene`` never imports this module).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -20,10 +29,13 @@ import numpy as np
 
 from .camera import Camera
 from .config import check_array, check_bool, check_finite, check_int_range, check_range, check_vec, show
-from .meshio import find_named_mesh, load_mesh_arrays, load_mesh_parts, named_mesh_help
-from .scene import AreaLight, Light, Scene, SceneObject, check_bvh, register_builtin_scenes
+from .materials import Material, MaterialTable, TextureRef, default_material
+from .meshio import (TEXTURED_SCENES, find_named_mesh, find_textured_scene, load_mesh_arrays, load_mesh_parts,
+                     named_mesh_help, textured_scene_help)
+from .scene import AreaLight, Light, Scene, SceneObject, check_bvh, face_material_colors, register_builtin_scenes
 
-__all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "mesh_on_ground", "BUILTIN"]
+__all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "room", "mesh_on_ground",
+           "file_scene", "scene_from_data", "lights_from_file", "default_lights", "vertex_tangents", "BUILTIN"]
 
 
 def rot_y(angle_rad: float) -> np.ndarray:
@@ -38,18 +50,51 @@ def translation(t) -> np.ndarray:
 
 
 class SceneBuilder:
-    """Accumulates triangle groups with materials, then builds a :class:`Scene`."""
+    """Accumulates triangle groups with materials, then builds a :class:`Scene`.
+
+    Textured content: :meth:`add_image` adds a linear image and returns its index for ``TextureRef.image``;
+    ``add_mesh(..., uvs=..., material=...)`` gives a mesh UVs and a :class:`foveawarp.materials.Material`. Once a
+    mesh has a material the built scene has materials for every face (a mesh without one gets a rough dielectric
+    of its constant ``albedo``), UVs (0 where a mesh has none) and tangents (:func:`vertex_tangents`); the
+    ``face_albedo`` of a mesh with a material is its mean base colour. Without any material the scene is built
+    as it always was."""
 
     def __init__(self):
         self.v, self.f, self.alb, self.emi, self.vn, self.smooth = [], [], [], [], [], []
+        self.uv, self.mat = [], []
+        self.materials, self.images = [], []
         self.objects = []
         self.nv = 0
 
+    def add_image(self, image) -> int:
+        """Add a linear (H, W, C) image (C in 1..4, finite); returns its index."""
+        a = check_array(f"images[{len(self.images)}]", image)
+        if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4):
+            raise ValueError(f"images[{len(self.images)}] must be an (H, W, 1..4) array, got shape {a.shape}")
+        self.images.append(np.ascontiguousarray(a, dtype=np.float32))
+        return len(self.images) - 1
+
+    def _material_index(self, material) -> int:
+        for i, m in enumerate(self.materials):
+            if m is material or m == material:
+                return i
+        self.materials.append(material)
+        return len(self.materials) - 1
+
     def add_mesh(self, vertices, faces, albedo, emission=(0.0, 0.0, 0.0), normals=None, smooth=False,
-                 name=None, motion=None):
+                 name=None, motion=None, uvs=None, material=None):
         """Add triangles: ``vertices`` (V, 3) finite, ``faces`` (F, 3) integers in [0, V - 1], ``albedo`` (3,) or
         (F, 3) in [0, 1], ``emission`` (3,) >= 0, ``normals`` None or (V, 3), ``smooth`` bool, ``name`` None or
-        str, ``motion`` None or a callable ``t -> 4x4``."""
+        str, ``motion`` None or a callable ``t -> 4x4``, ``uvs`` None or (V, 2) finite (glTF convention, v
+        down), ``material`` None or a :class:`foveawarp.materials.Material` (its base colour then replaces
+        ``albedo``, which may be None)."""
+        if material is not None and not isinstance(material, Material):
+            raise ValueError(f"material must be None or a foveawarp.materials.Material, got {show(material)}")
+        if albedo is None:
+            if material is None:
+                raise ValueError("albedo must be (3,) or (F, 3) linear RGB in [0, 1], got None (allowed only with a "
+                                 "material)")
+            albedo = material.base_color_factor[:3]
         vertices = check_array("vertices", vertices).astype(np.float64)
         if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] < 3:
             raise ValueError(f"vertices must have shape (V >= 3, 3), got {vertices.shape}")
@@ -73,6 +118,10 @@ class SceneBuilder:
             if normals.shape != vertices.shape:
                 raise ValueError(f"normals must have the shape of vertices {vertices.shape}, got {normals.shape}")
         smooth = check_bool("smooth", smooth)
+        if uvs is not None:
+            uvs = check_array("uvs", uvs).astype(np.float64)
+            if uvs.shape != (vertices.shape[0], 2):
+                raise ValueError(f"uvs must have shape ({vertices.shape[0]}, 2), got {uvs.shape}")
         if name is not None and not isinstance(name, str):
             raise ValueError(f"name must be None or a str, got {show(name)}")
         if motion is not None and not callable(motion):
@@ -86,6 +135,8 @@ class SceneBuilder:
             normals = np.zeros_like(vertices)
         self.vn.append(np.asarray(normals, dtype=np.float64))
         self.smooth.append(np.full(nf, 1 if smooth else 0, dtype=np.uint8))
+        self.uv.append(uvs)
+        self.mat.append((material, nf))
         self.nv += vertices.shape[0]
         if name is not None or motion is not None:
             self.objects.append(SceneObject(name or f"object{len(self.objects)}", (start, self.nv), motion))
@@ -151,16 +202,94 @@ class SceneBuilder:
         return self.add_mesh(verts * radius + np.asarray(center), faces, albedo, normals=verts, smooth=smooth, **kw)
 
     def build(self, **kw) -> Scene:
+        if all(m is None for m, _ in self.mat):
+            return Scene(
+                vertices=np.concatenate(self.v).astype(np.float32),
+                faces=np.concatenate(self.f).astype(np.int32),
+                face_albedo=np.concatenate(self.alb).astype(np.float32),
+                face_emission=np.concatenate(self.emi).astype(np.float32),
+                vertex_normals=np.concatenate(self.vn).astype(np.float32),
+                face_smooth=np.concatenate(self.smooth),
+                objects=self.objects,
+                **kw,
+            )
+        face_material = []
+        for (m, nf), alb in zip(self.mat, self.alb):
+            if m is None:
+                if np.ptp(alb, axis=0).max() > 0:
+                    raise ValueError("a mesh without a material must have one albedo for all its faces when other "
+                                     "meshes have materials, got per-face albedo")
+                m = Material(name="albedo", base_color_factor=(*(float(c) for c in alb[0]), 1.0),
+                             metallic_factor=0.0, roughness_factor=1.0)
+            face_material.append(np.full(nf, self._material_index(m), dtype=np.int32))
+        faces = np.concatenate(self.f).astype(np.int64)
+        vertices = np.concatenate(self.v)
+        normals = np.concatenate(self.vn)
+        uvs = np.concatenate([u if u is not None else np.zeros((v.shape[0], 2)) for u, v in zip(self.uv, self.v)])
+        face_material = np.concatenate(face_material)
+        table = MaterialTable.build(self.materials, len(self.images))
+        albedo = face_material_colors(faces, face_material, table, self.images, uvs, slot="base_color")
         return Scene(
-            vertices=np.concatenate(self.v).astype(np.float32),
-            faces=np.concatenate(self.f).astype(np.int32),
-            face_albedo=np.concatenate(self.alb).astype(np.float32),
+            vertices=vertices.astype(np.float32),
+            faces=faces.astype(np.int32),
+            face_albedo=albedo,
             face_emission=np.concatenate(self.emi).astype(np.float32),
-            vertex_normals=np.concatenate(self.vn).astype(np.float32),
+            vertex_normals=normals.astype(np.float32),
             face_smooth=np.concatenate(self.smooth),
             objects=self.objects,
+            uvs=uvs.astype(np.float32),
+            tangents=vertex_tangents(vertices, faces, normals, uvs),
+            face_material=face_material,
+            materials=table,
+            images=list(self.images),
             **kw,
         )
+
+
+def _any_perpendicular(n: np.ndarray) -> np.ndarray:
+    """A unit vector orthogonal to each row of ``n`` ((1, 0, 0) where ``n`` is zero)."""
+    a = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t = a - n * np.sum(a * n, axis=1, keepdims=True)
+    ln = np.linalg.norm(t, axis=1, keepdims=True)
+    return np.where(ln > 1e-12, t / np.maximum(ln, 1e-30), [[1.0, 0.0, 0.0]])
+
+
+def vertex_tangents(vertices, faces, normals, uvs) -> np.ndarray:
+    """Per-vertex tangents (V, 4) float32 from the UVs: each triangle's unit ``dP/du`` and ``dP/dv`` (solved from
+    its edges and UV differences), weighted by its area and summed over the triangles of a vertex; the tangent
+    made orthogonal to the vertex normal (Gram-Schmidt; any perpendicular where it vanishes or the UVs are
+    degenerate); w = the sign that makes ``w * cross(n, t)`` point along ``-dP/dv`` (the image's top, glTF's v
+    being down). A vertex with a zero normal uses the direction of its faces' summed geometric normals."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    uv = np.asarray(uvs, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    e1, e2 = p1 - p0, p2 - p0
+    d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    ok = np.abs(det) > 1e-20
+    r = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+    dpdu = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * r
+    dpdv = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * r
+    fn = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(fn, axis=1, keepdims=True)
+    du = dpdu / np.maximum(np.linalg.norm(dpdu, axis=1, keepdims=True), 1e-30) * area
+    dv = dpdv / np.maximum(np.linalg.norm(dpdv, axis=1, keepdims=True), 1e-30) * area
+    tu, tv, gn = np.zeros_like(v), np.zeros_like(v), np.zeros_like(v)
+    for j in range(3):
+        np.add.at(tu, f[:, j], du)
+        np.add.at(tv, f[:, j], dv)
+        np.add.at(gn, f[:, j], fn)
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    gl = np.linalg.norm(gn, axis=1, keepdims=True)
+    n = np.where(ln > 1e-12, n / np.maximum(ln, 1e-30), gn / np.maximum(gl, 1e-30))
+    t = tu - n * np.sum(tu * n, axis=1, keepdims=True)
+    tl = np.linalg.norm(t, axis=1, keepdims=True)
+    t = np.where(tl > 1e-9 * np.maximum(np.linalg.norm(tu, axis=1, keepdims=True), 1e-30), t / np.maximum(tl, 1e-30),
+                 _any_perpendicular(n))
+    w = np.where(np.sum(np.cross(n, t) * -tv, axis=1) < 0, -1.0, 1.0)
+    return np.concatenate([t, w[:, None]], axis=1).astype(np.float32)
 
 
 def _orbit_path(base: Camera, amplitude_deg: float, period_s: float):
@@ -499,6 +628,552 @@ def _rot4(r3):
 
 
 # ---------------------------------------------------------------------------------------------------
+# procedural textures for "room" (linear values, made in NumPy at load time)
+
+
+def _srgb(c) -> np.ndarray:
+    """sRGB-encoded colour values -> linear (the exact EOTF)."""
+    from .io.images import srgb_to_linear
+
+    return srgb_to_linear(np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0))
+
+
+def _tile_noise(rng, size: int, cells_y: int, cells_x: int, octaves: int = 3) -> np.ndarray:
+    """Smooth value noise in [0, 1] on a size x size grid that tiles seamlessly: ``octaves`` random lattices of
+    ``cells_y x cells_x`` cells (doubling per octave, halving in weight), smoothstep-interpolated with wrap-around."""
+    out = np.zeros((size, size))
+    amp = total = 0.0
+    amp = 1.0
+    for o in range(octaves):
+        cy, cx = cells_y * 2**o, cells_x * 2**o
+        lat = rng.random((cy, cx))
+
+        def axis(c):
+            x = np.arange(size) * c / size
+            i0 = np.floor(x).astype(np.int64)
+            f = x - i0
+            return i0 % c, (i0 + 1) % c, f * f * (3.0 - 2.0 * f)
+
+        y0, y1, fy = axis(cy)
+        x0, x1, fx = axis(cx)
+        rows = lat[y0] * (1.0 - fy)[:, None] + lat[y1] * fy[:, None]
+        out += amp * (rows[:, x0] * (1.0 - fx)[None, :] + rows[:, x1] * fx[None, :])
+        total += amp
+        amp *= 0.5
+    return out / total
+
+
+def _brick_textures(size: int = 512, seed: int = 5) -> tuple:
+    """A running-bond brick wall: (base colour (size, size, 3) linear, tangent-space normal map (size, size, 3)
+    encoded as ``0.5 n + 0.5``). 16 courses of 4 bricks per tile, 5-texel mortar joints, bricks bevelled over
+    3 texels, each brick tinted by the seed."""
+    rng = np.random.default_rng(seed)
+    courses, per_row, mortar = 16, 4, 5
+    ch, bw = size // courses, size // per_row
+    y, x = np.mgrid[0:size, 0:size]
+    row = y // ch
+    xs = (x + (row % 2) * (bw // 2)) % size
+    col = xs // bw
+    lx, ly = xs % bw, y % ch
+    # texels from the nearest mortar edge (mortar at the left and top of every brick cell), < 0 in the mortar
+    d = np.minimum(np.minimum(lx - mortar + 0.5, bw - lx - 0.5), np.minimum(ly - mortar + 0.5, ch - ly - 0.5))
+    in_mortar = d < 0
+    ids = row * per_row + col
+    nb = courses * per_row
+    tint = rng.uniform(0.72, 1.1, nb)[ids]
+    warm = rng.uniform(-0.05, 0.05, nb)[ids]
+    coarse = _tile_noise(rng, size, 16, 16, 3)
+    fine = rng.random((size, size))
+    brick = np.stack([0.60 + warm, 0.28 + 0.4 * warm, 0.20 * np.ones_like(warm)], axis=-1) * tint[..., None]
+    brick *= (0.85 + 0.3 * coarse + 0.08 * fine)[..., None]
+    mortar_c = np.array([0.66, 0.64, 0.60]) * (0.9 + 0.15 * coarse + 0.05 * fine)[..., None]
+    base = np.where(in_mortar[..., None], mortar_c, brick)
+    height = np.clip(d / 3.0, 0.0, 1.0) + 0.08 * fine * ~in_mortar
+    dhdx = (np.roll(height, -1, axis=1) - np.roll(height, 1, axis=1)) * 0.5
+    dhdy = (np.roll(height, -1, axis=0) - np.roll(height, 1, axis=0)) * 0.5
+    # tangent space: +x along u (columns), +y towards the image's top (rows decreasing): dh/dup = -dh/drow
+    s = 2.0
+    n = np.stack([-s * dhdx, s * dhdy, np.ones_like(dhdx)], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return _srgb(base).astype(np.float32), (0.5 * n + 0.5).astype(np.float32)
+
+
+def _wood_textures(size: int = 512, seed: int = 9) -> tuple:
+    """Floor boards along u: (base colour (size, size, 3) linear, metallic-roughness (size, size, 3): R 1, G the
+    roughness, B 0). 8 rows of boards 64 texels wide, two boards per row per tile with staggered joints, grain
+    streaks from anisotropic noise, 2-texel dark gaps."""
+    rng = np.random.default_rng(seed)
+    rows, per_row, gap = 8, 2, 2
+    bh, bl = size // rows, size // per_row
+    y, x = np.mgrid[0:size, 0:size]
+    plank = y // bh
+    offsets = rng.integers(0, bl, rows)
+    bx = (x + offsets[plank]) % size
+    board = plank * per_row + bx // bl
+    lx, ly = bx % bl, y % bh
+    in_gap = (ly < gap) | (lx < gap)
+    streaks = _tile_noise(rng, size, 16, 2, 3)  # long along u
+    fibres = _tile_noise(rng, size, 64, 8, 2)
+    phase = rng.random(rows * per_row)[board]
+    tint = rng.uniform(0.85, 1.1, rows * per_row)[board]
+    grain = 0.5 + 0.5 * np.sin(2.0 * np.pi * (3.0 * ly / bh + 2.5 * streaks + phase))
+    t = np.clip(0.75 * grain ** 2 + 0.25 * fibres, 0.0, 1.0)[..., None]
+    light, dark = np.array([0.72, 0.50, 0.30]), np.array([0.44, 0.27, 0.14])
+    base = (light * (1.0 - t) + dark * t) * tint[..., None]
+    base = np.where(in_gap[..., None], np.array([0.12, 0.08, 0.05]), base)
+    rough = np.where(in_gap, 0.9, 0.5 + 0.25 * grain)
+    mr = np.stack([np.ones_like(rough), rough, np.zeros_like(rough)], axis=-1)
+    return _srgb(base).astype(np.float32), mr.astype(np.float32)
+
+
+def _picture_texture(width: int = 512, height: int = 320) -> np.ndarray:
+    """A landscape painting (height, width, 3) linear: evening sky with a sun, two mountain ranges, a lake that
+    mirrors the sky."""
+    y, x = np.mgrid[0:height, 0:width]
+    u, v = (x + 0.5) / width, (y + 0.5) / height
+    horizon = 0.62
+
+    def sky(vv):
+        t = np.clip(vv / horizon, 0.0, 1.0)[..., None]
+        return np.array([0.35, 0.55, 0.85]) * (1.0 - t) + np.array([0.98, 0.74, 0.45]) * t
+
+    img = sky(v)
+    sun = (u - 0.72) ** 2 + ((v - 0.36) * height / width) ** 2 < 0.05 ** 2
+    img = np.where(sun[..., None], np.array([1.0, 0.93, 0.62]), img)
+    far = 0.42 + 0.07 * np.sin(2 * np.pi * 2 * u + 1.0) + 0.04 * np.sin(2 * np.pi * 5 * u + 2.0) \
+        + 0.015 * np.sin(2 * np.pi * 13 * u)
+    near = 0.53 + 0.04 * np.sin(2 * np.pi * 3 * u + 4.0) + 0.02 * np.sin(2 * np.pi * 9 * u + 0.5)
+    img = np.where(((v > far) & (v < horizon))[..., None], np.array([0.36, 0.40, 0.52]), img)
+    img = np.where(((v > near) & (v < horizon))[..., None], np.array([0.24, 0.40, 0.20]), img)
+    water = v >= horizon
+    ripple = 0.92 + 0.08 * np.sin(2 * np.pi * (40 * v + 3 * np.sin(2 * np.pi * 4 * u)))
+    mirrored = sky(2 * horizon - v) * 0.6 + np.array([0.06, 0.14, 0.22]) * 0.4
+    img = np.where(water[..., None], mirrored * ripple[..., None], img)
+    return _srgb(img).astype(np.float32)
+
+
+def _sky_environment(sun_dir, width: int = 256, height: int = 128, sun_irradiance: float = 3.0,
+                     sun_radius_deg: float = 1.5) -> np.ndarray:
+    """An equirectangular sky (height, width, 3) of linear radiance in :class:`foveawarp.scene.Scene`'s
+    environment convention: blue at the zenith, pale at the horizon, a dim ground below it, and a sun disk of
+    ``sun_radius_deg`` around the unit ``sun_dir`` whose radiance makes its irradiance at normal incidence
+    (the sum of radiance times texel solid angle) ``sun_irradiance``."""
+    theta = (np.arange(height) + 0.5) / height * np.pi
+    phi = (np.arange(width) + 0.5) / width * 2.0 * np.pi
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    d = np.stack([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)], axis=-1)
+    up = np.clip(d[..., 1], 0.0, 1.0) ** 0.5
+    zenith, horizon = np.array([0.22, 0.42, 0.95]), np.array([0.95, 0.98, 1.05])
+    img = horizon * (1.0 - up[..., None]) + zenith * up[..., None]
+    img = np.where((d[..., 1] < 0)[..., None], np.array([0.14, 0.12, 0.10]), img)
+    s = np.asarray(sun_dir, dtype=np.float64)
+    s = s / np.linalg.norm(s)
+    cosang = d @ s
+    disk = cosang > math.cos(math.radians(sun_radius_deg))
+    if not disk.any():
+        disk = cosang >= cosang.max()
+    texel_sr = (2.0 * np.pi / width) * (np.pi / height) * np.sin(th)
+    img[disk] += np.array([1.0, 0.93, 0.82]) * (sun_irradiance / float(texel_sr[disk].sum()))
+    return img.astype(np.float32)
+
+
+def _quad_mesh(corner, edge_u, edge_v, tiles=(1.0, 1.0)) -> tuple:
+    """A parallelogram as (vertices, faces, normals, uvs): front side ``cross(edge_u, edge_v)``; u runs along
+    ``edge_u`` over ``tiles[0]`` texture repeats, v down from the far end of ``edge_v`` (so images stand upright
+    when ``edge_v`` points up)."""
+    c, eu, ev = (np.asarray(a, dtype=np.float64) for a in (corner, edge_u, edge_v))
+    verts = np.stack([c, c + eu, c + eu + ev, c + ev])
+    n = np.cross(eu, ev)
+    n = np.tile(n / np.linalg.norm(n), (4, 1))
+    s, t = np.array([0.0, 1.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0, 1.0])
+    uvs = np.stack([s * tiles[0], (1.0 - t) * tiles[1]], axis=1)
+    return verts, np.array([[0, 1, 2], [0, 2, 3]]), n, uvs
+
+
+def _uv_sphere_mesh(center, radius: float, n_lon: int = 32, n_lat: int = 16) -> tuple:
+    """A UV sphere with a seam column of its own (u = longitude / 2 pi, v = polar angle / pi from the north pole):
+    (vertices, faces, normals, uvs); the triangles that would collapse at the poles are left out."""
+    th = np.linspace(0.0, np.pi, n_lat + 1)
+    ph = np.linspace(0.0, 2.0 * np.pi, n_lon + 1)
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    n = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3)
+    uvs = np.stack([p / (2.0 * np.pi), t / np.pi], axis=-1).reshape(-1, 2)
+    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
+    a, b = idx[:-1, :-1], idx[:-1, 1:]
+    c, d = idx[1:, :-1], idx[1:, 1:]
+    top = np.stack([a, c, d], axis=-1)[1:].reshape(-1, 3)  # row 0 would be degenerate at the north pole
+    bot = np.stack([a, d, b], axis=-1)[:-1].reshape(-1, 3)  # the last row at the south pole
+    faces = np.concatenate([np.stack([a[0], c[0], d[0]], axis=-1), top, bot])
+    return n * radius + np.asarray(center, dtype=np.float64), faces, n, uvs
+
+
+def room(bvh_constructor: str = "auto", bvh_leaf_size: Optional[int] = None) -> Scene:
+    """A textured room, 5 x 3 x 5.5 m (x in [-2.5, 2.5], y in [0, 3], z in [-3.5, 2]), open on its +x side to
+    a grass field under a sky: a brick back wall (base colour and normal map, 1 m tiles), a wooden floor (base
+    colour and roughness, 2 m tiles), plaster side walls and ceiling, a landscape painting in a gilded frame on
+    the left wall, a polished metal sphere (metallic 1, roughness 0.12), a red rough plastic box (roughness
+    0.75) and a blue plastic ball on it (roughness 0.45).
+
+    Lights: a sun (a narrow spot from outside through the open side, irradiance 3 where it lands), a ceiling
+    lamp (point) and a cool fill from the sky side (point); ``environment`` is a matching sky with a sun disk
+    of the same direction and irradiance (``_sky_environment``). The camera swings 14 degrees about its target
+    over 10 s. Textures are made in NumPy at load time (4 images of 512 x 512, one of 512 x 320)."""
+    check_bvh(bvh_constructor, bvh_leaf_size)
+    b = SceneBuilder()
+    brick, brick_n = _brick_textures()
+    wood, wood_mr = _wood_textures()
+    i_brick, i_brick_n = b.add_image(brick), b.add_image(brick_n)
+    i_wood, i_wood_mr = b.add_image(wood), b.add_image(wood_mr)
+    i_pic = b.add_image(_picture_texture())
+    m_brick = Material("brick", base_color_texture=TextureRef(i_brick, color_space="srgb"),
+                       normal_texture=TextureRef(i_brick_n), metallic_factor=0.0, roughness_factor=0.9)
+    m_wood = Material("wood floor", base_color_texture=TextureRef(i_wood, color_space="srgb"),
+                      metallic_roughness_texture=TextureRef(i_wood_mr), metallic_factor=0.0, roughness_factor=1.0)
+    m_picture = Material("painting", base_color_texture=TextureRef(i_pic, wrap_s="clamp", wrap_t="clamp",
+                                                                   color_space="srgb"),
+                         metallic_factor=0.0, roughness_factor=0.6)
+    m_plaster = Material("plaster", base_color_factor=(0.70, 0.68, 0.63, 1.0), metallic_factor=0.0,
+                         roughness_factor=0.95)
+    m_ceiling = Material("ceiling", base_color_factor=(0.80, 0.79, 0.76, 1.0), metallic_factor=0.0,
+                         roughness_factor=0.95)
+    m_grass = Material("grass", base_color_factor=(0.16, 0.30, 0.08, 1.0), metallic_factor=0.0, roughness_factor=1.0)
+    m_frame = Material("gilded frame", base_color_factor=(0.83, 0.61, 0.28, 1.0), metallic_factor=1.0,
+                       roughness_factor=0.35)
+    m_metal = Material("polished metal", base_color_factor=(0.95, 0.93, 0.88, 1.0), metallic_factor=1.0,
+                       roughness_factor=0.12)
+    m_red = Material("red rough plastic", base_color_factor=(0.65, 0.07, 0.05, 1.0), metallic_factor=0.0,
+                     roughness_factor=0.75)
+    m_blue = Material("blue plastic", base_color_factor=(0.06, 0.18, 0.55, 1.0), metallic_factor=0.0,
+                      roughness_factor=0.45)
+
+    def quad(name, material, corner, eu, ev, tiles=(1.0, 1.0)):
+        v, f, n, uv = _quad_mesh(corner, eu, ev, tiles)
+        b.add_mesh(v, f, None, normals=n, uvs=uv, material=material, name=name)
+
+    quad("floor", m_wood, (-2.5, 0.0, 2.0), (5.0, 0.0, 0.0), (0.0, 0.0, -5.5), (2.5, 2.75))
+    quad("ceiling", m_ceiling, (-2.5, 3.0, -3.5), (5.0, 0.0, 0.0), (0.0, 0.0, 5.5))
+    quad("back wall", m_brick, (-2.5, 0.0, -3.5), (5.0, 0.0, 0.0), (0.0, 3.0, 0.0), (5.0, 3.0))
+    quad("left wall", m_plaster, (-2.5, 0.0, 2.0), (0.0, 0.0, -5.5), (0.0, 3.0, 0.0))
+    quad("front wall", m_plaster, (2.5, 0.0, 2.0), (-5.0, 0.0, 0.0), (0.0, 3.0, 0.0))
+    quad("field", m_grass, (2.5, 0.0, 40.0), (40.0, 0.0, 0.0), (0.0, 0.0, -80.0))
+    # the painting, 1.6 x 1.0 m, 1 cm in front of the left wall, and its frame
+    quad("painting", m_picture, (-2.49, 1.05, -0.4), (0.0, 0.0, -1.6), (0.0, 1.0, 0.0))
+    for i, (c, size) in enumerate((((-2.48, 2.08, -1.2), (0.04, 0.06, 1.72)), ((-2.48, 1.02, -1.2), (0.04, 0.06, 1.72)),
+                                   ((-2.48, 1.55, -0.37), (0.04, 1.0, 0.06)), ((-2.48, 1.55, -2.03), (0.04, 1.0, 0.06)))):
+        b.add_box(c, size, None, material=m_frame, name=f"frame{i}")
+    v, f, n, uv = _uv_sphere_mesh((-0.9, 0.4, -1.9), 0.4)
+    b.add_mesh(v, f, None, normals=n, smooth=True, uvs=uv, material=m_metal, name="metal sphere")
+    b.add_box((0.9, 0.3, -2.3), (0.6, 0.6, 0.6), None, yaw_rad=math.radians(25.0), material=m_red, name="box")
+    v, f, n, uv = _uv_sphere_mesh((0.9, 0.85, -2.3), 0.25)
+    b.add_mesh(v, f, None, normals=n, smooth=True, uvs=uv, material=m_blue, name="ball")
+
+    sun_pos, sun_aim = np.array([9.0, 8.0, -0.6]), np.array([0.2, 0.0, -1.8])
+    sun_d2 = float(np.sum((sun_pos - sun_aim) ** 2))
+    lights = [
+        Light(kind="spot", position=tuple(sun_pos), direction=tuple(sun_aim - sun_pos), cone_deg=14.0,
+              intensity=tuple(np.array([1.0, 0.93, 0.82]) * 3.0 * sun_d2), penumbra=0.3),
+        Light(kind="point", position=(0.0, 2.75, -1.2), intensity=(7.0, 6.5, 5.6)),
+        Light(kind="point", position=(6.0, 2.5, -1.0), intensity=(8.0, 9.0, 11.0)),
+    ]
+    cam = Camera(eye=(-0.4, 1.55, 1.5), target=(0.4, 1.15, -2.2), up=(0.0, 1.0, 0.0), fov_y_deg=60.0)
+    return b.build(lights=lights, camera=cam, camera_path=_orbit_path(cam, 14.0, 10.0), name="room",
+                   environment=_sky_environment(sun_pos - sun_aim), bvh_constructor=bvh_constructor,
+                   bvh_leaf_size=bvh_leaf_size)
+
+
+# ---------------------------------------------------------------------------------------------------
+# scene files with materials (glTF, OBJ + MTL, Mitsuba XML)
+
+# a directional light becomes a point light this many scene extents away (irradiance across the scene within 0.1%)
+DIRECTIONAL_DISTANCE_EXTENTS = 1000.0
+
+
+def lights_from_file(file_lights, centre, extent: float) -> tuple:
+    """A scene file's lights (``GltfLight``-like: kind, color, intensity, range_m, position, direction,
+    inner/outer_cone_rad) as :class:`Light` s, and notes on what was left out: ``(lights, notes)``.
+
+    Units: glTF's photometric values are taken as the renderer's radiometric ones, one to one (the way the
+    Khronos glTF Sample Viewer shades them; the tone map sets the exposure): a point or spot light of
+    ``intensity`` candela and ``color`` gets ``Light.intensity = color * intensity`` (radiant intensity per
+    steradian); a directional light of ``intensity`` lux becomes a point light ``DIRECTIONAL_DISTANCE_EXTENTS *
+    extent`` away against its direction from ``centre``, with ``color * intensity * distance^2``, so that its
+    irradiance at ``centre`` is ``color * intensity``. Spot cones: ``cone_deg`` = the outer angle in degrees,
+    ``penumbra = 1 - inner / outer`` (the smooth falloff then runs between the two angles, as in glTF). glTF's
+    ``range`` is not modelled (lights reach everywhere); each light that has one is named in the notes."""
+    c = np.asarray(centre, dtype=np.float64)
+    dist = DIRECTIONAL_DISTANCE_EXTENTS * max(float(extent), 1e-6)
+    lights, notes, ranged = [], [], []
+    for i, fl in enumerate(file_lights or []):
+        kind = getattr(fl, "kind", None)
+        label = f"light {i}" + (f" ({fl.name!r})" if getattr(fl, "name", "") else "")
+        power = np.asarray(fl.color, dtype=np.float64) * float(fl.intensity)
+        if kind == "point":
+            lights.append(Light(kind="point", position=tuple(fl.position), intensity=tuple(power)))
+        elif kind == "spot":
+            outer = float(fl.outer_cone_rad)
+            inner = min(max(float(fl.inner_cone_rad), 0.0), outer)
+            lights.append(Light(kind="spot", position=tuple(fl.position), direction=tuple(fl.direction),
+                                cone_deg=max(math.degrees(outer), 1e-3),
+                                penumbra=1.0 - inner / outer if outer > 0 else 0.0, intensity=tuple(power)))
+        elif kind == "directional":
+            d = np.asarray(fl.direction, dtype=np.float64)
+            pos = c - d / max(float(np.linalg.norm(d)), 1e-30) * dist
+            lights.append(Light(kind="point", position=tuple(pos), intensity=tuple(power * dist * dist)))
+        else:
+            notes.append(f"{label} of kind {kind!r} is not supported (point, spot, directional) and was left out")
+            continue
+        if getattr(fl, "range_m", None) is not None:
+            ranged.append(label)
+    if ranged:
+        notes.append(f"the range of {', '.join(ranged)} is not modelled: the light reaches the whole scene")
+    return lights, notes
+
+
+def default_lights(camera: Camera, centre, radius: float) -> list:
+    """The lights a scene file without any gets: a warm key light (point) above, right of and in front of the
+    scene seen from ``camera``, 3 radii from ``centre``, giving an irradiance of 2.5 there, and a cool fill light
+    (point) at the camera's eye giving 0.6 there."""
+    c = np.asarray(centre, dtype=np.float64)
+    eye = np.asarray(camera.eye, dtype=np.float64)
+    f = np.asarray(camera.target, dtype=np.float64) - eye
+    f /= max(float(np.linalg.norm(f)), 1e-30)
+    r = np.cross(f, np.asarray(camera.up, dtype=np.float64))
+    r /= max(float(np.linalg.norm(r)), 1e-30)
+    u = np.cross(r, f)
+    k = -f + 0.9 * u + 0.6 * r
+    d_key = 3.0 * max(float(radius), 1e-6)
+    key = c + k / np.linalg.norm(k) * d_key
+    d_fill2 = max(float(np.sum((eye - c) ** 2)), 1e-12)
+    return [Light(kind="point", position=tuple(key), intensity=tuple(np.array([1.0, 0.96, 0.9]) * 2.5 * d_key ** 2)),
+            Light(kind="point", position=tuple(eye), intensity=tuple(np.array([0.9, 0.95, 1.0]) * 0.6 * d_fill2))]
+
+
+def _framing_camera(centre, radius: float, fov_y_deg: float = 40.0) -> Camera:
+    """A camera looking at ``centre`` from the front (+z) and a little above, far enough for the bounding sphere
+    of ``radius`` to fit the vertical field of view."""
+    d = np.array([0.0, 0.35, 1.0])
+    d /= np.linalg.norm(d)
+    dist = max(float(radius), 1e-6) / math.sin(math.radians(fov_y_deg) / 2.0) * 1.05
+    c = np.asarray(centre, dtype=np.float64)
+    return Camera(eye=tuple(c + d * dist), target=tuple(c), up=(0.0, 1.0, 0.0), fov_y_deg=fov_y_deg)
+
+
+def _turntable_path(base: Camera, period_s: float):
+    """Camera path circling the target once per ``period_s`` about the vertical axis, at the base camera's height
+    and distance."""
+    eye, tgt = np.asarray(base.eye), np.asarray(base.target)
+
+    def path(t: float) -> Camera:
+        e = tgt + rot_y(2.0 * math.pi * t / period_s) @ (eye - tgt)
+        return Camera(eye=tuple(e), target=base.target, up=base.up, fov_y_deg=base.fov_y_deg)
+
+    return path
+
+
+def _file_camera(fc, centre, radius: float, where: str) -> Camera:
+    """A file's camera (``GltfCamera``-like: kind, eye, forward, up, yfov_rad, ymag) as a :class:`Camera` whose
+    target lies along its view at the depth of ``centre`` (at least a tenth of ``radius``); an orthographic
+    camera becomes the perspective one that sees its half height ``ymag`` at that depth (with a warning)."""
+    eye = np.asarray(fc.eye, dtype=np.float64)
+    fwd = np.asarray(fc.forward, dtype=np.float64)
+    depth = max(float((np.asarray(centre) - eye) @ fwd), 0.1 * max(float(radius), 1e-6))
+    if getattr(fc, "kind", "perspective") == "orthographic":
+        fov = 2.0 * math.degrees(math.atan(max(float(fc.ymag), 1e-9) / depth))
+        fov = min(max(fov, 1.0), 120.0)
+        warnings.warn(f"scene file {where!r}: its orthographic camera is shown by a pinhole camera of "
+                      f"fov_y_deg {fov:.3g} (the one that sees its height at the scene's depth)", stacklevel=4)
+    else:
+        fov = math.degrees(float(fc.yfov_rad))
+    return Camera(eye=tuple(eye), target=tuple(eye + fwd * depth), up=tuple(fc.up), fov_y_deg=fov)
+
+
+def _read_scene_data(path):
+    """The host description of a scene file (``foveawarp.io``'s readers: ``.gltf`` / ``.glb`` read_gltf,
+    ``.obj`` read_obj, ``.xml`` read_mitsuba), errors naming the file and the extensions load_scene reads."""
+    from .meshio import SCENE_FILE_EXTENSIONS
+
+    where = str(path)
+    ext = Path(path).suffix.lower()
+    if ext in (".gltf", ".glb"):
+        from .io.gltf import read_gltf as reader
+        what = "glTF"
+    elif ext in (".obj", ".xml"):
+        module, fn = ("obj", "read_obj") if ext == ".obj" else ("mitsuba", "read_mitsuba")
+        what = "OBJ + MTL" if ext == ".obj" else "a Mitsuba scene"
+        try:
+            reader = getattr(__import__(f"foveawarp.io.{module}", fromlist=[fn]), fn)
+        except (ImportError, AttributeError):
+            raise ValueError(f"scene file {where!r} could not be read: {what} files need foveawarp.io.{module}.{fn}, "
+                             f"which this version of foveawarp does not have") from None
+    else:
+        raise ValueError(f"scene file {where!r} could not be read as a scene with materials: its extension {ext!r} "
+                         f"is not one of ['.gltf', '.glb', '.obj', '.xml'] (load_scene reads "
+                         f"{list(SCENE_FILE_EXTENSIONS)})")
+    try:
+        return reader(path)
+    except ValueError as e:
+        raise ValueError(f"scene file {where!r} could not be read as {what}: {e} (load_scene reads "
+                         f"{list(SCENE_FILE_EXTENSIONS)})") from None
+
+
+def scene_from_data(data, *, name: str, camera_index: Optional[int] = None, default_lights_if_none: bool = True,
+                    warn_default_lights: bool = True, albedo=None, bvh_constructor: str = "auto",
+                    bvh_leaf_size: Optional[int] = None) -> Scene:
+    """A :class:`Scene` of a scene file's host description (``foveawarp.io.gltf.GltfScene`` or
+    ``foveawarp.io.SceneData``: world-space vertices, normals, tangents, uvs, triangles, material_ids,
+    materials, images, lights, cameras, and optionally colors, uvs1, environment), as the file has it:
+
+    - materials, UVs, tangents, images and the environment carried over; ``face_albedo`` the mean base colour of
+      each face (factor x texture x COLOR_0, :func:`foveawarp.scene.face_material_colors`), ``face_emission``
+      its mean emission (``emissive_factor * emissive_strength`` x emissive texture); every face smooth.
+    - the camera: the file's (``camera_index`` into its cameras; None = the first), swung 8 degrees about a
+      target at the scene's depth over 8 s; without one, :func:`_framing_camera` circling the scene once per 12 s.
+    - lights: :func:`lights_from_file` (units stated there); with none, :func:`default_lights` when
+      ``default_lights_if_none`` (and a warning saying so when ``warn_default_lights``).
+    - ``albedo`` (None, or 3 numbers in [0, 1]): the colour of the uncoloured triangles, those the file gives no
+      material (glTF's default material) and no vertex colours; they become a rough dielectric (metallic 0,
+      roughness 1) of that base colour. None keeps glTF's default (white, metallic 1, roughness 1).
+    - objects: one static :class:`foveawarp.scene.SceneObject` per shape of the file (``data.shapes``).
+    """
+    path = getattr(data, "path", None)
+    where = str(path) if path is not None else name
+    tri = np.asarray(data.triangles)
+    if tri.ndim != 2 or tri.shape[0] == 0:
+        raise ValueError(f"scene file {where!r} holds no triangle mesh (no triangles in its scene)")
+    materials = list(data.materials)
+    fm = np.asarray(data.material_ids)
+    if not materials:
+        materials, fm = [default_material()], np.zeros(tri.shape[0], dtype=np.int32)
+    if albedo is not None:
+        materials, fm = _colour_uncoloured(materials, fm, tri, getattr(data, "colors", None),
+                                           check_vec("albedo", albedo, 3, 0.0, 1.0))
+    images = list(data.images)
+    table = MaterialTable.build(materials, len(images))
+    uvs, uvs1 = data.uvs, getattr(data, "uvs1", None)
+    albedo = face_material_colors(tri, fm, table, images, uvs, uvs1, slot="base_color",
+                                  vertex_colors=getattr(data, "colors", None))
+    emission = face_material_colors(tri, fm, table, images, uvs, uvs1, slot="emissive")
+    v = np.asarray(data.vertices, dtype=np.float64)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    centre, extent = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo))
+    radius = max(extent / 2.0, 1e-6)
+    cams = list(getattr(data, "cameras", None) or [])
+    if camera_index is not None:
+        if not cams or not 0 <= camera_index < len(cams):
+            raise ValueError(f"camera_index must be an integer in [0, {len(cams) - 1}] ({where!r} places "
+                             f"{len(cams)} camera(s)), got {camera_index}")
+        fc = cams[camera_index]
+    else:
+        fc = getattr(data, "camera", None) or (cams[0] if cams else None)
+    if fc is None:
+        camera = _framing_camera(centre, radius)
+        camera_path = _turntable_path(camera, 12.0)
+    else:
+        camera = _file_camera(fc, centre, radius, where)
+        camera_path = _orbit_path(camera, 8.0, 8.0)
+    lights, notes = lights_from_file(getattr(data, "lights", None), centre, extent)
+    for note in notes:
+        warnings.warn(f"scene file {where!r}: {note}", stacklevel=3)
+    if not lights and default_lights_if_none:
+        lights = default_lights(camera, centre, radius)
+        if warn_default_lights:
+            warnings.warn(f"scene file {where!r} has no point, spot or directional light: added the default lights "
+                          f"(foveawarp.scenes.default_lights: a key light above right of the camera and a fill "
+                          f"light at its eye)", stacklevel=3)
+    return Scene(vertices=data.vertices, faces=tri, face_albedo=albedo, face_emission=emission,
+                 vertex_normals=data.normals, face_smooth=np.ones(tri.shape[0], dtype=np.uint8), lights=lights,
+                 camera=camera, camera_path=camera_path, name=name, bvh_constructor=bvh_constructor,
+                 bvh_leaf_size=bvh_leaf_size, uvs=uvs, uvs1=uvs1 if uvs1 is not None else None,
+                 tangents=data.tangents, face_material=fm, materials=table, images=images,
+                 environment=getattr(data, "environment", None), objects=_shape_objects(data))
+
+
+def _colour_uncoloured(materials: list, fm: np.ndarray, tri: np.ndarray, colors, albedo) -> tuple:
+    """(materials, face material ids) with the triangles of glTF's default material whose vertices carry no
+    colour (COLOR_0 absent or white) moved to a new rough dielectric material of base colour ``albedo``."""
+    default = default_material()
+    fm = np.asarray(fm, dtype=np.int32).copy()
+    plain = np.isin(fm, [i for i, m in enumerate(materials) if m == default])
+    if colors is not None:
+        plain &= np.all(np.asarray(colors)[tri][:, :, :3] == 1.0, axis=(1, 2))
+    if not plain.any():
+        return materials, fm
+    fm[plain] = len(materials)
+    return materials + [Material(name="albedo", base_color_factor=(*albedo, 1.0), metallic_factor=0.0,
+                                 roughness_factor=1.0)], fm
+
+
+def _shape_objects(data) -> list:
+    """A static SceneObject per shape of ``data`` (its name, or ``shape<i>``) that holds vertices."""
+    out = []
+    for i, sh in enumerate(getattr(data, "shapes", None) or []):
+        a, b = (int(x) for x in sh.vertex_range)
+        if b > a:
+            out.append(SceneObject(sh.name or f"shape{i}", (a, b)))
+    return out
+
+
+def file_scene(path, name=None, camera_index: Optional[int] = None, default_lights: bool = True, albedo=None,
+               bvh_constructor: str = "auto", bvh_leaf_size: Optional[int] = None) -> Scene:
+    """A scene file with materials and textures as a :class:`Scene` (:func:`scene_from_data`): ``.gltf`` /
+    ``.glb``, ``.obj`` with an ``.mtl`` (``foveawarp.io.obj``) or a Mitsuba ``.xml`` (``foveawarp.io.mitsuba``).
+    The file is the whole scene (no ground plane is added). ``camera_index`` picks the file's camera (None: the
+    first, or a framing one); ``default_lights`` adds :func:`default_lights` (with a warning) when the file has no
+    light; ``albedo`` (3 numbers in [0, 1]) colours the triangles the file leaves without material and vertex
+    colours."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"scene path must be a file path (str or os.PathLike), got {show(path)}")
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"name must be None or a str, got {show(name)}")
+    if camera_index is not None:
+        camera_index = check_int_range("camera_index", camera_index, 0)
+    check_bool("default_lights", default_lights)
+    check_bvh(bvh_constructor, bvh_leaf_size)
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"scene path {str(path)!r} " + ("is not a file" if p.exists() else "does not exist"))
+    if albedo is not None:
+        albedo = check_vec("albedo", albedo, 3, 0.0, 1.0)
+    data = _read_scene_data(p)
+    return scene_from_data(data, name=name or p.stem, camera_index=camera_index,
+                           default_lights_if_none=default_lights, albedo=albedo, bvh_constructor=bvh_constructor,
+                           bvh_leaf_size=bvh_leaf_size)
+
+
+def _named_textured_scene(key: str, what: str):
+    def builder(camera_index: Optional[int] = None, bvh_constructor: str = "auto",
+                bvh_leaf_size: Optional[int] = None) -> Scene:
+        if camera_index is not None:
+            camera_index = check_int_range("camera_index", camera_index, 0)
+        check_bvh(bvh_constructor, bvh_leaf_size)
+        p = find_textured_scene(key)
+        if p is None:
+            raise ValueError(textured_scene_help(key))
+        data = _read_scene_data(p)
+        return scene_from_data(data, name=key, camera_index=camera_index, warn_default_lights=False,
+                               bvh_constructor=bvh_constructor, bvh_leaf_size=bvh_leaf_size)
+
+    builder.__name__ = builder.__qualname__ = key.replace("-", "_")
+    builder.__doc__ = (f"{what} ({TEXTURED_SCENES[key]}, found by foveawarp.meshio.find_textured_scene), as "
+                       f"foveawarp.scenes.scene_from_data makes it: framed by a camera that circles it when the "
+                       f"file has none, default lights when it has none.")
+    return builder
+
+
+suzanne = _named_textured_scene("suzanne", "Blender's Suzanne, glTF with base colour and metallic-roughness "
+                                           "textures (CC0; ships with the package)")
+wicker = _named_textured_scene("wicker", "Khronos' ClearcoatWicker: a wicker-textured sphere with normal, "
+                                         "occlusion and metallic-roughness maps (CC0; ships with the package)")
+barrel = _named_textured_scene("barrel", "A stylized wooden barrel with normal and metallic-roughness maps "
+                                         "(CC BY 4.0, Shannon Poole; shared scenes folder)")
+milk_truck = _named_textured_scene("milk-truck", "Cesium's milk truck: a node hierarchy with instanced wheels "
+                                                 "(CC BY 4.0, Cesium; shared scenes folder)")
+grey_white_room = _named_textured_scene("grey-white-room", "The Grey & White Room by Wig42, the Mitsuba scene with "
+                                                           "its camera and environment (CC BY 3.0; shared scenes "
+                                                           "folder; needs foveawarp.io.mitsuba)")
+
+
+# ---------------------------------------------------------------------------------------------------
 def mesh_on_ground(path, name=None, albedo=(0.75, 0.72, 0.68), bvh_constructor: str = "auto",
                    bvh_leaf_size: Optional[int] = None) -> Scene:
     """Any mesh file, in its own units and orientation (y up), centred on a ground plane, with a spot light
@@ -541,6 +1216,12 @@ BUILTIN = {
     "eyechart": eyechart,
     "earth": earth,
     "bunny-in-box": bunny_in_box,
+    "room": room,
+    "suzanne": suzanne,
+    "wicker": wicker,
+    "barrel": barrel,
+    "milk-truck": milk_truck,
+    "grey-white-room": grey_white_room,
 }
 
-register_builtin_scenes(BUILTIN, mesh_on_ground)
+register_builtin_scenes(BUILTIN, mesh_on_ground, file_scene)

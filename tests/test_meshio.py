@@ -268,9 +268,13 @@ def test_multi_mesh_gltf_placed_and_coloured(tmp_path, ext):
         n_loaded = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         centroid_dir = v.mean(axis=1) - pt.vertices.mean(axis=0)
         assert (np.einsum("ij,ij->i", n_loaded, centroid_dir) > -1e-9).mean() > 0.9
+    # a glTF file is a scene of its own: its meshes only (no ground), one object per placed mesh
     s = fw.load_scene(str(p))
-    assert s.num_triangles == 2 + sum(len(m.faces) for m, _ in src.values())
-    assert [o.name for o in s.objects] == ["ground", "two/a_box", "two/b_ball", "two/c_cone"]
+    assert s.num_triangles == sum(len(m.faces) for m, _ in src.values())
+    assert sorted(o.vertex_range[1] - o.vertex_range[0] for o in s.objects) == sorted(
+        len(pt.vertices) for pt in parts)
+    np.testing.assert_allclose(_sorted_rows(s.vertices), _sorted_rows(np.concatenate([pt.vertices for pt in parts])),
+                               atol=1e-5)
 
 
 def test_multi_mesh_gltf_renders_its_colours(tmp_path):
@@ -317,11 +321,23 @@ def test_uncoloured_parts_get_the_default_albedo(tmp_path):
     sc.add_geometry(b, node_name="green")
     p = tmp_path / "mixed.glb"
     sc.export(p)
+    # glTF: albedo colours the triangles without material and vertex colours (a rough dielectric of that colour)
     s = fw.load_scene(str(p), albedo=(0.2, 0.3, 0.4))
-    alb = s.face_albedo[2:]
+    alb = s.face_albedo
+    assert alb.shape == (24, 3)
     n_green = int((np.abs(alb - [0, 1, 0]).max(axis=1) < 1e-3).sum())
     n_plain = int((np.abs(alb - [0.2, 0.3, 0.4]).max(axis=1) < 1e-6).sum())
     assert n_green == 12 and n_plain == 12
+    plain = s.materials.metallic_factor[s.face_material[np.abs(alb - [0.2, 0.3, 0.4]).max(axis=1) < 1e-6]]
+    np.testing.assert_array_equal(plain, 0.0)
+    # without albedo the file's own default material (white) stays
+    d = fw.load_scene(str(p))
+    assert int((np.abs(d.face_albedo - 1.0).max(axis=1) < 1e-6).sum()) == 12
+    # the mesh loader (a ground plane under the parts) still takes albedo
+    v, f, alb_m, _ = meshio.load_mesh_arrays(p)
+    assert f.shape == (24, 3)
+    g = fw.scenes.mesh_on_ground(p, albedo=(0.2, 0.3, 0.4))
+    assert int((np.abs(g.face_albedo[2:] - [0.2, 0.3, 0.4]).max(axis=1) < 1e-6).sum()) == 12
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -18,12 +18,16 @@ def test_load_mesh_files(tmp_path, ext):
     p = tmp_path / f"ball.{ext}"
     m.export(p)
     s = fw.load_scene(str(p))
-    assert s.num_triangles == len(m.faces) + 2  # + ground quad
-    lo, hi = s.bounds
-    assert abs(s.vertices[2:, 1].min() - 0.0) < 1e-5 or s.vertices[:, 1].min() >= -1e-5  # sits on the ground
+    ground = 0 if ext == "glb" else 2  # a mesh goes on a ground quad; a glTF file is a scene of its own
+    assert s.num_triangles == len(m.faces) + ground
+    if ground:
+        assert abs(s.vertices[2:, 1].min() - 0.0) < 1e-5 or s.vertices[:, 1].min() >= -1e-5  # sits on the ground
+    else:
+        np.testing.assert_allclose(s.bounds[0], m.bounds[0], atol=1e-5)  # the file's own placement
     if ext in ("ply", "glb"):
         # face colours become albedo
-        np.testing.assert_allclose(s.face_albedo[2:], np.tile(np.array([200, 30, 30]) / 255.0, (len(m.faces), 1)), atol=1e-3)
+        np.testing.assert_allclose(s.face_albedo[ground:], np.tile(np.array([200, 30, 30]) / 255.0,
+                                                                   (len(m.faces), 1)), atol=1e-3)
     loop = fw.FrameLoop(s, 32, 24, device="cpu")
     f = loop.render_reference()
     assert f.gbuffer.hit.numpy().any()

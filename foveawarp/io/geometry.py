@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["normalize_rows", "any_perpendicular", "compute_normals", "compute_tangents", "complete_tangents"]
+__all__ = ["normalize_rows", "any_perpendicular", "compute_normals", "compute_tangents", "complete_tangents",
+           "normal_matrix", "transform_mesh", "face_normals", "split_flat"]
 
 
 def normalize_rows(v: np.ndarray, fallback) -> np.ndarray:
@@ -75,3 +76,39 @@ def complete_tangents(positions: np.ndarray, normals: np.ndarray, uvs, triangles
     if uvs is not None:
         return compute_tangents(positions, normals, uvs, triangles)
     return np.concatenate([any_perpendicular(normals), np.ones((normals.shape[0], 1))], axis=1)
+
+
+def normal_matrix(m3: np.ndarray) -> np.ndarray:
+    """The matrix that maps normals under the linear map ``m3``: its inverse-transpose, or, for a singular
+    ``m3``, its cofactor matrix (det * inverse-transpose, defined for every matrix)."""
+    if abs(float(np.linalg.det(m3))) > 1e-300:
+        return np.linalg.inv(m3).T
+    return np.stack([np.cross(m3[:, 1], m3[:, 2]), np.cross(m3[:, 2], m3[:, 0]),
+                     np.cross(m3[:, 0], m3[:, 1])], axis=1)
+
+
+def transform_mesh(positions: np.ndarray, normals: np.ndarray, triangles: np.ndarray,
+                   matrix: np.ndarray) -> tuple:
+    """(positions, normals, triangles) placed by the 4x4 ``matrix``: points by the matrix, normals by its
+    inverse-transpose (renormalized); a negative determinant reverses the triangles' winding so that the
+    triangles' front (counter-clockwise) side stays the side the normals face."""
+    m = np.asarray(matrix, dtype=np.float64)
+    m3 = m[:3, :3]
+    pos = positions @ m3.T + m[:3, 3]
+    nrm = normalize_rows(normals @ normal_matrix(m3).T, (0.0, 0.0, 1.0))
+    tri = triangles[:, [0, 2, 1]] if float(np.linalg.det(m3)) < 0 else triangles
+    return pos, nrm, tri
+
+
+def face_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(F, 3) unit normals of the counter-clockwise triangles; (0, 0, 1) for a degenerate one."""
+    p = positions[triangles]
+    return normalize_rows(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), (0.0, 0.0, 1.0))
+
+
+def split_flat(triangles: np.ndarray, *attributes) -> tuple:
+    """Three vertices of its own per triangle: (new triangles, each attribute gathered per corner (None stays
+    None)). The positions go among ``attributes``; face normals are then :func:`face_normals` of the result."""
+    flat = triangles.reshape(-1)
+    out = tuple(None if a is None else a[flat] for a in attributes)
+    return (np.arange(flat.shape[0], dtype=np.int64).reshape(-1, 3),) + out
