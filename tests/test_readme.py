@@ -228,6 +228,46 @@ def test_no_process_words():
     assert not bad, "\n".join(bad)
 
 
+# the code's comments and docstrings: the same rule, narrower patterns (``session`` is a viewer and a pytest word,
+# ``helper`` a function's, hex digits are data)
+_FORBIDDEN_CODE = [
+    (re.compile(r"\bsessions? ?\d|\(sessions? ?\d", re.I), "a work period"),
+    (re.compile(r"\bissues? ?#?\d", re.I), "an issue number"),
+    (re.compile(r"#.*\b(?:we|our)\b|\b(?:we|our) (?:measured|found|chose|use|keep|do|did|have)\b", re.I),
+     "first person 'we'"),
+    (re.compile(r"#\s*I (?=[a-z]{2})|[.;:]\s+I (?=[a-z]{2})|\bI (?:measured|found|chose|think|did)\b"),
+     "first person 'I'"),
+    (re.compile(r"(?<![\w.])/(?:work|home|Users)/"), "a machine path"),
+]
+_CODE_GLOBS = ("foveawarp/**/*.py", "foveawarp/**/*.js", "foveawarp/**/*.html", "benchmarks/*.py", "tools/*",
+               "tests/**/*.py", ".ci/*", "pyproject.toml")
+
+
+def _code_files() -> list:
+    files = set()
+    for g in _CODE_GLOBS:
+        files.update(p for p in REPO.glob(g) if p.is_file() and "__pycache__" not in p.parts)
+    return sorted(files - {Path(__file__).resolve()})
+
+
+def test_no_process_words_in_code():
+    bad = []
+    for f in _code_files():
+        for i, line in enumerate(f.read_text(errors="replace").splitlines(), 1):
+            for rx, what in _FORBIDDEN_CODE:
+                m = rx.search(line)
+                if m:
+                    bad.append(f"{f.relative_to(REPO)}:{i}: {what}: {m.group(0)!r}")
+    assert len(_code_files()) > 50
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("line", ["# measured in session 28", "(session 18)", "see issue 14", "we chose 4",
+                                  "# I measured it", "/work/main/x"])
+def test_code_process_word_check_catches(line):
+    assert any(rx.search(line) for rx, _ in _FORBIDDEN_CODE), line
+
+
 @pytest.mark.parametrize("line", [
     "Measured in session 33 on the H100.", "Issue 14's targets", "fixed in `a565fab`", "at 0c09545 the frame",
     "I measured it", "we chose 4", "Our default", "a helper review", "see /work/main/README.md",

@@ -3,7 +3,7 @@
 Conventions:
     * Albedo is *linear* RGB (the G-buffer's reflectance). It is converted to CIE-Lab (D65, 2 deg observer)
       with the sRGB primaries, without any transfer function: ``linear_rgb_to_lab(c)`` equals
-      ``skimage.color.rgb2lab(srgb_encode(c))`` (skimage decodes its sRGB input first; we start from the
+      ``skimage.color.rgb2lab(srgb_encode(c))`` (skimage decodes its sRGB input first; this function starts from the
       decoded values). Same constants as skimage: ``xyz_from_rgb``, white (0.95047, 1, 1.08883), the
       0.008856 / 7.787 knee.
     * Gradients are the 3x3 Sobel operator with edge-clamped (replicated) borders, which equals
