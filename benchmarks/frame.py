@@ -10,7 +10,9 @@ scene's camera path (1/30 s a frame) with a moving gaze (a Lissajous figure):
   in blocks of consecutive frames); speed-up = reference ms / foveated ms; per-stage ms of a ``timing=True``
   loop (and of ``timing="gpu"`` on CUDA);
 * quality: per-frame PSNR, SSIM, fovea PSNR (eccentricity <= 5 deg of the gaze) and FLIP (when the optional
-  ``flip-evaluator`` is installed) of the foveated frame, with their mean and min over ``--frames`` frames.
+  ``flip-evaluator`` is installed) of the foveated frame, with their mean and min over ``--frames`` frames, and
+  FovVideoVDP (when the optional ``pyfvvdp`` is installed; ``--fvvdp-max-pixels``) of the whole video in its
+  foveated mode with each frame's gaze, in JOD (10 = no visible difference).
   Target: ``render_reference`` of the same camera, time and gaze; with AO rays the target is a converged frame
   (``--converged-ao`` rays per pixel), and the full-resolution frame with as many AO rays as the foveated one
   gets its own error against it too (so both sit on the time-vs-error plot).
@@ -252,14 +254,16 @@ def _with_flip(metrics):
     return both, True
 
 
-SERIES = ("psnr", "ssim", "fovea_psnr", "flip")
+SERIES = ("psnr", "ssim", "fovea_psnr", "flip")  # per frame; "fovvdp" (one value per video) joins them
 
 
-def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0):
+def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0, video=False):
     """Per-frame error series along the camera path with the moving gaze: ``fov`` of the foveated frame (history
     on, ``policy="foveated"``) and, with ``converged_ao`` > 0, ``ref`` of the full-resolution frame with ``cfg``'s
     shading, both against a converged frame (``converged_ao`` AO rays per pixel); with 0 the target is
-    ``render_reference`` of ``cfg`` and ``ref`` is None (the reference is the target). Also the sampling rates."""
+    ``render_reference`` of ``cfg`` and ``ref`` is None (the reference is the target). Also the sampling rates;
+    with ``video``, FovVideoVDP (``foveawarp.metrics.fovvdp``) of each whole video against the target's, as
+    ``fovvdp`` (one value per series)."""
     fov_deg = scene.camera.fov_y_deg
     target_cfg = cfg.with_(shading={"ao_samples": int(converged_ao)}) if converged_ao else cfg
     target = fw.FrameLoop(scene, w, h, config=target_cfg, device=dev, timing=False, policy="foveated")
@@ -267,6 +271,7 @@ def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0):
     full = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full") if converged_ao else None
     tgt = wp.zeros((h, w), dtype=wp.vec3, device=dev)
     out = {"fov": {k: [] for k in SERIES}, "ref": {k: [] for k in SERIES} if full else None, "sampling_rate": []}
+    vids = {"target": [], "fov": [], "ref": [], "gaze": []} if video else None
 
     def add(series, m):
         series["psnr"].append(m["psnr"])
@@ -282,17 +287,34 @@ def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0):
         f = fovl.render(scene.camera_at(t), gaze_px=g, time=t)
         add(out["fov"], metrics(f.image, tgt, g, fov_deg))
         out["sampling_rate"].append(f.stats["sampling_rate"])
+        if vids is not None:
+            vids["target"].append(tgt.numpy().copy())
+            vids["fov"].append(f.image.numpy().copy())
+            vids["gaze"].append(g)
         if full is not None:
-            add(out["ref"], metrics(full.render(scene.camera_at(t), gaze_px=g, time=t).image, tgt, g, fov_deg))
+            fr = full.render(scene.camera_at(t), gaze_px=g, time=t).image
+            add(out["ref"], metrics(fr, tgt, g, fov_deg))
+            if vids is not None:
+                vids["ref"].append(fr.numpy().copy())
+    if vids is not None:
+        from foveawarp.metrics import fovvdp
+
+        for key in ("fov", "ref"):
+            if out[key] is not None:
+                out[key]["fovvdp"] = [fovvdp(np.stack(vids[key]), np.stack(vids["target"]), np.array(vids["gaze"]),
+                                             fov_deg)]
     return out
 
 
 def _summary(prefix: str, series: dict) -> dict:
     """Mean and min (max for FLIP, an error) of each series; identical frames (inf dB) count as 100 dB in
-    means."""
+    means. FovVideoVDP, one value per video, as ``fovvdp_jod``."""
     out = {}
     for k, v in series.items():
         if not v:
+            continue
+        if k == "fovvdp":
+            out[f"{prefix}fovvdp_jod"] = float(v[0])
             continue
         s = _summ(v)
         out[f"{prefix}{k}_mean"] = s["mean"]
@@ -329,8 +351,8 @@ def _num(v, fmt: str) -> str:
 
 def summarize(json_path, base=REPO) -> str:
     """The README's results table from a frame JSON: one row per record that was both timed and measured
-    (reference, foveated and default-policy ms, speed-up, PSNR mean / min, SSIM and FLIP means), a line naming the
-    device and the conditions, and the time-vs-error plot beside the JSON (its path relative to ``base``)."""
+    (reference, foveated and default-policy ms, speed-up, PSNR mean / min, SSIM and FLIP means, FovVideoVDP JOD),
+    a line naming the device and the conditions, and the time-vs-error plot beside the JSON (its path relative to ``base``)."""
     import json
 
     path = Path(json_path)
@@ -354,6 +376,8 @@ def summarize(json_path, base=REPO) -> str:
                     "SSIM mean": _num(r.get("ssim_mean"), ".3f")})
         if any("flip_mean" in x for x in recs):
             row["FLIP mean"] = _num(r.get("flip_mean"), ".3f")
+        if any("fovvdp_jod" in x for x in recs):
+            row["FovVideoVDP JOD"] = _num(r.get("fovvdp_jod"), ".2f")
         rows.append(row)
     cols = list(rows[0])
     table = "| " + " | ".join(cols) + " |\n|" + "|".join("---" for _ in cols) + "|\n"
@@ -409,6 +433,8 @@ def main(argv=None):
                    help="';'-separated name=python-dict Config.with_ overrides, e.g. "
                         "\"default={};mar0.034={'foveation': {'mar_slope': 0.034}}\"")
     p.add_argument("--psnr-only", action="store_true", help="host PSNR only, no SSIM (fast sweeps)")
+    p.add_argument("--fvvdp-max-pixels", type=int, default=1920 * 1080,
+                   help="FovVideoVDP of sizes up to this many pixels, when pyfvvdp is installed (0: none)")
     args = p.parse_args(argv)
     if args.readme and not args.summarize:
         p.error("--readme goes with --summarize FILE.json")
@@ -438,6 +464,8 @@ def main(argv=None):
                 f"{args.converged_ao}")
     if args.frames < 0 or args.timing_frames < 0:
         p.error(f"--frames and --timing-frames must be >= 0, got {args.frames} and {args.timing_frames}")
+    if args.fvvdp_max_pixels < 0:
+        p.error(f"--fvvdp-max-pixels must be >= 0, got {args.fvvdp_max_pixels}")
     sizes = parse_sizes(p, args.sizes)
     configs = _parse_configs(p, args.configs)
     if args.quick:
@@ -445,6 +473,9 @@ def main(argv=None):
         args.converged_ao = min(args.converged_ao, max(16, max(aos) + 1))
     metrics, where = _metric_fn(args.psnr_only)
     metrics, with_flip = _with_flip(metrics)
+    from foveawarp.metrics import fovvdp_available
+
+    with_fvvdp = args.fvvdp_max_pixels > 0 and fovvdp_available()
     scenes = list(scenes_present(fw, args.scenes))
     cases = [(s, wh, c, a) for s in scenes for wh in sizes for c in configs for a in aos]
     records, rows = [], []
@@ -453,15 +484,19 @@ def main(argv=None):
         cfg = base_cfg.with_(shading={"ao_samples": ao}) if ao else base_cfg
         t0 = time.perf_counter()
         rec = {"scene": scene.name, "width": w, "height": h, "config": cname, "overrides": over, "ao_samples": ao,
-               "metrics_on": where + ("+flip" if with_flip else ""), "frames": args.frames,
+               "metrics_on": where + ("+flip" if with_flip else "") + ("+fovvdp" if with_fvvdp else ""),
+               "frames": args.frames,
                "timing_frames": args.timing_frames}
         if args.frames:
-            q = path_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.converged_ao if ao else 0)
+            q = path_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.converged_ao if ao else 0,
+                             video=with_fvvdp and w * h <= args.fvvdp_max_pixels)
             rec.update(sampling_rate=float(np.mean(q["sampling_rate"])), sampling_rate_series=q["sampling_rate"],
                        quality_target=f"{args.converged_ao} AO rays" if ao else "render_reference",
-                       **_summary("", q["fov"]), series={k: v for k, v in q["fov"].items() if v})
+                       **_summary("", q["fov"]),
+                       series={k: v for k, v in q["fov"].items() if v and k != "fovvdp"})
             if q["ref"] is not None:
-                rec.update(**_summary("ref_", q["ref"]), ref_series={k: v for k, v in q["ref"].items() if v})
+                rec.update(**_summary("ref_", q["ref"]),
+                           ref_series={k: v for k, v in q["ref"].items() if v and k != "fovvdp"})
         if args.timing_frames:
             (tm,) = timing(fw, scene, w, h, dev, cfg, args.timing_frames, (args.turns,))
             tm["auto_speedup"] = tm["ref_ms"] / tm["auto_ms"]
@@ -470,7 +505,7 @@ def main(argv=None):
         records.append(rec)
         row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname, "ao": ao}
         for k in ("sampling_rate", "ref_ms", "fov_ms", "speedup", "auto_ms", "auto_path", "psnr_mean", "psnr_min",
-                  "ssim_mean", "fovea_psnr_mean", "fovea_psnr_min", "flip_mean", "ref_psnr_mean"):
+                  "ssim_mean", "fovea_psnr_mean", "fovea_psnr_min", "flip_mean", "fovvdp_jod", "ref_psnr_mean"):
             if k in rec:
                 row[k] = rec[k]
         rows.append(row)

@@ -11,8 +11,8 @@ import warp as wp
 from ._util import get_device
 from .config import check_array, check_int_range, check_range, show
 
-__all__ = ["psnr", "ssim", "eccentricity_np", "region_masks", "region_metrics", "flip", "flip_available", "REGIONS_DEG",
-           "psnr_device", "ssim_device", "region_metrics_device"]
+__all__ = ["psnr", "ssim", "eccentricity_np", "region_masks", "region_metrics", "flip", "flip_available", "fovvdp",
+           "fovvdp_available", "REGIONS_DEG", "psnr_device", "ssim_device", "region_metrics_device"]
 
 # region bounds in degrees of eccentricity: fovea < 5 deg, mid 5-20 deg, far > 20 deg
 REGIONS_DEG = {"fovea": (0.0, 5.0), "mid": (5.0, 20.0), "far": (20.0, 1.0e9)}
@@ -154,6 +154,56 @@ def flip(a, b) -> float:
     x, y = _img(a, "a").astype(np.float32), _img(b, "b").astype(np.float32)
     _, mean_err, _ = flip_evaluator.evaluate(y, x, "LDR")
     return float(mean_err)
+
+
+
+def fovvdp_available() -> bool:
+    """Whether FovVideoVDP (the optional ``pyfvvdp`` package, on PyTorch) can be imported."""
+    try:
+        import pyfvvdp  # noqa: F401
+        import torch  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+def fovvdp(test, ref, gaze_px, fov_y_deg: float, *, fps: float = 30.0, display: str = "standard_fhd",
+           torch_device=None) -> float:
+    """FovVideoVDP quality in JOD (Mantiuk et al. 2021; 10 = no visible difference) of the video ``test`` against
+    ``ref``, in its foveated mode with the gaze of each frame.
+
+    ``test``, ``ref``: (F, H, W, 3) display-encoded frames in [0, 1] (what ``FrameLoop`` returns), F >= 1;
+    ``gaze_px``: (F, 2) or (2,) gaze in pixels (pixel centres at x + 0.5); ``fov_y_deg``: the camera's vertical
+    field of view, which sets the display's (so the metric's eccentricities are the renderer's); ``display``: the
+    ``pyfvvdp`` display whose photometry is used (peak luminance, black level); ``torch_device``: None picks CUDA
+    when PyTorch sees it, else the CPU. Needs the optional ``pyfvvdp`` and PyTorch."""
+    if not fovvdp_available():
+        raise ValueError("fovvdp needs the optional packages pyfvvdp and torch (pip install pyfvvdp)")
+    import pyfvvdp
+    import torch
+
+    t = np.asarray(test, dtype=np.float32)
+    r = np.asarray(ref, dtype=np.float32)
+    if t.ndim == 3:
+        t, r = t[None], r[None] if r.ndim == 3 else r
+    if t.ndim != 4 or t.shape[-1] != 3 or t.shape != r.shape:
+        raise ValueError(f"fovvdp: test and ref must be (F, H, W, 3) videos of one shape, got {t.shape} and "
+                         f"{r.shape}")
+    f, h, w = t.shape[:3]
+    g = np.asarray(gaze_px, dtype=np.float64).reshape(-1, 2)
+    if g.shape[0] not in (1, f) or not np.isfinite(g).all():
+        raise ValueError(f"fovvdp: gaze_px must be finite, (2,) or ({f}, 2), got shape {np.shape(gaze_px)}")
+    fov = check_range("fov_y_deg", fov_y_deg, 0.0, 180.0, lo_open=True, hi_open=True)
+    fps = check_range("fps", fps, 0.0, None, lo_open=True)
+    dev = torch.device(torch_device if torch_device is not None else ("cuda" if torch.cuda.is_available() else "cpu"))
+    geometry = pyfvvdp.fvvdp_display_geometry((w, h), distance_m=0.6, fov_vertical=fov)
+    metric = pyfvvdp.fvvdp(display_name=display, display_geometry=geometry, foveated=True, quiet=True, device=dev)
+    fix = torch.tensor(np.broadcast_to(g - 0.5, (f, 2)).copy(), dtype=torch.float32)  # pyfvvdp: pixel indices
+    with torch.no_grad():
+        jod, _ = metric.predict(torch.from_numpy(np.clip(np.nan_to_num(t), 0.0, 1.0)),
+                                torch.from_numpy(np.clip(np.nan_to_num(r), 0.0, 1.0)), dim_order="FHWC",
+                                frames_per_second=float(fps) if f > 1 else 0, fixation_point=fix if f > 1 else fix[0])
+    return float(jod)
 
 
 # ================================================================================================================

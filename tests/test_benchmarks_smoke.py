@@ -96,8 +96,14 @@ def test_frame(tmp_path):
         assert r["auto_speedup"] == pytest.approx(r["ref_ms"] / r["auto_ms"])
         assert r["auto_path"] in ("foveated", "full") and set(r["auto_estimates"]) >= {"foveated_ms", "full_ms"}
         assert r["stage_ms"] and all(v >= 0 for v in r["stage_ms"].values())
+        # FovVideoVDP where pyfvvdp is installed: one JOD per video, at most 10 (no visible difference)
+        assert ("+fovvdp" in r["metrics_on"]) == ("fovvdp_jod" in r)
+        if "fovvdp_jod" in r:
+            assert 0.0 < r["fovvdp_jod"] <= 10.0 + 1e-6 and "fovvdp" not in s
     plain, ao = res["records"]
     assert plain["quality_target"] == "render_reference" and "ref_psnr_mean" not in plain
+    if "fovvdp_jod" in ao:  # 2 AO rays against 8: visibly different from the converged frame
+        assert ao["fovvdp_jod"] < 10.0 and ao["ref_fovvdp_jod"] < 10.0
     assert ao["quality_target"] == "8 AO rays" and len(ao["ref_series"]["psnr"]) == 3
     # 2 AO rays against 8: neither frame equals the converged one
     assert 10.0 < ao["ref_psnr_mean"] < 100.0 and ao["psnr_mean"] < 100.0

@@ -41,3 +41,51 @@ def test_region_metrics_keys(rng):
 def test_bad_shapes():
     with pytest.raises(ValueError, match="same shape"):
         metrics.psnr(np.zeros((4, 4)), np.zeros((5, 4)))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# FovVideoVDP (optional: pyfvvdp on PyTorch)
+
+def _fovvdp_video(seed=0, frames=6, h=72, w=128):
+    rng = np.random.default_rng(seed)
+    ref = (0.25 + 0.5 * rng.random((frames, h, w, 3))).astype(np.float32)
+    noise = rng.normal(0.0, 0.08, ref.shape).astype(np.float32)
+    return ref, noise
+
+
+def test_fovvdp_identical_is_ten_and_error_lowers_it():
+    pytest.importorskip("pyfvvdp")
+    from foveawarp.metrics import fovvdp
+
+    ref, noise = _fovvdp_video()
+    g = np.tile([64.0, 36.0], (ref.shape[0], 1))
+    assert fovvdp(ref, ref, g, 60.0) == pytest.approx(10.0, abs=1e-4)
+    assert fovvdp(np.clip(ref + noise, 0, 1), ref, g, 60.0) < 9.5
+
+
+def test_fovvdp_follows_the_gaze():
+    """The same error patch costs more JOD under the gaze than 40 degrees away from it (foveated mode)."""
+    pytest.importorskip("pyfvvdp")
+    from foveawarp.metrics import fovvdp
+
+    ref, noise = _fovvdp_video(1)
+    f, h, w = ref.shape[:3]
+    patch = np.zeros((h, w, 1), np.float32)
+    patch[4:28, 4:28] = 1.0
+    test = np.clip(ref + noise * patch, 0, 1)
+    near = fovvdp(test, ref, np.tile([16.0, 16.0], (f, 1)), 60.0)
+    far = fovvdp(test, ref, np.tile([w - 8.0, h - 8.0], (f, 1)), 60.0)
+    assert near < far < 10.0
+
+
+@pytest.mark.parametrize("kw", [{"fov_y_deg": 0.0}, {"fov_y_deg": float("nan")}, {"gaze_px": [[1.0, 2.0]] * 3},
+                                {"test": np.zeros((6, 72, 128, 4))}])
+def test_fovvdp_bad_input_is_named(kw):
+    pytest.importorskip("pyfvvdp")
+    from foveawarp.metrics import fovvdp
+
+    ref, _ = _fovvdp_video()
+    args = {"test": ref, "ref": ref, "gaze_px": [64.0, 36.0], "fov_y_deg": 60.0}
+    args.update(kw)
+    with pytest.raises(ValueError, match=r"fov_y_deg|gaze_px|test and ref"):
+        fovvdp(args.pop("test"), args.pop("ref"), args.pop("gaze_px"), args.pop("fov_y_deg"))
