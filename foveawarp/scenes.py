@@ -858,8 +858,9 @@ def room(bvh_constructor: str = "auto", bvh_leaf_size: Optional[int] = None) -> 
     quad("field", m_grass, (2.5, 0.0, 40.0), (40.0, 0.0, 0.0), (0.0, 0.0, -80.0))
     # the painting, 1.6 x 1.0 m, 1 cm in front of the left wall, and its frame
     quad("painting", m_picture, (-2.49, 1.05, -0.4), (0.0, 0.0, -1.6), (0.0, 1.0, 0.0))
-    for i, (c, size) in enumerate((((-2.48, 2.08, -1.2), (0.04, 0.06, 1.72)), ((-2.48, 1.02, -1.2), (0.04, 0.06, 1.72)),
-                                   ((-2.48, 1.55, -0.37), (0.04, 1.0, 0.06)), ((-2.48, 1.55, -2.03), (0.04, 1.0, 0.06)))):
+    frame_bars = (((-2.48, 2.08, -1.2), (0.04, 0.06, 1.72)), ((-2.48, 1.02, -1.2), (0.04, 0.06, 1.72)),
+                  ((-2.48, 1.55, -0.37), (0.04, 1.0, 0.06)), ((-2.48, 1.55, -2.03), (0.04, 1.0, 0.06)))
+    for i, (c, size) in enumerate(frame_bars):
         b.add_box(c, size, None, material=m_frame, name=f"frame{i}")
     v, f, n, uv = _uv_sphere_mesh((-0.9, 0.4, -1.9), 0.4)
     b.add_mesh(v, f, None, normals=n, smooth=True, uvs=uv, material=m_metal, name="metal sphere")
@@ -1028,8 +1029,9 @@ def scene_from_data(data, *, name: str, camera_index: Optional[int] = None, defa
       its mean emission (``emissive_factor * emissive_strength`` x emissive texture); every face smooth.
     - the camera: the file's (``camera_index`` into its cameras; None = the first), swung 8 degrees about a
       target at the scene's depth over 8 s; without one, :func:`_framing_camera` circling the scene once per 12 s.
-    - lights: :func:`lights_from_file` (units stated there); with none, :func:`default_lights` when
-      ``default_lights_if_none`` (and a warning saying so when ``warn_default_lights``).
+    - lights: :func:`lights_from_file` (units stated there); when the file has no light at all (no punctual
+      light, no environment, no emitting surface), :func:`default_lights` when ``default_lights_if_none`` (and a
+      warning saying so when ``warn_default_lights``).
     - ``albedo`` (None, or 3 numbers in [0, 1]): the colour of the uncoloured triangles, those the file gives no
       material (glTF's default material) and no vertex colours; they become a rough dielectric (metallic 0,
       roughness 1) of that base colour. None keeps glTF's default (white, metallic 1, roughness 1).
@@ -1074,7 +1076,8 @@ def scene_from_data(data, *, name: str, camera_index: Optional[int] = None, defa
     lights, notes = lights_from_file(getattr(data, "lights", None), centre, extent)
     for note in notes:
         warnings.warn(f"scene file {where!r}: {note}", stacklevel=3)
-    if not lights and default_lights_if_none:
+    lit = bool(lights) or getattr(data, "environment", None) is not None or bool(np.asarray(emission).any())
+    if not lit and default_lights_if_none:
         lights = default_lights(camera, centre, radius)
         if warn_default_lights:
             warnings.warn(f"scene file {where!r} has no point, spot or directional light: added the default lights "
