@@ -1027,6 +1027,9 @@ def scene_from_data(data, *, name: str, camera_index: Optional[int] = None, defa
     - materials, UVs, tangents, images and the environment carried over; ``face_albedo`` the mean base colour of
       each face (factor x texture x COLOR_0, :func:`foveawarp.scene.face_material_colors`), ``face_emission``
       its mean emission (``emissive_factor * emissive_strength`` x emissive texture); every face smooth.
+    - vertex colours (COLOR_0): each face's mean colour, quantized to 8 bits, multiplies the base colour factor
+      of a copy of its material (one copy per distinct colour, :func:`_bake_vertex_colours`), so the per-pixel
+      base colour shows them; colour gradients within a face are not kept.
     - the camera: the file's (``camera_index`` into its cameras; None = the first), swung 8 degrees about a
       target at the scene's depth over 8 s; without one, :func:`_framing_camera` circling the scene once per 12 s.
     - lights: :func:`lights_from_file` (units stated there); when the file has no light at all (no punctual
@@ -1049,11 +1052,13 @@ def scene_from_data(data, *, name: str, camera_index: Optional[int] = None, defa
     if albedo is not None:
         materials, fm = _colour_uncoloured(materials, fm, tri, getattr(data, "colors", None),
                                            check_vec("albedo", albedo, 3, 0.0, 1.0))
+    colors = getattr(data, "colors", None)
+    if colors is not None:
+        materials, fm = _bake_vertex_colours(materials, fm, tri, colors, where)
     images = list(data.images)
     table = MaterialTable.build(materials, len(images))
     uvs, uvs1 = data.uvs, getattr(data, "uvs1", None)
-    albedo = face_material_colors(tri, fm, table, images, uvs, uvs1, slot="base_color",
-                                  vertex_colors=getattr(data, "colors", None))
+    albedo = face_material_colors(tri, fm, table, images, uvs, uvs1, slot="base_color")
     emission = face_material_colors(tri, fm, table, images, uvs, uvs1, slot="emissive")
     v = np.asarray(data.vertices, dtype=np.float64)
     lo, hi = v.min(axis=0), v.max(axis=0)
@@ -1104,6 +1109,39 @@ def _colour_uncoloured(materials: list, fm: np.ndarray, tri: np.ndarray, colors,
     fm[plain] = len(materials)
     return materials + [Material(name="albedo", base_color_factor=(*albedo, 1.0), metallic_factor=0.0,
                                  roughness_factor=1.0)], fm
+
+
+MAX_BAKED_MATERIALS = 4096  # distinct (material, face colour) pairs baked; beyond, faces keep their material
+
+
+def _bake_vertex_colours(materials: list, fm: np.ndarray, tri: np.ndarray, colors, where: str) -> tuple:
+    """(materials, face material ids) with each face's mean vertex colour (RGB, 8-bit quantized) multiplied into
+    the base colour factor of a copy of its material; white faces keep theirs. Over
+    :data:`MAX_BAKED_MATERIALS` distinct pairs the colours are not baked (a warning says so)."""
+    from dataclasses import replace
+
+    fm = np.asarray(fm, dtype=np.int64)
+    q = np.clip(np.round(np.asarray(colors, dtype=np.float64)[tri][:, :, :3].mean(axis=1) * 255.0), 0, 255)
+    q = q.astype(np.int64)
+    tinted = np.any(q != 255, axis=1)
+    if not tinted.any():
+        return materials, fm.astype(np.int32)
+    key = fm[tinted] * (256 ** 3) + (q[tinted, 0] * 256 + q[tinted, 1]) * 256 + q[tinted, 2]
+    uniq, inverse = np.unique(key, return_inverse=True)
+    if uniq.shape[0] > MAX_BAKED_MATERIALS:
+        warnings.warn(f"scene file {where!r}: its vertex colours make {uniq.shape[0]} distinct face colours (more "
+                      f"than {MAX_BAKED_MATERIALS}); they tint face_albedo only, not the per-pixel base colour",
+                      stacklevel=4)
+        return materials, fm.astype(np.int32)
+    out = list(materials)
+    for k in uniq:
+        m = out[int(k // 256 ** 3)]
+        c = np.array([(k // 65536) % 256, (k // 256) % 256, k % 256], dtype=np.float64) / 255.0
+        bc = m.base_color_factor
+        out.append(replace(m, base_color_factor=(bc[0] * c[0], bc[1] * c[1], bc[2] * c[2], bc[3])))
+    fm = fm.copy()
+    fm[tinted] = len(materials) + inverse.reshape(-1)
+    return out, fm.astype(np.int32)
 
 
 def _shape_objects(data) -> list:
