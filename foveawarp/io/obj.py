@@ -35,8 +35,8 @@ Materials (MTL -> :class:`foveawarp.materials.Material`, metallic-roughness):
       many exporters write a normal map there: the image is decoded and taken as a normal map when it looks
       like one (mean blue above 0.6 and ``|2 rgb - 1|`` within 0.25 of 1 for 90 % of its texels); a height map
       is dropped with a warning. ``-bm`` scales a normal map (``normal_scale``).
-    - map options: ``-s`` and ``-o`` (the UV scale and offset, converted to glTF's v-down convention),
-      ``-clamp on`` (clamp wrapping); the others are skipped.
+    - map options: ``-s`` and ``-o`` (the UV scale and offset, their omitted v 1 and 0, converted to glTF's
+      v-down convention), ``-clamp on`` (clamp wrapping); the others are skipped.
     - every OBJ material is double-sided (the format has no culling); ``illum`` and ``Ni`` are ignored.
 
 Missing pieces: a missing ``.mtl`` file, an image file that does not exist, or a material that no library
@@ -68,6 +68,11 @@ _MIME_BY_SUFFIX = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jp
 # map statement options and how many arguments each takes (-o, -s, -t take 1 to 3 numbers)
 _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
                 "-mm": 2, "-texres": 1, "-type": 1, "-o": 3, "-s": 3, "-t": 3}
+
+
+# map statements (lower case) -> the keys read_mtl stores them under
+_MAP_KEYS = {"map_kd": "map_Kd", "map_ke": "map_Ke", "map_d": "map_d", "map_bump": "bump", "map_pr": "map_Pr",
+             "map_pm": "map_Pm", "map_ks": "map_Ks", "map_ns": "map_Ns"}
 
 
 def ns_to_roughness(ns: float) -> float:
@@ -447,9 +452,7 @@ def read_mtl(path, *, strict: bool = False, warn: Optional[list] = None) -> dict
                         "map_ns", "disp", "refl"):
                 spec = _parse_map(rest, path.parent)
                 if spec is not None:
-                    cur[{"map_bump": "bump"}.get(lk, lk if lk in ("norm", "bump") else
-                                                 "map_" + lk[4:].capitalize()
-                                                 if lk.startswith("map_") else lk)] = spec
+                    cur[_MAP_KEYS.get(lk, lk)] = spec
         except (ValueError, IndexError):
             lp.fail(no, f"{key} must be followed by numbers, got {rest!r}")
     return out
@@ -493,9 +496,7 @@ def _texture(spec: _MapSpec, images: _Images, color_space: str, note, strict: bo
         return None
     s = spec.options.get("-s", [])
     o = spec.options.get("-o", [])
-    su, sv = (s + [1.0, 1.0])[:2] if s else (1.0, 1.0)
-    if len(s) == 1:
-        sv = su
+    su, sv = (s + [1.0, 1.0])[:2]  # the MTL format: v and w are optional, 1 by default
     ou, ov = (o + [0.0, 0.0])[:2] if o else (0.0, 0.0)
     clamp = [x.lower() for x in spec.options.get("-clamp", [])] == ["on"]
     wrap = "clamp" if clamp else "repeat"
