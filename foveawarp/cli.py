@@ -229,7 +229,7 @@ def cmd_view(args) -> int:
     w = args.width or (1280 if cuda else 320)
     h = args.height or (720 if cuda else 180)
     trace = _load_trace(args.gaze_trace)
-    scenes = args.scene or ["cornell"]
+    scenes = args.scene or default_view_scenes()
     _check_scene_sources(scenes)
     try:
         from .viewer.server import ViewerServer
@@ -266,12 +266,27 @@ def cmd_view(args) -> int:
     return 0
 
 
+def default_view_scenes() -> list:
+    """The viewer's scenes when ``--scene`` names none: cornell, the procedural textured room, the textured models
+    that ship (suzanne, wicker) and those of the shared scenes folder that are there (barrel, milk-truck,
+    grey-white-room)."""
+    from .meshio import TEXTURED_SCENES, find_textured_scene
+
+    return ["cornell", "room"] + [n for n in TEXTURED_SCENES if find_textured_scene(n) is not None]
+
+
 def _check_scene_sources(scenes) -> None:
-    """Fail at launch (not in the page) for a scene that is neither a known name nor an existing file."""
+    """Fail at launch (not in the page) for a scene that is neither a known name nor an existing file, or a named
+    textured scene whose file is not found."""
     from . import scenes as builtin
+    from .meshio import TEXTURED_SCENES, find_textured_scene, textured_scene_help
     from .scene import NAMED_MESHES, find_named_mesh
 
     for s in scenes:
+        if s in TEXTURED_SCENES:
+            if find_textured_scene(s) is None:
+                raise ValueError(textured_scene_help(s))
+            continue
         if s in builtin.BUILTIN:
             continue
         if s in NAMED_MESHES:
@@ -329,12 +344,17 @@ def cmd_bench(args) -> int:
     return rc if isinstance(rc, int) else 0
 
 
+_SCENE_HELP = ("cornell | city | eyechart | earth | bunny-in-box | room | suzanne | wicker | barrel | milk-truck | "
+               "grey-white-room | bunny | spot | teapot | nefertiti | ogre | PATH (.gltf .glb .obj .ply .stl, or a "
+               "Mitsuba .xml)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="foveawarp", description="Foveated real-time ray tracing with NVIDIA Warp")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     d = sub.add_parser("demo", help="render a short foveated animation of the default scene with a moving gaze")
-    d.add_argument("--scene", default="cornell")
+    d.add_argument("--scene", default="cornell", help=f"{_SCENE_HELP} (default cornell; room: textured)")
     d.add_argument("--device", default=None, help='"cpu", "cuda:0", ... (default: CUDA when present)')
     d.add_argument("--width", type=_positive_int, default=None)
     d.add_argument("--height", type=_positive_int, default=None)
@@ -345,8 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser("render", help="render frames of a scene (built-in name or mesh file)")
-    r.add_argument("--scene", default="cornell", help="cornell | city | eyechart | earth | bunny-in-box | bunny | "
-                   "spot | teapot | nefertiti | ogre | PATH (a mesh file)")
+    r.add_argument("--scene", default="cornell", help=_SCENE_HELP)
     r.add_argument("--width", type=_positive_int, default=640)
     r.add_argument("--height", type=_positive_int, default=360)
     r.add_argument("--frames", type=_positive_int, default=1)
@@ -362,7 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("view", help="serve the live viewer: a page whose foveated frames follow the mouse")
     v.add_argument("--scene", action="extend", nargs="+", default=None, metavar="NAME|PATH",
-                   help="the scenes the page may offer (default cornell); the page names them, never sends paths")
+                   help="the scenes the page may offer (default: cornell, room and the textured models found); "
+                   "the page names them, never sends paths")
     v.add_argument("--device", default=None, help='"cpu", "cuda:0", ... (default: CUDA when present)')
     v.add_argument("--width", type=_positive_int, default=None, help="render width (default 1280 CUDA, 320 CPU)")
     v.add_argument("--height", type=_positive_int, default=None, help="render height (default 720 CUDA, 180 CPU)")

@@ -22,7 +22,10 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-SHIPPED_MESHES = ("bunny.ply", "spot.ply", "teapot.ply")
+SHIPPED_MESHES = ("bunny.ply", "spot.ply", "teapot.ply", "gltf-models/Suzanne/Suzanne.gltf",
+                  "gltf-models/Suzanne/Suzanne.bin", "gltf-models/Suzanne/Suzanne_BaseColor.png",
+                  "gltf-models/Suzanne/Suzanne_MetallicRoughness.png", "gltf-models/Suzanne/LICENSE.md",
+                  "gltf-models/ClearcoatWicker/ClearcoatWicker.glb", "gltf-models/ClearcoatWicker/LICENSE.md")
 VIEWER_STATIC = ("index.html", "viewer.js", "viewer.css")
 
 
