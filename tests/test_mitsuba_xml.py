@@ -12,6 +12,7 @@ import zlib
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -189,6 +190,24 @@ def test_shape_uvs_match_mitsuba(tmp_path, kind, tol):
         assert du.max() < tol, (kind, u, ru)
         n += 1
     assert n >= 10
+
+
+@pytest.mark.parametrize("kind", ["sphere", "cube", "disk", "rectangle"])
+def test_primitives_are_closed_with_the_right_area(tmp_path, kind):
+    d, _ = _read(_scene(tmp_path, f'<shape type="{kind}"/>'))
+    v, f, _, nrm = _shape_arrays(d, 0)
+    p = v[f]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert (np.linalg.norm(cross, axis=1) > 0).all()  # no degenerate triangles
+    area = 0.5 * np.linalg.norm(cross, axis=1).sum()
+    exact = {"sphere": 4 * math.pi, "cube": 24.0, "disk": math.pi, "rectangle": 4.0}[kind]
+    assert area == pytest.approx(exact, rel=2e-3 if kind in ("sphere", "disk") else 1e-12)
+    mesh = trimesh.Trimesh(v, f, process=True)  # merges the seams' duplicated vertices
+    if kind in ("sphere", "cube"):
+        assert mesh.is_watertight and mesh.is_winding_consistent
+        assert mesh.volume > 0  # outward winding
+    # the winding agrees with the normals
+    assert (np.einsum("ij,ij->i", cross, nrm[f].mean(axis=1)) > 0).all()
 
 
 def test_cube_matches_mitsubas_mesh(tmp_path):
@@ -572,3 +591,69 @@ def test_grey_white_room():
     assert names["Mirror"].metallic_factor == 1.0 and names["Mirror"].roughness_factor == 0.0
     assert names["BrushedStainlessSteel"].roughness_factor == pytest.approx(math.sqrt(0.02))
     assert len(d.images) == 4 and np.isfinite(d.vertices).all()
+
+
+def test_gbuffer_depth_and_albedo_match_mitsuba(tmp_path):
+    """The same XML scene in both renderers, pixel-centre rays: the G-buffer's distance and base colour against
+    Mitsuba's hit distance and diffuse reflectance, on pixels whose 3 x 3 neighbourhood sees one shape."""
+    img = np.zeros((16, 16, 4), dtype=np.uint8)
+    yy, xx = np.mgrid[0:16, 0:16]
+    img[..., 0] = 40 + 12 * xx  # red grows to the right, green downwards: a flipped lookup would show
+    img[..., 1] = 40 + 12 * yy
+    img[..., 2] = 90
+    img[..., 3] = 255
+    _png(tmp_path / "grad.png", img)
+    w, h = 48, 32
+    body = (f'<sensor type="perspective"><float name="fov" value="55"/><transform name="to_world">'
+            f'<lookat origin="0.4, 0.9, 4.5" target="0, 0.2, 0" up="0, 1, 0"/></transform><film type="hdrfilm">'
+            f'<integer name="width" value="{w}"/><integer name="height" value="{h}"/></film></sensor>'
+            '<shape type="rectangle" id="wall"><bsdf type="diffuse"><texture name="reflectance" type="bitmap">'
+            '<string name="filename" value="grad.png"/></texture></bsdf><transform name="to_world">'
+            '<scale value="2.5"/><translate z="-1"/></transform></shape>'
+            '<shape type="sphere" id="ball"><point name="center" x="-0.6" y="0.1" z="0.3"/>'
+            '<float name="radius" value="0.6"/><bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.2, 0.1"/>'
+            '</bsdf></shape>'
+            '<shape type="cube" id="box"><transform name="to_world"><scale value="0.4"/><rotate y="1" angle="30"/>'
+            '<translate x="0.9" y="-0.2" z="0.2"/></transform><bsdf type="twosided"><bsdf type="roughplastic">'
+            '<rgb name="diffuse_reflectance" value="0.1, 0.3, 0.8"/></bsdf></bsdf></shape>'
+            '<emitter type="point"><point name="position" x="1" y="3" z="3"/><float name="intensity" value="20"/>'
+            '</emitter>')
+    p = _scene(tmp_path, body)
+    ref = mi.load_file(str(p))
+    sensor = ref.sensors()[0]
+    eye = np.array(sensor.world_transform().matrix, dtype=np.float64)[:3, 3]
+    ids = np.full((h, w), -1)
+    dist = np.zeros((h, w))
+    alb = np.zeros((h, w, 3))
+    names = ["wall", "ball", "box"]
+    for y in range(h):
+        for x in range(w):
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + 0.5) / w, (y + 0.5) / h), mi.Point2f(0.5, 0.5))
+            si = ref.ray_intersect(ray)
+            if si.is_valid():
+                ids[y, x] = names.index(si.shape.id())
+                dist[y, x] = np.linalg.norm(np.array(si.p, dtype=np.float64) - eye)
+                alb[y, x] = np.array(si.bsdf().eval_diffuse_reflectance(si), dtype=np.float64)
+    s = _quiet_load(p)
+    cfg = fw.Config().with_(shading={"texture_lod": "none"})  # Mitsuba's bitmap has no MIP maps
+    g = fw.FrameLoop(s, w, h, device="cpu", config=cfg).render_reference().gbuffer
+    hit = g.hit.numpy().astype(bool)
+    interior = np.zeros((h, w), dtype=bool)
+    interior[1:-1, 1:-1] = True
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            interior[1:-1, 1:-1] &= ids[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx] == ids[1:-1, 1:-1]
+    interior &= ids >= 0
+    assert interior.sum() > 0.5 * h * w and (ids[interior] == 1).sum() > 20 and (ids[interior] == 2).sum() > 20
+    assert hit[interior].all() and not hit[ids < 0].any()
+    depth = g.depth.numpy()
+    # depth: the tessellated sphere's facets lie up to 0.054 % of its radius inside it
+    np.testing.assert_allclose(depth[interior], dist[interior], rtol=1e-3)
+    # albedo: 8-bit sRGB texels decoded and filtered the same way; 2e-3 of float32 UV and filter differences
+    np.testing.assert_allclose(g.albedo.numpy()[interior], alb[interior], atol=2e-3)
+
+
+def _quiet_load(p):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fw.load_scene(str(p))

@@ -649,8 +649,8 @@ def _sphere(n_lon: int = SPHERE_SEGMENTS[0], n_lat: int = SPHERE_SEGMENTS[1]):
     uv = np.stack([ph / (2.0 * math.pi), th / math.pi], axis=-1).reshape(-1, 2)
     idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    t1 = np.stack([a, b, c], axis=-1)[1:].reshape(-1, 3)  # the south-pole row of (a, b, c) is degenerate
-    t2 = np.stack([a, c, d], axis=-1)[:-1].reshape(-1, 3)  # the north-pole row of (a, c, d) is degenerate
+    t1 = np.stack([a, b, c], axis=-1)[:-1].reshape(-1, 3)  # the south-pole row of (a, b, c) is degenerate
+    t2 = np.stack([a, c, d], axis=-1)[1:].reshape(-1, 3)  # the north-pole row of (a, c, d) is degenerate
     return p, p.copy(), uv, np.concatenate([t1, t2])
 
 
