@@ -16,8 +16,9 @@ from . import parallel
 from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
-from .config import Config, check_bool, check_choice, check_int_range, resolve_reorder_strategy, show
+from .config import Config, check_bool, check_int_range, resolve_reorder_strategy, show
 from .kernels.shade import ShadeParams
+from .policy import CostPolicy
 from .scene import DeviceScene, Scene, load_scene
 from .stages.gbuffer import GBufferStage
 from .stages.shade import ShadeStage
@@ -115,47 +116,37 @@ class FrameLoop:
             "auto" measures both paths (synchronized wall time of whole ``render`` calls, a few frames each,
             every ``POLICY_PERIOD`` frames, and sooner when a check of the chosen path's frames says the choice
             was wrong: wall times on the CPU device or with ``timing=True``, CUDA event spans otherwise) and
-            renders the cheaper one, reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
+            renders the cheaper one (the rule: :class:`foveawarp.policy.CostPolicy`, ``self.cost_policy``),
+            reporting the choice, the reason and both estimates in ``stats["skipped"]["foveation"]`` and
             ``stats["policy"]``; the first foveated frame after a full one takes it as its history
             (``stats["history_seeded"]``). None (default): "auto", on every device and with or without
             ``timing``: where the foveated frame costs more than full resolution (cheap shading, small scenes,
-            the CPU with default shading, docs/cpu.md), the user gets the exact full frame at the lower cost. With ``timing=True`` the policy compares the two paths as
-            this loop runs them (per-stage synchronization, no CUDA graphs), which costs the foveated path's
-            many launches more than the full path's few, so it picks full resolution more often than a loop
-            without timing would. Stage-by-stage study of the foveated frame passes ``policy="foveated"``.
+            the CPU with default shading, docs/cpu.md), the user gets the exact full frame at the lower cost.
+            With ``timing=True`` the policy compares the two paths as this loop runs them (per-stage
+            synchronization, no CUDA graphs), which costs the foveated path's many launches more than the full
+            path's few, so it picks full resolution more often than a loop without timing would. Stage-by-stage
+            study of the foveated frame passes ``policy="foveated"``.
         cpu_threads: threads of the band-parallel CPU launches (``foveawarp.parallel``), in [1, 1024]; None
             (default): the environment variable ``FOVEAWARP_CPU_THREADS``, else the usable cores. 1 = one
             thread per launch. The output does not depend on it (bit-identical). Ignored on CUDA.
     """
 
-    POLICY_PERIOD = 600  # frames between two measurements of the policy
-    POLICY_WARM = 4  # untimed frames before each timed run of a path (compile, graph capture)
-    POLICY_TIMED = 8  # timed frames per path; the median counts
-    POLICY_MARGIN = 0.05  # foveation is chosen only when at least this fraction cheaper than full resolution
-    # later measurements (kernels compiled, graphs captured): 1 untimed frame per path, and only
-    # POLICY_TIMED_CLEAR timed ones when the last measurement was clear-cut (the cheaper path at least
-    # POLICY_CLEAR cheaper): fewer frames of the dearer path each period (a visible stutter at 3x a frame's cost)
-    POLICY_WARM_AGAIN = 1
-    POLICY_TIMED_CLEAR = 4
-    POLICY_CLEAR = 0.25
-    POLICY_WATCH = 16  # watched frames of the chosen path per check
-    # CUDA without timing: one frame in this many is watched (its two events and their reading cost ~10-20 us of
-    # Python; at 1080p on the H100 watching every frame made the policy's full frames 1.03-1.07x the reference's)
-    POLICY_WATCH_EVERY = 8
-    POLICY_RECHECK_MIN = 120  # frames after a measurement began before a failed check starts the next one
-    # a measurement whose two paths are not clear-cut (POLICY_CLEAR) times both again, in the other order
-    # (POLICY_WARM_AGAIN + POLICY_TIMED frames each), and each path's estimate is the lower of its two blocks'
-    # medians: a block slowed by a transient (H100, city 4K: the full path's 8 frames at 3.38 ms against the
-    # reference loop's 2.69 ms) no longer decides alone. If foveation still wins, the full path is timed a third
-    # time (POLICY_WARM_AGAIN + POLICY_TIMED frames) before foveation is chosen: the two full blocks run back to back,
-    # and one transient slowed both (H100, session 35, nefertiti 4K: 2.01 ms against the reference loop's 1.68,
-    # foveation chosen at 1.83 ms and 1.27x the reference's time until the next measurement). A close choice of full
-    # resolution needs no third block: it is never slower than the reference.
+    # the cost policy's constants (``CostPolicy``), under their FrameLoop names
+    POLICY_PERIOD = CostPolicy.PERIOD
+    POLICY_WARM = CostPolicy.WARM
+    POLICY_TIMED = CostPolicy.TIMED
+    POLICY_MARGIN = CostPolicy.MARGIN
+    POLICY_WARM_AGAIN = CostPolicy.WARM_AGAIN
+    POLICY_TIMED_CLEAR = CostPolicy.TIMED_CLEAR
+    POLICY_CLEAR = CostPolicy.CLEAR
+    POLICY_WATCH = CostPolicy.WATCH
+    POLICY_WATCH_EVERY = CostPolicy.WATCH_EVERY
+    POLICY_RECHECK_MIN = CostPolicy.RECHECK_MIN
 
     @classmethod
     def policy_measurement_frames(cls) -> int:
         """The most frames the first measurement of the "auto" policy renders (with its confirmation)."""
-        return 2 * (cls.POLICY_WARM + cls.POLICY_TIMED) + 3 * (cls.POLICY_WARM_AGAIN + cls.POLICY_TIMED)
+        return CostPolicy.measurement_frames()
 
     def __init__(self, scene, width: int, height: int, config: Optional[Config] = None, device=None,
                  timing: bool = True, graph: Optional[bool] = None, policy: Optional[str] = None,
@@ -219,29 +210,33 @@ class FrameLoop:
         self._static_frames = 0
         if policy is None:
             policy = "auto"
-        self.policy = check_choice("policy", policy, ("auto", "foveated", "full"))
-        self._pol_frame = 0  # frames since the last policy measurement began
-        self._pol_ms = {"foveated": [], "full": []}
-        self._pol_choice = "foveated"
-        self._pol_est: dict = {}
-        self._pol_watch_ms: list = []  # steady-state frame times of the chosen path (see _policy_mode)
-        self._pol_rechecks = 0
-        self._pol_next_trigger: Optional[str] = None
-        self._pol_trigger = "first frames"
-        self._pol_len = (self.POLICY_WARM, self.POLICY_TIMED)  # (untimed, timed) frames per path, this measurement
-        self._set_schedule([("foveated", *self._pol_len), ("full", *self._pol_len)])
-        self._pol_block = 0  # the schedule's block of the frame _policy_mode last scheduled
-        # the watch's yardsticks: each path's median over all its timed frames (the estimates that decide take the
-        # lower of its blocks' medians, which runs low; the watch's own median of POLICY_WATCH frames does not)
-        self._pol_ref: dict = {}
-        # CUDA without timing: the watch reads the GPU span of a frame from two timing events (recorded around its
-        # launches, read at the next frame when done: no synchronization), and the measurement records the
-        # timed frames' spans too, so that the watch compares spans with spans
+        # the cost policy's state machine; CUDA without timing: the watch reads the GPU span of a frame from two
+        # timing events (recorded around its launches, read at the next frame when done: no synchronization), and
+        # the measurement records the timed frames' spans too, so that the watch compares spans with spans
+        self.cost_policy = CostPolicy(policy, by_events=self._on_cuda and not self.timing)
         self._pol_events: Optional[list] = None
         self._pol_ev_i = 0
         self._pol_ev_pending = None
-        self._pol_span = {"foveated": [], "full": []}
         self._last_full = False
+
+    @property
+    def policy(self) -> str:
+        """The cost policy: "auto", "foveated" or "full" (settable; see ``CostPolicy``)."""
+        return self.cost_policy.mode
+
+    @policy.setter
+    def policy(self, value) -> None:
+        self.cost_policy.mode = value
+
+    @property
+    def _pol_choice(self) -> str:
+        """The policy's current choice (read by benchmarks/frame.py)."""
+        return self.cost_policy.choice
+
+    @property
+    def _pol_est(self) -> dict:
+        """The policy's last decision (read by benchmarks/frame.py)."""
+        return self.cost_policy.estimates
 
     def _ensure_foveated_stages(self) -> None:
         """Allocate the foveated stages' buffers (once, on the first ``render``)."""
@@ -478,7 +473,8 @@ class FrameLoop:
         first = self.prev_camera is None
         if not first and not cut and self.prev_camera.rotation_deg_to(camera) > cfg.temporal.cut_threshold_deg:
             cut = True
-        mode, pol_timed, pol_watch = self._policy_mode()
+        pol = self.cost_policy
+        mode, pol_timed, pol_watch = pol.next_frame(self.frame_index, cfg.foveation.enabled)
         seeded = False
         # (a full-resolution frame's skipped["foveation"] is written after the launches: host work they need not
         # wait for)
@@ -493,7 +489,7 @@ class FrameLoop:
         if pol_timed:
             wp.synchronize_device(self.device)
         t_pol = _now()
-        ev = self._frame_events() if (pol_timed or pol_watch) and self._watch_by_events() else None
+        ev = self._frame_events() if (pol_timed or pol_watch) and pol.by_events else None
         if ev is not None:
             self.device.stream.record_event(ev[0])
         if first or cut:
@@ -578,14 +574,7 @@ class FrameLoop:
         # GPU span (read when done), and why foveation was skipped
         self._harvest_watch()
         if mode == "full" and cfg.foveation.enabled:
-            est = self._pol_est
-            if self.policy == "full":
-                skipped["foveation"] = "policy 'full': every pixel traced"
-            elif est and self._pol_choice == "full":
-                skipped["foveation"] = (f"policy 'auto': full resolution is cheaper here (measured "
-                                        f"{est['full_ms']:.3f} ms full vs {est['foveated_ms']:.3f} ms foveated)")
-            else:
-                skipped["foveation"] = "policy 'auto': timing the full-resolution path"
+            skipped["foveation"] = pol.skip_reason()
         n = self.width * self.height
         stats = _LazyStats(dict(self._stats))
         stats["skipped"] = skipped
@@ -594,7 +583,7 @@ class FrameLoop:
         stats["strategy"] = strategy
         stats["graph"] = graph_state
         stats["static_frames"] = self._static_frames
-        stats["policy"] = {"policy": self.policy, "path": mode, **self._pol_est}
+        stats["policy"] = {"policy": pol.mode, "path": mode, **pol.estimates}
         stats["history_seeded"] = seeded
         if foveated:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
@@ -614,13 +603,13 @@ class FrameLoop:
                 stats.update(self._stage_gpu_ms())
         if pol_timed:
             wp.synchronize_device(self.device)
-            self._policy_record(mode, (_now() - t_pol) * 1e3, None if ev is None else
-                                float(wp.get_event_elapsed_time(ev[0], ev[1], synchronize=False)))
+            pol.record(mode, (_now() - t_pol) * 1e3, None if ev is None else
+                       float(wp.get_event_elapsed_time(ev[0], ev[1], synchronize=False)))
         elif pol_watch:
             if ev is not None:  # read at the next frame, if the GPU is done with this one by then
                 self._pol_ev_pending = ev
             else:  # the frame's work is done: CPU launches are synchronous, and timing synchronized above
-                self._pol_watch_ms.append((_now() - t_pol) * 1e3)
+                pol.watch((_now() - t_pol) * 1e3)
         self._last_full = not foveated
         self.prev_camera = camera
         self.frame_index += 1
@@ -635,132 +624,6 @@ class FrameLoop:
         return Frame(self.image, self.sampling.sample_map if foveated else self.full_map, self.gbuffer, stats,
                      extras)
 
-    def _policy_mode(self) -> tuple:
-        """(path of this frame, whether to time it synchronized, whether to watch it) under ``self.policy``.
-
-        "auto" runs a measurement every ``POLICY_PERIOD`` frames: ``POLICY_WARM`` + ``POLICY_TIMED`` frames of each
-        path the first time, fewer later (:meth:`_measurement_length`), the timed ones synchronized. When the two
-        medians are not clear-cut (neither path ``POLICY_CLEAR`` cheaper), both paths are timed once more in the
-        other order (``POLICY_WARM_AGAIN`` + ``POLICY_TIMED`` frames each), and each path's estimate is the lower of
-        its two medians; if foveation is then the cheaper by the margin, the full path is timed a third time and its
-        estimate is the lowest of three (``stats["policy"]["blocks"]``: 2, 4 or 5). It then renders the foveated
-        frame only when its estimate is at least ``POLICY_MARGIN`` below full resolution's, else full resolution
-        (exact, for the same cost), until the next measurement. The chosen path's frames are then watched: by wall
-        time where that costs nothing (the CPU device, whose launches are synchronous, or ``timing=True``, which
-        synchronizes anyway), else (CUDA without timing) by the GPU span between two CUDA timing events of one frame
-        in ``POLICY_WATCH_EVERY``, read at the next frame when the GPU is done with it (never waiting) and compared
-        with the median of the measurement's timed frames (spans) of the other path, all its blocks pooled. When the
-        median of ``POLICY_WATCH`` of them says the choice was wrong (foveated frames no cheaper than the full
-        estimate, or full frames dearer than the foveated estimate by the margin: an 8-frame estimate is noisy), the
-        next measurement starts at once, at most once per ``POLICY_RECHECK_MIN`` frames."""
-        if self.policy != "auto" or not self.config.foveation.enabled:
-            return ("full" if self.policy == "full" else "foveated"), False, False
-        f = self._pol_frame
-        self._pol_frame = (f + 1) % self.POLICY_PERIOD
-        if f > self._pol_total and len(self._pol_watch_ms) < self.POLICY_WATCH:
-            # the steady state between measurements with no check due (most frames): the choice, as below
-            return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
-        if f == 0:
-            self._pol_ms = {"foveated": [], "full": []}
-            self._pol_span = {"foveated": [], "full": []}
-            self._pol_watch_ms = []
-            self._pol_len = self._measurement_length()
-            self._set_schedule([("foveated", *self._pol_len), ("full", *self._pol_len)])
-            self._pol_trigger = self._pol_next_trigger or ("first frames" if self.frame_index == 0 else
-                                                           f"every {self.POLICY_PERIOD} frames")
-            self._pol_next_trigger = None
-        estimates = None  # the estimates when a block pair ends, computed once
-        again = (self.POLICY_WARM_AGAIN, self.POLICY_TIMED)
-        if f == self._pol_total and len(self._pol_sched) == 2:
-            estimates = self._policy_estimates(self._pol_ms)
-            if not self._clear_cut(*estimates[0]):
-                # not clear-cut: both paths once more, in the other order, before the choice
-                self._set_schedule(self._pol_sched + [("full", *again), ("foveated", *again)])
-        elif f == self._pol_total and len(self._pol_sched) == 4:
-            estimates = self._policy_estimates(self._pol_ms)
-            if self._foveation_wins(*estimates[0]):
-                # a close win of foveation: the full path a third time, apart from its back-to-back pair
-                self._set_schedule(self._pol_sched + [("full", *again)])
-        if f < self._pol_total:
-            k = f
-            for b, (path, warm, timed) in enumerate(self._pol_sched):
-                if k < warm + timed:
-                    self._pol_block = b
-                    return path, k >= warm, False
-                k -= warm + timed
-        if f == self._pol_total:
-            (fov_ms, full_ms), ref = estimates or self._policy_estimates(self._pol_ms)
-            self._pol_ref = {"foveated_ms": ref[0], "full_ms": ref[1]}
-            # foveation must pay for its error: within the margin (or when timing noise hides the difference) the
-            # exact full-resolution frame wins (H100, city 4K: 5.18 vs 4.96 ms estimated, 5.45 vs 5.08 measured)
-            self._pol_choice = "foveated" if self._foveation_wins(fov_ms, full_ms) else "full"
-            self._pol_est = {"foveated_ms": fov_ms, "full_ms": full_ms, "measured_at_frame": self.frame_index,
-                             "trigger": self._pol_trigger, "rechecks": self._pol_rechecks,
-                             "blocks": len(self._pol_sched)}
-            if self._pol_span["foveated"] and self._pol_span["full"]:
-                g, ref = self._policy_estimates(self._pol_span)
-                self._pol_est["foveated_gpu_ms"], self._pol_est["full_gpu_ms"] = g
-                self._pol_ref["foveated_gpu_ms"], self._pol_ref["full_gpu_ms"] = ref
-        # the watch's samples and the estimates it compares them with: GPU spans on CUDA without timing, else
-        # synchronized wall times
-        sfx = "_gpu_ms" if self._watch_by_events() else "_ms"
-        est = self._pol_ref
-        if len(self._pol_watch_ms) >= self.POLICY_WATCH and "full" + sfx in est:
-            m = float(np.median(self._pol_watch_ms))
-            self._pol_watch_ms = []
-            if self._pol_choice == "foveated":
-                wrong, other = m >= est["full" + sfx], ("full", est["full" + sfx])
-            else:
-                wrong, other = ((1.0 - self.POLICY_MARGIN) * m > est["foveated" + sfx],
-                                ("foveated", est["foveated" + sfx]))
-            if wrong and f >= self.POLICY_RECHECK_MIN:
-                self._pol_rechecks += 1
-                self._pol_next_trigger = (f"check: the {self._pol_choice} frames measured {m:.3f} ms (median of "
-                                          f"{self.POLICY_WATCH}) against {other[1]:.3f} ms estimated {other[0]}")
-                self._pol_frame = 0
-                return self._policy_mode()  # the measurement begins with this frame
-        return self._pol_choice, False, (not self._watch_by_events()) or f % self.POLICY_WATCH_EVERY == 0
-
-    def _set_schedule(self, blocks: list) -> None:
-        """Make ``blocks`` ((path, untimed, timed frames) in order) the measurement's schedule; ``_pol_total``, its
-        frames in all, is kept beside it for the per-frame test of whether the measurement is over."""
-        self._pol_sched = blocks
-        self._pol_total = sum(w + t for _, w, t in blocks)
-
-    def _foveation_wins(self, fov_ms: float, full_ms: float) -> bool:
-        """Whether the foveated estimate is at least ``POLICY_MARGIN`` below full resolution's."""
-        return fov_ms < (1.0 - self.POLICY_MARGIN) * full_ms
-
-    def _clear_cut(self, a_ms: float, b_ms: float) -> bool:
-        """Whether the cheaper of two estimates is at least ``POLICY_CLEAR`` cheaper than the other."""
-        lo, hi = sorted((a_ms, b_ms))
-        return lo < (1.0 - self.POLICY_CLEAR) * hi
-
-    def _policy_record(self, path: str, ms: float, span_ms=None) -> None:
-        """Keep a timed measurement frame of ``path``: its synchronized wall time and (CUDA without timing) its GPU
-        span, with the schedule's block it belongs to."""
-        self._pol_ms[path].append((self._pol_block, float(ms)))
-        if span_ms is not None:
-            self._pol_span[path].append((self._pol_block, float(span_ms)))
-
-    @staticmethod
-    def _policy_estimates(samples: dict) -> tuple:
-        """((foveated, full) decision estimates, (foveated, full) pooled medians) from the measurement's timed
-        ``samples`` ((block, ms) pairs per path): per path the lowest of its blocks' medians, and the median of
-        all its frames (NaN for a path without samples)."""
-        est, pooled = [], []
-        for path in ("foveated", "full"):
-            by_block: dict = {}
-            for b, v in samples[path]:
-                by_block.setdefault(b, []).append(v)
-            est.append(min(float(np.median(v)) for v in by_block.values()) if by_block else float("nan"))
-            pooled.append(float(np.median([v for _, v in samples[path]])) if by_block else float("nan"))
-        return tuple(est), tuple(pooled)
-
-    def _watch_by_events(self) -> bool:
-        """Whether the policy times frames by CUDA events (CUDA without timing: no synchronization to spare)."""
-        return self._on_cuda and not self.timing
-
     def _frame_events(self) -> tuple:
         """The next of two (start, end) pairs of CUDA timing events (made on first use)."""
         if self._pol_events is None:
@@ -774,17 +637,7 @@ class FrameLoop:
         frame still running is left out)."""
         p, self._pol_ev_pending = self._pol_ev_pending, None
         if p is not None and p[1].is_complete:
-            self._pol_watch_ms.append(float(wp.get_event_elapsed_time(p[0], p[1], synchronize=False)))
-
-    def _measurement_length(self) -> tuple:
-        """(untimed, timed) frames per path of the measurement that begins: ``POLICY_WARM``, ``POLICY_TIMED`` the
-        first time; later ``POLICY_WARM_AGAIN`` and, when the last estimates were clear-cut (the cheaper path at
-        least ``POLICY_CLEAR`` cheaper), ``POLICY_TIMED_CLEAR`` timed frames, else ``POLICY_TIMED``."""
-        est = self._pol_est
-        if not est:
-            return self.POLICY_WARM, self.POLICY_TIMED
-        clear = self._clear_cut(est["foveated_ms"], est["full_ms"])
-        return self.POLICY_WARM_AGAIN, (self.POLICY_TIMED_CLEAR if clear else self.POLICY_TIMED)
+            self.cost_policy.watch(float(wp.get_event_elapsed_time(p[0], p[1], synchronize=False)))
 
     def _seed_history(self) -> bool:
         """After a full-resolution frame (the cost policy's), make that frame the history of the foveated frame
