@@ -369,6 +369,18 @@ class ShadingConfig:
             0.09 ms).
         area_light_samples: shadow rays per area light, in [1, 256].
         indirect: "none" or "lighttree" (one-bounce indirect from the light quad-tree, see IndirectConfig).
+        integrator: "direct" (default: the fields above: lights with shadow rays, ambient or AO, optional
+            light-tree indirect) or "path" (unidirectional path tracing with next-event estimation and multiple
+            importance sampling, ``foveawarp.stages.path``; ambient, AO and ``indirect`` do not apply to it).
+        max_depth: longest path of the "path" integrator, in [1, 4096], Mitsuba 3's convention: 1 = emitters seen
+            directly, 2 = direct light, 3 = one indirect bounce, ...
+        spp: paths per traced pixel per frame of the "path" integrator, in [1, 65536].
+        rr_depth: path depth from which the "path" integrator applies Russian roulette, in [1, 4096] (Mitsuba 3's
+            ``rr_depth``: a path that has made ``rr_depth`` bounces continues with probability min(max channel of
+            its throughput, 0.95)).
+        radiance_clamp: None (default: unbiased) or the largest channel value, linear radiance in
+            (0, float32 max], that one path of the "path" integrator may contribute: a path above it is scaled
+            down to it (hue kept). It trades bias for fewer fireflies; leave it off for references.
         background: linear RGB radiance of rays that miss, each channel >= 0.
         exposure: linear scale before tone mapping, in (0, float32 max].
         white_point: Uncharted 2 linear white point, in (0, float32 max]; radiance beyond ~1e18 after the exposure
@@ -385,6 +397,11 @@ class ShadingConfig:
     ao_lanes: int = 4
     area_light_samples: int = 4
     indirect: str = "none"
+    integrator: str = "direct"
+    max_depth: int = 5
+    spp: int = 1
+    rr_depth: int = 5
+    radiance_clamp: Optional[float] = None
     background: tuple = (0.02, 0.02, 0.03)
     exposure: float = 2.0
     white_point: float = 11.2
@@ -400,6 +417,12 @@ class ShadingConfig:
         check_int_range("ShadingConfig.ao_lanes", self.ao_lanes, 1, 16)
         check_int_range("ShadingConfig.area_light_samples", self.area_light_samples, 1, 256)
         check_choice("ShadingConfig.indirect", self.indirect, ("none", "lighttree"))
+        check_choice("ShadingConfig.integrator", self.integrator, ("direct", "path"))
+        check_int_range("ShadingConfig.max_depth", self.max_depth, 1, 4096)
+        check_int_range("ShadingConfig.spp", self.spp, 1, 65536)
+        check_int_range("ShadingConfig.rr_depth", self.rr_depth, 1, 4096)
+        if self.radiance_clamp is not None:
+            check_range("ShadingConfig.radiance_clamp", self.radiance_clamp, 0.0, FLOAT32_MAX, lo_open=True)
         # at most float32's largest value: the kernels hold them in float32 (an exposure that became inf there made
         # every black pixel inf * 0 = NaN)
         check_range("ShadingConfig.exposure", self.exposure, 0.0, FLOAT32_MAX, lo_open=True)

@@ -890,6 +890,13 @@ case("ops", "jump_flood:seed_mask width 0", ops.jump_flood, {"seed_mask": np.zer
 choice_arg("ops", "jump_flood", ops.jump_flood, {"seed_mask": _M, "device": DEV}, "variant", "'1+jfa'")
 int_arg("ops", "jump_flood", ops.jump_flood, {"seed_mask": _M, "device": DEV}, "start_step", "[1, 16384]", [0, 20000],
         none_ok=True)
+# the path integrator's converged reference: its arguments are checked before the scene is read
+_RC = {"scene": None, "camera": None, "width": W, "height": H, "spp_total": 4, "device": DEV}
+for n, allowed, oor in (("spp_total", "[1, 2147483647]", [0, -1]), ("spp_per_pass", "[1, 65536]", [0, 70000]),
+                        ("max_depth", "[1, 4096]", [0]), ("rr_depth", "[1, 4096]", [0]),
+                        ("seed", "[0, 2147483647]", [-1])):
+    int_arg("ops", "render_converged", ops.render_converged, _RC, n, allowed, oor)
+choice_arg("ops", "render_converged", ops.render_converged, _RC, "pixel_filter", "'box'")
 _C = np.full((H, W, 3), 0.25)
 for fname, f in (("voronoi", ops.voronoi), ("sibson", ops.sibson)):
     base = {"colors": _C, "seed_mask": _M, "device": DEV}

@@ -10,7 +10,7 @@ import importlib.util
 
 __all__: list[str] = []
 
-for _name in ("geometry", "sampling", "reorder", "reconstruct", "dof", "indirect"):
+for _name in ("geometry", "sampling", "reorder", "reconstruct", "dof", "indirect", "path"):
     if importlib.util.find_spec(f"{__name__}.{_name}") is not None:
         _mod = importlib.import_module(f"{__name__}.{_name}")
         for _sym in getattr(_mod, "__all__", []):
