@@ -17,6 +17,7 @@ from ._util import check_image_size, get_device
 from .buffers import Frame, GBuffer
 from .camera import Camera, _check_gaze
 from .config import Config, check_bool, check_int_range, resolve_reorder_strategy, show
+from .frame_context import FrameContextBuilder, FrameView
 from .kernels.shade import ShadeParams
 from .policy import CostPolicy
 from .scene import DeviceScene, Scene, load_scene
@@ -197,6 +198,7 @@ class FrameLoop:
         self._ref_prev_camera: Optional[Camera] = None
         self._stats: dict = {}
         self.gbuffer_stage = GBufferStage(self.dscene, w, h, dev)
+        self._contexts = FrameContextBuilder(w, h)  # the per-frame view constants (frame context), one struct
         self.shade = ShadeStage(self.dscene, cfg.shading, w, h, dev)
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
@@ -350,8 +352,8 @@ class FrameLoop:
             t = self.dscene.time if self.dscene.time is not None else 0.0
         return self.dscene.set_time(t)
 
-    def _gbuffer(self, camera: Camera, prev_camera: Camera) -> None:
-        self.gbuffer_stage.run(self.gbuffer, camera, prev_camera)
+    def _gbuffer(self, frame: FrameView) -> None:
+        self.gbuffer_stage.run_frame(self.gbuffer, frame)
 
     @_cpu_threads
     def upload_shade_params(self, camera: Camera, *, ao_samples: Optional[int] = None) -> wp.array:
@@ -410,12 +412,15 @@ class FrameLoop:
         t0 = _now()
         with self._stage("scene", self._animated):
             self._advance_scene(time)
+        frame = self._contexts.build(camera, self._ref_prev_camera or camera,
+                                     (self.width * 0.5, self.height * 0.5) if gaze is None else gaze,
+                                     self.frame_index, self._max_t(camera))
         with self._stage("gbuffer"):
-            self._gbuffer(camera, self._ref_prev_camera or camera)
+            self._gbuffer(frame)
         # the shading writes the display image itself when nothing follows it (as in render's full path)
         fused = self.indirect is None and not (self.config.dof.enabled and dof)
         with self._stage("shade"):
-            self.upload_shade_params(camera)
+            self.shade.upload_view(frame)
             self.shade.full(self.gbuffer, self.radiance, self.radiance_stoch, self.image if fused else None)
         with self._stage("indirect", self.indirect is not None):
             if self.indirect is not None:
@@ -498,6 +503,8 @@ class FrameLoop:
             self.dscene.reset_history()
         history = not (first or cut)
         prev_cam = self.prev_camera if history else camera
+        # the frame context: this frame's view constants, packed once for every stage
+        frame = self._contexts.build(camera, prev_cam, gaze, self.frame_index, self._max_t(camera))
         camera_moved = prev_cam != camera
         moving = bool(geometry_moved or camera_moved)
         if not self._animated:
@@ -506,9 +513,9 @@ class FrameLoop:
         sparse = foveated and self.sparse_gbuffer
         with self._stage("gbuffer"):
             if sparse:
-                self.sparse.trace_coarse(camera, prev_cam, self._max_t(camera))
+                self.sparse.trace_coarse_frame(frame)
             else:
-                self._gbuffer(camera, prev_cam)
+                self._gbuffer(frame)
         if sparse:
             skipped["gbuffer"] = (f"sparse G-buffer: one primary ray per {cfg.foveation.coarse_cell} x "
                                   f"{cfg.foveation.coarse_cell} cell, plus the sampled pixels (traced with their shading)")
@@ -524,10 +531,8 @@ class FrameLoop:
         dof_focus = cfg.dof.enabled and cfg.dof.focus_depth_m is None
         with self._stage("sampling", foveated or dof_focus):
             if foveated:
-                self.sampling.set_frame(self.gbuffer, camera, gaze, self.frame_index, moving=moving,
-                                        first_frame=not history, eye_prev=prev_cam.eye if history else None,
-                                        camera_prev=prev_cam if history else None,
-                                        min_probability=tc.still_min_probability if still_boost else None)
+                self.sampling.set_frame_view(self.gbuffer, frame, moving=moving, history=history,
+                                             min_probability=tc.still_min_probability if still_boost else None)
                 if sparse:
                     skipped["cache_test"] = "sparse G-buffer: no per-pixel history"
                 skipped.update(self.sampling.skipped)
@@ -535,7 +540,7 @@ class FrameLoop:
                 skipped["sampling"] = "foveation disabled: sampling rate 1"
             if dof_focus:
                 self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
-            self.upload_shade_params(camera)
+            self.shade.upload_view(frame)
         rebuilt = False
         with self._stage("indirect_build", self.indirect is not None):
             if self.indirect is not None:

@@ -151,6 +151,16 @@ def test_missing_normals_are_area_weighted(tmp_path):
         np.testing.assert_allclose(m.normals[i], expect, atol=1e-9)
 
 
+def test_odd_whitespace_and_ragged_rows(tmp_path):
+    p = tmp_path / "ws.obj"
+    p.write_text("v\t0  0 0\nv 1 0 0 1.0\nv 0\u00a01 0\nvt 0.5\nvt 0.25 0.75\nvt 1 1\nf 1/1 2/2 3/3\n",
+                 encoding="utf-8")
+    m = parse_obj(p)
+    np.testing.assert_allclose(np.sort(m.positions, axis=0), np.sort([[0, 0, 0], [1, 0, 0], [0, 1, 0]], axis=0))
+    np.testing.assert_allclose(np.sort(m.uvs[:, 0]), [0.25, 0.5, 1.0])
+    np.testing.assert_allclose(np.sort(m.uvs[:, 1]), [0.0, 0.25, 1.0])  # a missing v reads 0, flipped to 1 - 0
+
+
 def test_uvs_flip_and_vertex_colours(tmp_path):
     p = tmp_path / "uv.obj"
     p.write_text("v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nvt 0.25 0.1\nvt 0.75 0.2\nvt 0.5 0.9\n"

@@ -207,8 +207,10 @@ def test_gbuffer_rows_kernel_equals_the_pixel_kernel(name, w, h):
     ds.set_time(0.5)
     stage = GBufferStage(ds, w, h, "cpu")
     cam, prev = scene.camera_at(0.5), scene.camera_at(0.2)
-    inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam.params(w, h),
-              prev.params(w, h), stage.max_t(cam)]
+    from foveawarp.frame_context import FrameContextBuilder
+
+    ctx = FrameContextBuilder(w, h).build(cam, prev, (0.0, 0.0), 0, stage.max_t(cam))
+    inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, ctx.struct]
     got = {}
     for key, kernel, dim in (("rows", gbuffer_rows_kernel, h), ("pixels", gbuffer_kernel, (h, w))):
         g = GBuffer(w, h, "cpu")

@@ -2,10 +2,10 @@
 
 Renders a short sequence of a moving camera and gaze per scene and case (deterministic shading, 2 AO rays, a
 small fovea, a still view that reaches the refresh budget, depth of field with the light-tree indirect term, the
-full-resolution policy, the default "auto" policy through its first measurement, and the full-resolution reference
-frame) and saves, or compares against a saved run byte for byte, every output: image, temporal sparse colour and
-filled mask, sampling map, cache hits, previous-pixel index, the rates, and the G-buffer's channels (position,
-normal, depth, face, hit, reprojection UV, velocity, albedo).
+sparse G-buffer, the full-resolution policy, the default "auto" policy through its first measurement, and the
+full-resolution reference frame) and saves, or compares against a saved run byte for byte, every output: image,
+temporal sparse colour and filled mask, sampling map, cache hits, previous-pixel index, the rates, and the
+G-buffer's channels (position, normal, depth, face, hit, reprojection UV, velocity, albedo).
 
     # the old code, imported through PYTHONPATH (a worktree of the old commit), this file from the new tree:
     PYTHONPATH=OLD_TREE python tools/identity_frames.py --device cpu --save old.npz
@@ -37,6 +37,7 @@ CASES = {
     "still-ao2": ({"foveation": {"block": 2}, "temporal": {"max_history_frames": 3}, "shading": {"ao_samples": 2}},
                   "foveated", None),
     "dof-indirect": (DOF_INDIRECT, "foveated", None),
+    "sparse-ao2": ({"foveation": {"gbuffer": "sparse"}, "shading": {"ao_samples": 2}}, "foveated", None),
     "full": ({}, "full", None),
     "full-dof-indirect": (DOF_INDIRECT, "full", None),
     # the default policy: its first measurement renders 12 foveated frames, then 12 full ones, whatever the times
@@ -93,7 +94,7 @@ def render_all(device: str, width: int, height: int, frames: int, bvh=None) -> d
     return out
 
 
-def compare(ref: dict, got: dict) -> list:
+def compare(ref: dict, got: dict) -> tuple:
     """One line per case (scene.case) of ``ref``: arrays compared, max abs difference, differing image pixels and
     differing values, marked DIFFERS where any array differs or is missing. Returns (lines, whether any differs)."""
     cases: dict = {}

@@ -122,13 +122,27 @@ class _Lines:
         raise ValueError(f"{where}: {what}")
 
 
+def _token_counts(joined: str, n: int) -> np.ndarray:
+    """(n,) int64: the whitespace-separated tokens of each of the ``n`` newline-joined rows (vectorized)."""
+    buf = np.frombuffer(joined.encode("utf-8", errors="replace"), dtype=np.uint8)
+    if buf.size == 0:
+        return np.zeros(n, dtype=np.int64)
+    if (buf >= 128).any():  # non-ASCII text may hold other spaces: str.split decides
+        return np.fromiter((len(r.split()) for r in joined.split("\n")), dtype=np.int64, count=n)
+    space = (buf == 32) | ((buf >= 9) & (buf <= 13)) | ((buf >= 28) & (buf <= 31))  # str.split's ASCII spaces
+    start = ~space
+    start[1:] &= space[:-1]
+    row = np.cumsum(buf == 10)
+    return np.bincount(row[start], minlength=n).astype(np.int64)
+
+
 def _floats(lp: _Lines, rows: list, line_nos: list, what: str, lo: int, hi: int) -> np.ndarray:
     """Rows of ``lo``..``hi`` numbers -> (N, hi) float64, missing trailing values 0 (NaN-free)."""
     n = len(rows)
     if n == 0:
         return np.zeros((0, hi), dtype=np.float64)
-    toks = [r.split() for r in rows]
-    lens = np.fromiter(map(len, toks), dtype=np.int64, count=n)
+    joined = "\n".join(rows)
+    lens = _token_counts(joined, n)
     bad = (lens < lo)
     if bad.any():
         i = int(np.argmax(bad))
@@ -136,13 +150,14 @@ def _floats(lp: _Lines, rows: list, line_nos: list, what: str, lo: int, hi: int)
     k = int(lens.max())
     try:
         if int(lens.min()) == k:
-            a = np.array([t for ts in toks for t in ts], dtype=np.float64).reshape(n, k)
+            a = np.array(joined.split(), dtype=np.float64).reshape(n, k)
         else:
             a = np.zeros((n, k), dtype=np.float64)
-            for i, ts in enumerate(toks):
+            for i, r in enumerate(rows):
+                ts = r.split()
                 a[i, :len(ts)] = np.array(ts, dtype=np.float64)
     except ValueError:
-        for i, ts in enumerate(toks):
+        for i, ts in enumerate(r.split() for r in rows):
             try:
                 [float(t) for t in ts]
             except ValueError:

@@ -3,6 +3,7 @@
 import warp as wp
 
 from .camera import CameraParams, camera_project, camera_ray_dir
+from .context import FrameContext, pixel_centre_ray_dir
 from .load import (load1_i32, load1_u8, load1_vec3, load_f32, load_i32, load_vec2, load_vec3, store_f32, store_i32,
                    store_u8, store_vec2, store_vec3)
 from .order import tile_order_pixel
@@ -207,9 +208,7 @@ def _make_gbuffer(mode: str):
         points_prev: wp.array(dtype=wp.vec3),
         vnormals: wp.array(dtype=wp.vec3),
         smooth: wp.array(dtype=wp.uint8),
-        cam: CameraParams,
-        cam_prev: CameraParams,
-        max_t: float,
+        ctx: FrameContext,
         out_pos: wp.array2d(dtype=wp.vec3),
         out_normal: wp.array2d(dtype=wp.vec3),
         out_depth: wp.array2d(dtype=float),
@@ -221,7 +220,11 @@ def _make_gbuffer(mode: str):
         wlog2: int,
         row0: int,
     ):
-        """``wlog2``: the "tiles" launch's block width, log2 (``kernels/order.py``); the other modes ignore it."""
+        """``ctx``: the frame context (cameras, ray length); ``wlog2``: the "tiles" launch's block width, log2
+        (``kernels/order.py``); the other modes ignore it."""
+        cam = ctx.cam
+        cam_prev = ctx.cam_prev
+        max_t = ctx.max_t
         if wp.static(rows):
             # the row's rays in packets of 8 (kernels/packet.py: the same hits as wp.mesh_query_ray). The row of
             # out_pos holds the directions, and the packets' hits go to out_depth, out_face, out_reproj (u, v)
@@ -229,7 +232,7 @@ def _make_gbuffer(mode: str):
             y = wp.tid() + row0  # band offset (foveawarp.parallel)
             w = out_depth.shape[1]
             for x in range(w):
-                store_vec3(out_pos, y, x, camera_ray_dir(cam, float(x) + 0.5, float(y) + 0.5))
+                store_vec3(out_pos, y, x, pixel_centre_ray_dir(ctx, x, y))
             for x0 in range(0, w, PACKET):
                 trace_packet_row(mesh, cam.eye, max_t, out_pos, y, x0, w - x0, out_depth, out_face, out_reproj,
                                  out_normal)

@@ -14,27 +14,12 @@ cell's centre point.
 
 import warp as wp
 
-from .camera import CameraParams
+from .context import FrameContext
 from .fpbits import nan_f32
 from .gbuffer import cell_pixel, trace_primary
 from .saliency import sobel_lab_by_face, sobel_vec3
 from .sampling import FrameParams, SamplingParams, dither_sample, pixel_probability, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, shade_pixel
-
-
-@wp.struct
-class PrimaryParams:
-    """Per-frame primary-ray constants of the sampled pixels, read on the device (a captured graph sees each
-    frame's camera)."""
-
-    cam: CameraParams
-    cam_prev: CameraParams
-    max_t: float
-
-
-@wp.kernel(enable_backward=False)
-def set_primary_params_kernel(pp: PrimaryParams, out: wp.array(dtype=PrimaryParams)):
-    out[0] = pp
 
 
 @wp.kernel(enable_backward=False)
@@ -44,9 +29,7 @@ def coarse_gbuffer_kernel(
     points_prev: wp.array(dtype=wp.vec3),
     vnormals: wp.array(dtype=wp.vec3),
     smooth: wp.array(dtype=wp.uint8),
-    cam: CameraParams,
-    cam_prev: CameraParams,
-    max_t: float,
+    ctx: FrameContext,
     cell: int,
     out_pos: wp.array2d(dtype=wp.vec3),
     out_normal: wp.array2d(dtype=wp.vec3),
@@ -61,10 +44,10 @@ def coarse_gbuffer_kernel(
     """One primary ray per cell (through its middle pixel's centre), written at the cell's entry."""
     cy, cx = wp.tid()
     cy += row0  # band offset (foveawarp.parallel)
-    px = float(cell_pixel(cx, cell, cam.width)) + 0.5
-    py = float(cell_pixel(cy, cell, cam.height)) + 0.5
-    trace_primary(mesh, indices, points_prev, vnormals, smooth, cam, cam_prev, max_t, px, py, cy, cx,
-                  out_pos, out_normal, out_depth, out_face, out_hit, out_reproj, out_prev_dist, out_moved)
+    px = float(cell_pixel(cx, cell, ctx.cam.width)) + 0.5
+    py = float(cell_pixel(cy, cell, ctx.cam.height)) + 0.5
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, ctx.cam, ctx.cam_prev, ctx.max_t, px, py, cy,
+                  cx, out_pos, out_normal, out_depth, out_face, out_hit, out_reproj, out_prev_dist, out_moved)
 
 
 @wp.kernel(enable_backward=False)
@@ -139,7 +122,7 @@ def sparse_sampling_kernel(
 
 @wp.kernel(enable_backward=False)
 def trace_shade_list_kernel(
-    ppa: wp.array(dtype=PrimaryParams),
+    ctxa: wp.array(dtype=FrameContext),
     spa: wp.array(dtype=ShadeParams),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
@@ -170,10 +153,10 @@ def trace_shade_list_kernel(
     i += row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
-    pp = ppa[0]
+    ctx = ctxa[0]
     sp = spa[0]
     x, y = list_pixel(work[i], sp.width)
-    trace_primary(mesh, indices, points_prev, vnormals, smooth, pp.cam, pp.cam_prev, pp.max_t,
+    trace_primary(mesh, indices, points_prev, vnormals, smooth, ctx.cam, ctx.cam_prev, ctx.max_t,
                   float(x) + 0.5, float(y) + 0.5, y, x, g_pos, g_normal, g_depth, g_face, g_hit, g_reproj,
                   g_prev_dist, g_moved)
     shade_pixel(sp, x, y, g_pos, g_normal, face_albedo, g_face, g_hit, lights, area_lights, face_emission, out,

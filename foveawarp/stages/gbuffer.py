@@ -8,6 +8,7 @@ import warp as wp
 
 from .. import parallel
 from ..camera import Camera
+from ..frame_context import FrameContextBuilder, FrameView
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
 from .._util import check_order_width, tile_order_threads
 
@@ -26,6 +27,7 @@ class GBufferStage:
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
         self._order_key = None  # (type, value) of the order_width the launch was made for
         self._set_order()
+        self._contexts = None  # run's frame contexts (made on first use)
 
     def _set_order(self) -> None:
         """The launch for ``order_width`` (checked), made again when the attribute changed: recorded once on CUDA
@@ -51,14 +53,20 @@ class GBufferStage:
     def run(self, gbuffer, camera: Camera, prev_camera: Camera) -> None:
         """Fill every stored field of ``gbuffer`` for ``camera`` (``GBuffer``: albedo and velocity follow from
         them; its albedo is bound to the scene's per-face table); reprojection fields refer to ``prev_camera``
-        and the scene's previous vertex positions."""
+        and the scene's previous vertex positions. ``run_frame`` with a context of these cameras."""
+        if self._contexts is None:
+            self._contexts = FrameContextBuilder(self.width, self.height)
+        self.run_frame(gbuffer, self._contexts.build(camera, prev_camera, (0.0, 0.0), 0, self.max_t(camera)))
+
+    def run_frame(self, gbuffer, frame: FrameView) -> None:
+        """``run`` for the frame context ``frame`` (its cameras and ray length; ``FrameContextBuilder`` of this
+        stage's width and height)."""
         self._set_order()
         g, ds = gbuffer, self.dscene
         if g._face_albedo is not ds.face_albedo:
             g.bind_albedo(ds.face_albedo)
         w, h = self.width, self.height
-        inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth,
-                  camera.params(w, h), prev_camera.params(w, h), self.max_t(camera)]
+        inputs = [ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, frame.struct]
         outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, self._wlog2]
         if parallel.use_row_kernels(self.device):  # CPU: a thread per row; CUDA: the recorded per-pixel launch
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)

@@ -250,6 +250,15 @@ class SamplingStage:
                        eye_prev=eye_prev, camera_prev=camera_prev)
         self.launch(gbuffer)
 
+    def set_frame_view(self, gbuffer, frame, *, moving: bool, history: bool,
+                       min_probability: Optional[float] = None) -> None:
+        """``set_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``: its camera, gaze
+        and frame index; with ``history``, its previous camera is the reprojection's, else the frame is a first
+        frame or follows a cut)."""
+        prev = frame.prev_camera if history else None
+        self.set_frame(gbuffer, frame.camera, frame.gaze, frame.frame_index, moving=moving, first_frame=not history,
+                       eye_prev=None if prev is None else prev.eye, camera_prev=prev, min_probability=min_probability)
+
     def set_frame(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
                   eye_prev=None, camera_prev: Optional[Camera] = None, min_probability: Optional[float] = None) -> None:
         """Validate this frame's inputs, decide what to skip (``self.skipped``) and launch the one-thread setup

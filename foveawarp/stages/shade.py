@@ -131,6 +131,11 @@ class ShadeStage:
             sp.eye = camera.eye
         return self.upload(sp)
 
+    def upload_view(self, frame, ao_samples: Optional[int] = None) -> wp.array:
+        """``upload_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``: the eye of its
+        camera and its frame index)."""
+        return self.upload_frame(frame.camera, frame.frame_index, ao_samples)
+
     def upload(self, sp: ShadeParams) -> wp.array:
         """Write ``sp`` to the device array the launches read; returns that array."""
         self._upload_launch(1, inputs=[sp], outputs=[self.params_dev], device=self.device)

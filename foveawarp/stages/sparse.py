@@ -9,11 +9,11 @@ from .. import parallel
 from ..buffers import GBuffer
 from ..camera import Camera
 from ..config import check_int_range
+from ..frame_context import FrameContextBuilder, FrameView
+from ..kernels.context import FrameContext, set_frame_context_kernel
 from ..kernels.sparse import (
-    PrimaryParams,
     coarse_gbuffer_kernel,
     coarse_saliency_kernel,
-    set_primary_params_kernel,
     sparse_sampling_kernel,
     trace_shade_list_kernel,
 )
@@ -47,7 +47,8 @@ class SparseGBufferStage:
         self.coarse = GBuffer(self.coarse_width, self.coarse_height, device, cell=self.cell, image_size=(width, height))
         self.coarse.bind_albedo(dscene.face_albedo)
         self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
-        self.primary = wp.zeros(1, dtype=PrimaryParams, device=device)
+        self.primary = wp.zeros(1, dtype=FrameContext, device=device)  # the frame context, for trace_shade
+        self._contexts = None  # trace_coarse's frame contexts (made on first use)
 
     @property
     def num_coarse_rays(self) -> int:
@@ -55,21 +56,25 @@ class SparseGBufferStage:
 
     def trace_coarse(self, camera: Camera, prev_camera: Camera, max_t: float) -> None:
         """The coarse G-buffer for ``camera`` (reprojection fields against ``prev_camera``), and this frame's
-        primary-ray parameters for ``trace_shade`` (written on the device)."""
-        ds, w, h = self.dscene, self.width, self.height
-        cam, cam_prev = camera.params(w, h), prev_camera.params(w, h)
-        c = self.coarse
+        primary-ray parameters for ``trace_shade`` (written on the device): ``trace_coarse_frame`` with a context
+        of these cameras."""
+        if self._contexts is None:
+            self._contexts = FrameContextBuilder(self.width, self.height)
+        self.trace_coarse_frame(self._contexts.build(camera, prev_camera, (0.0, 0.0), 0, float(max_t)))
+
+    def trace_coarse_frame(self, frame: FrameView) -> None:
+        """``trace_coarse`` for the frame context ``frame`` (its cameras and ray length), which ``trace_shade``
+        reads from the device."""
+        ds, c = self.dscene, self.coarse
         parallel.launch(
             coarse_gbuffer_kernel,
             dim=(self.coarse_height, self.coarse_width),
-            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, cam, cam_prev,
-                    float(max_t), self.cell],
+            inputs=[ds.mesh.id, ds.indices, ds.points_prev, ds.vertex_normals, ds.face_smooth, frame.struct,
+                    self.cell],
             outputs=[c.position, c.normal, c.depth, c.face, c.hit, c.reproj_uv, c.prev_dist, c.moved],
             device=self.device,
         )
-        pp = PrimaryParams()
-        pp.cam, pp.cam_prev, pp.max_t = cam, cam_prev, float(max_t)
-        wp.launch(set_primary_params_kernel, dim=1, inputs=[pp], outputs=[self.primary], device=self.device)
+        wp.launch(set_frame_context_kernel, dim=1, inputs=[frame.struct], outputs=[self.primary], device=self.device)
 
     def sample(self, sampling) -> None:
         """Fill ``sampling``'s probability, saliency and sample_map (and its sample counter; no cache hits) for
