@@ -1211,7 +1211,8 @@ milk_truck = _named_textured_scene("milk-truck", "Cesium's milk truck: a node hi
                                                  "(CC BY 4.0, Cesium; shared scenes folder)")
 grey_white_room = _named_textured_scene("grey-white-room", "The Grey & White Room by Wig42, the Mitsuba scene with "
                                                            "its camera and environment (CC BY 3.0; shared scenes "
-                                                           "folder; needs foveawarp.io.mitsuba)")
+                                                           "folder; its sky is an .exr, which the device copy "
+                                                           "decodes with the openexr package)")
 
 
 # ---------------------------------------------------------------------------------------------------

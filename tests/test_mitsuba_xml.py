@@ -313,6 +313,16 @@ def test_diffuse_plastic_and_twosided(tmp_path):
     assert m.base_color_factor == (0.25, 0.25, 0.25, 1.0) and m.roughness_factor == pytest.approx(0.5)
 
 
+def test_principled(tmp_path):
+    m, _, msgs = _material(tmp_path, '<bsdf type="principled" id="m"><rgb name="base_color" value="0.3, 0.5, 0.7"/>'
+                                     '<float name="metallic" value="0.25"/><float name="roughness" value="0.6"/>'
+                                     '<float name="clearcoat" value="0.5"/></bsdf>')
+    assert m.base_color_factor == (0.3, 0.5, 0.7, 1.0) and (m.metallic_factor, m.roughness_factor) == (0.25, 0.6)
+    assert not msgs
+    m, _, _ = _material(tmp_path, '<bsdf type="principled" id="m"/>')
+    assert (m.base_color_factor, m.metallic_factor, m.roughness_factor) == ((0.5, 0.5, 0.5, 1.0), 0.0, 0.5)
+
+
 def _mitsuba_f0(props: dict) -> np.ndarray:
     b = mi.load_dict(props)
     si = mi.SurfaceInteraction3f()

@@ -45,6 +45,8 @@ BSDFs -> :class:`foveawarp.materials.Material` (glTF metallic-roughness; GGX rou
       roughness 0 / sqrt(alpha), double-sided): refraction and transmission are not modelled (warning).
       ``thindielectric``: a fully transparent cut-out (alpha 0, mode MASK): a thin pane lets the light through
       unbent, and its 4-8 % reflection is lost (warning).
+    - ``principled`` (version 3): ``base_color``, ``metallic`` (default 0), ``roughness`` (default 0.5, the same
+      perceptual roughness as glTF's); its specular, sheen, clearcoat and transmission lobes are not modelled.
     - ``twosided``: its BSDF, double-sided (every other BSDF is single-sided, except the dielectrics).
     - ``mask``: ``opacity`` as a constant (base colour alpha, mode BLEND below 1) or a bitmap that is the base
       colour texture's own file (its alpha channel is the mask, mode MASK at 0.5); any other mask texture is
@@ -510,6 +512,20 @@ class _Reader:
             self.note("thindielectric BSDFs (fully transparent cut-outs: their reflection is lost)")
             mat = Material(name=name, base_color_factor=(1.0, 1.0, 1.0, 0.0), metallic_factor=0.0,
                            roughness_factor=0.0, alpha_mode="MASK", double_sided=True)
+        elif kind == "principled":
+            col, tex = self.colour_param(get("base_color"), (0.5, 0.5, 0.5), "base colour")
+            vals = []
+            for k, default in (("metallic", 0.0), ("roughness", 0.5)):
+                el_k = get(k)
+                if el_k is not None and self.resolve(el_k).tag == "texture":
+                    self.note(f"a textured {k} of {what} ({default} is used)")
+                    vals.append(default)
+                else:
+                    vals.append(min(1.0, max(0.0, self.float_of(el_k, default))))
+            used.update(("specular", "spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat",
+                         "clearcoat_gloss", "spec_trans", "eta", "sample_visible"))
+            mat = Material(name=name, base_color_factor=_rgba(col), base_color_texture=tex, metallic_factor=vals[0],
+                           roughness_factor=vals[1])
         elif kind == "twosided":
             mat = replace(inner(), double_sided=True)
         elif kind == "mask":
