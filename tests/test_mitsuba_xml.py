@@ -100,6 +100,41 @@ def test_transform_ops_compose_in_mitsuba_order():
                                @ _np_look_at([0, 0, 0], [0, 0, -1], [0, 1, 0]), atol=1e-12)
 
 
+_unit3 = st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0.2).map(
+    lambda v: tuple(float(c) for c in np.asarray(v) / np.linalg.norm(v)))
+_ops = st.one_of(
+    st.tuples(st.just("translate"), st.tuples(*[st.floats(-5, 5)] * 3)),
+    st.tuples(st.just("scale"), st.tuples(*[st.floats(0.2, 3)] * 3)),
+    st.tuples(st.just("rotate"), st.tuples(_unit3, st.floats(-180, 180))),
+    st.tuples(st.just("lookat"), st.tuples(st.tuples(*[st.floats(-3, 3)] * 3), _unit3)),
+)
+
+
+def _op_xml(kind, a) -> str:
+    if kind == "translate":
+        return '<translate x="{!r}" y="{!r}" z="{!r}"/>'.format(*a)
+    if kind == "scale":
+        return '<scale x="{!r}" y="{!r}" z="{!r}"/>'.format(*a)
+    if kind == "rotate":
+        (x, y, z), ang = a
+        return f'<rotate x="{x!r}" y="{y!r}" z="{z!r}" angle="{ang!r}"/>'
+    o, d = a
+    t = [float(c) for c in np.asarray(o) + np.asarray(d)]
+    up = (0.0, 0.0, 1.0) if abs(d[1]) > 0.9 else (0.0, 1.0, 0.0)
+    return (f'<lookat origin="{o[0]!r}, {o[1]!r}, {o[2]!r}" target="{t[0]!r}, {t[1]!r}, {t[2]!r}" '
+            f'up="{up[0]}, {up[1]}, {up[2]}"/>')
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.lists(_ops, min_size=1, max_size=4))
+def test_random_transforms_match_mitsubas_composition(ops):
+    xml = '<transform name="to_world">' + "".join(_op_xml(k, a) for k, a in ops) + "</transform>"
+    ours = mitsuba_transform(xml)
+    shape = mi.load_string(f'<scene version="3.0.0"><shape type="rectangle">{xml}</shape></scene>').shapes()[0]
+    ref = np.array(mi.traverse(shape)["to_world"].matrix, dtype=np.float64)
+    np.testing.assert_allclose(ours, ref, atol=1e-4 * max(1.0, float(np.abs(ref).max())))
+
+
 def test_shape_transforms_and_bounding_boxes_match_mitsuba(tmp_path):
     (tmp_path / "tet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 2 0\nv 0 0 3\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     (tmp_path / "tri.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
