@@ -192,7 +192,8 @@ def np_pdf(local, wo, base, rough, spec):
     return np.where(z > 0, ps * pdf_spec + (1.0 - ps) * z / np.pi, 0.0)
 
 
-@pytest.mark.parametrize("base,rough,spec,theta_o", [((0.8, 0.6, 0.4), 0.5, 0.0, 0.7), ((0.5, 0.5, 0.5), 0.45, 1.0, 0.5),
+@pytest.mark.parametrize("base,rough,spec,theta_o", [((0.8, 0.6, 0.4), 0.5, 0.0, 0.7),
+                                                    ((0.5, 0.5, 0.5), 0.45, 1.0, 0.5),
                                                     ((0.2, 0.2, 0.2), 0.6, 1.0, 1.2)])
 def test_sampled_directions_match_pdf(base, rough, spec, theta_o):
     n_samples = 200_000
