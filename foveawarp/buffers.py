@@ -28,9 +28,18 @@ class GBuffer:
     pixel. ``albedo`` looks the face up in the table given to :meth:`bind_albedo` (a :class:`FrameLoop` binds
     its scene's); unbound, it is a plain array that the caller fills (hand-made G-buffers for the stages).
     Each read of either attribute launches its kernel into the one array it returns.
+
+    A textured scene's G-buffer (:meth:`store_surface`, called by its G-buffer pass) stores the material of each
+    hit: ``albedo`` is then a stored array, the linear base colour after the texture lookup (texture x
+    ``baseColorFactor``), ``normal`` the shading normal (normal map applied), and two fields are added:
+    ``material`` ((H, W) vec4h: roughness, metallic, occlusion, specular scale, half floats, 8 bytes a pixel;
+    (1, 0, 1, 1) on misses) and ``emission`` (vec3 emitted radiance). ``roughness`` and ``metallic`` ((H, W)
+    float32) are read from ``material`` on request; on an untextured scene's G-buffer they are 1 and 0 (its
+    Lambert + Blinn-Phong shading reads neither).
     """
 
-    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist", "moved")
+    FIELDS = ("position", "normal", "depth", "albedo", "face", "hit", "velocity", "reproj_uv", "prev_dist", "moved",
+              "roughness", "metallic")
 
     def __init__(self, width: int, height: int, device, *, cell: int = 1, image_size=None):
         from ._util import check_image_size, get_device
@@ -59,6 +68,40 @@ class GBuffer:
         self._albedo = wp.zeros(shape, dtype=wp.vec3, device=device)
         self._velocity = wp.zeros(shape, dtype=wp.vec2, device=device)
         self._face_albedo = None
+        self.textured = False
+        self.material = self.emission = None
+        self._roughness = self._metallic = None
+
+    def store_surface(self) -> None:
+        """Make this the G-buffer of a textured scene: ``albedo`` stored (no longer looked up by face), and the
+        ``material`` and ``emission`` arrays allocated (once)."""
+        self._face_albedo = None
+        if self.material is None:
+            shape = (self.height, self.width)
+            self.material = wp.zeros(shape, dtype=wp.vec4h, device=self.device)
+            self.emission = wp.zeros(shape, dtype=wp.vec3, device=self.device)
+        self.textured = True
+
+    def _material_fields(self) -> tuple:
+        """(roughness, metallic) (H, W) float32: split from ``material``, or 1 and 0 without one."""
+        if self._roughness is None:
+            shape = (self.height, self.width)
+            self._roughness = wp.full(shape, 1.0, dtype=float, device=self.device)
+            self._metallic = wp.zeros(shape, dtype=float, device=self.device)
+        if self.textured:
+            from .kernels.gbuffer_textured import split_material_kernel
+
+            wp.launch(split_material_kernel, dim=(self.height, self.width), inputs=[self.material],
+                      outputs=[self._roughness, self._metallic], device=self.device)
+        return self._roughness, self._metallic
+
+    @property
+    def roughness(self) -> wp.array:
+        return self._material_fields()[0]
+
+    @property
+    def metallic(self) -> wp.array:
+        return self._material_fields()[1]
 
     def bind_albedo(self, face_albedo) -> None:
         """Make ``albedo`` the per-face table ``face_albedo`` ((F,) vec3 on this device) looked up by ``face``."""
@@ -69,6 +112,7 @@ class GBuffer:
         if face_albedo.device != self.device:
             raise ValueError(f"face_albedo must be on {self.device}, got {face_albedo.device}")
         self._face_albedo = face_albedo
+        self.textured = False
 
     @property
     def velocity(self) -> wp.array:

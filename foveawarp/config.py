@@ -386,6 +386,10 @@ class ShadingConfig:
         white_point: Uncharted 2 linear white point, in (0, float32 max]; radiance beyond ~1e18 after the exposure
             maps to the curve's limit (white for any white point up to 1e18).
         seed: base seed of the per-pixel random streams (AO and area-light samples).
+        texture_lod: texture level of detail of textured scenes (``Scene.materials``): "ray_cone" (default: the
+            ray-cone LOD of Akenine-Moller et al. 2019/2021, trilinear; a primary ray's cone spreads over one
+            pixel, a sparse sample's over its spacing) or "none" (level 0, bilinear: for parity with renderers
+            without MIP maps, such as Mitsuba 3's bitmap). Untextured scenes ignore it.
     """
 
     shadows: bool = True
@@ -406,6 +410,7 @@ class ShadingConfig:
     exposure: float = 2.0
     white_point: float = 11.2
     seed: int = 1
+    texture_lod: str = "ray_cone"
 
     def __post_init__(self):
         object.__setattr__(self, "ambient", _check_color("ShadingConfig.ambient", self.ambient))
@@ -429,6 +434,7 @@ class ShadingConfig:
         check_range("ShadingConfig.white_point", self.white_point, 0.0, FLOAT32_MAX, lo_open=True)
         check_int_range("ShadingConfig.seed", self.seed, 0, 2**31 - 1)
         check_bool("ShadingConfig.shadows", self.shadows)
+        check_choice("ShadingConfig.texture_lod", self.texture_lod, ("ray_cone", "none"))
 
 
 JFA_VARIANTS = ("jfa", "jfa+1", "jfa+2", "1+jfa")

@@ -198,6 +198,7 @@ class FrameLoop:
         self._ref_prev_camera: Optional[Camera] = None
         self._stats: dict = {}
         self.gbuffer_stage = GBufferStage(self.dscene, w, h, dev)
+        self.gbuffer_stage.texture_lod = cfg.shading.texture_lod  # a textured scene's texture LOD
         self._contexts = FrameContextBuilder(w, h)  # the per-frame view constants (frame context), one struct
         self.shade = ShadeStage(self.dscene, cfg.shading, w, h, dev)
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
@@ -268,6 +269,7 @@ class FrameLoop:
             from .stages.sparse import SparseGBufferStage
 
             self.sparse = SparseGBufferStage(self.dscene, w, h, cfg.foveation.coarse_cell, dev)
+            self.sparse.texture_lod = cfg.shading.texture_lod
 
     # -- helpers ---------------------------------------------------------------------------------------
     def _stage(self, name: str, active: bool = True):
@@ -739,7 +741,7 @@ class FrameLoop:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
         CPU's rows kernels, deterministic shading) instead of a separate masked shading pass: the masked
         strategy, with nothing (indirect light) added to the shading between the two."""
-        return (strategy == "none" and self.indirect is None
+        return (strategy == "none" and self.indirect is None and not self.shade.textured
                 and self.temporal.can_shade(self._stochastic_shading()))
 
     def _tonemap_fused(self, strategy: str) -> bool:

@@ -680,6 +680,10 @@ class DeviceScene:
         self.face_lab = wp.empty(n, dtype=wp.vec3, device=dev)
         wp.launch(face_lab_kernel, dim=n, inputs=[self.face_albedo], outputs=[self.face_lab], device=dev)
         self._upload_textured(scene)
+        if scene.materials is not None:
+            # a textured scene's albedo varies within its faces: no per-face Lab, the sampling map converts the
+            # G-buffer's per-pixel albedo (FrameLoop passes face_lab=None)
+            self.face_lab = None
 
     def _upload_textured(self, scene: Scene) -> None:
         """The textured-surface data, copied once, each only when the scene has it (None otherwise):

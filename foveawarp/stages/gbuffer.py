@@ -10,6 +10,8 @@ from .. import parallel
 from ..camera import Camera
 from ..frame_context import FrameContextBuilder, FrameView
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
+from ..kernels.gbuffer_textured import gbuffer_textured_kernel
+from ..surface import environment_map, is_textured, surface_data
 from .._util import check_order_width, tile_order_threads
 
 __all__ = ["GBufferStage"]
@@ -22,6 +24,9 @@ class GBufferStage:
     # CUDA: each warp traces a block of pixels this wide (kernels/order.py: 8 x 4, 16 x 2, ...); 0: the (H, W)
     # launch, 32 pixels of a row. The same values in every order
     order_width = 8
+
+    # a textured scene's texture LOD (ShadingConfig.texture_lod: "ray_cone" or "none"); FrameLoop sets it
+    texture_lod = "ray_cone"
 
     def __init__(self, dscene, width: int, height: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
@@ -63,6 +68,9 @@ class GBufferStage:
         stage's width and height)."""
         self._set_order()
         g, ds = gbuffer, self.dscene
+        if is_textured(ds):
+            self._run_textured(g, frame)
+            return
         if g._face_albedo is not ds.face_albedo:
             g.bind_albedo(ds.face_albedo)
         w, h = self.width, self.height
@@ -72,3 +80,15 @@ class GBufferStage:
             parallel.launch_rows(gbuffer_kernel, gbuffer_rows_kernel, (h, w), inputs, outputs, self.device)
         else:
             self._launch(dim=self._dim, inputs=inputs, outputs=outputs, device=self.device)
+
+    def _run_textured(self, g, frame) -> None:
+        """``run_frame`` of a textured scene (kernels/gbuffer_textured.py): ``g`` stores the material per pixel
+        (``GBuffer.store_surface``), the texture LOD of ``texture_lod``, the environment seen by misses."""
+        ds = self.dscene
+        g.store_surface()
+        env, has_env = environment_map(ds)
+        parallel.launch(gbuffer_textured_kernel, dim=(self.height, self.width),
+                        inputs=[ds.mesh.id, surface_data(ds, self.texture_lod), env, int(has_env), ds.points_prev,
+                                frame.struct],
+                        outputs=[g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved,
+                                 g._albedo, g.material, g.emission], device=self.device)

@@ -27,6 +27,15 @@ from ..kernels.shade import (
     shade_rows_kernel,
 )
 
+from ..kernels.shade_textured import (
+    TexturedShadeParams,
+    shade_textured_full_kernel,
+    shade_textured_list_kernel,
+    shade_textured_masked_kernel,
+    shade_textured_rows_kernel,
+)
+from ..surface import environment_map, is_textured, surface_data
+
 __all__ = ["ShadeStage"]
 
 
@@ -72,6 +81,9 @@ class ShadeStage:
     AO_BLOCK_DIM = 128
     AO_THREADS_PER_SM = 16384
 
+    # whether the scene is textured (set in __init__): its shading runs the kernels of kernels/shade_textured.py
+    textured = False
+
     def __init__(self, dscene, config, width: int, height: int, device):
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
@@ -83,6 +95,22 @@ class ShadeStage:
         # CUDA: the second stream of ``list``'s split, made here, before any graph capture can begin
         self._side = wp.Stream(device) if wp.get_device(device).is_cuda else None
         self._light = None  # ``list``'s split: (capacity,) vec3 light part and its stochastic part per entry
+        # a textured scene (foveawarp.surface): the glTF material model's kernels (kernels/shade_textured.py)
+        self.textured = is_textured(dscene)
+        self.textured_params = self._textured_params() if self.textured else None
+
+    def _textured_params(self) -> TexturedShadeParams:
+        """The textured shading's per-scene constants: surfaces at ``texture_lod``, the environment with
+        ``area_light_samples`` samples per pixel, shadow rays to infinity as twice the scene's extent (every
+        point lies inside its bounding box)."""
+        ds = self.dscene
+        tp = TexturedShadeParams()
+        tp.sd = surface_data(ds, self.config.texture_lod)
+        tp.env, has_env = environment_map(ds)
+        tp.has_env = int(has_env)
+        tp.env_samples = int(self.config.area_light_samples) if has_env else 0
+        tp.far = float(2.0 * ds.extent)
+        return tp
 
     def stochastic(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
@@ -94,7 +122,8 @@ class ShadeStage:
         deterministic shading)."""
         sc = self.config
         ao = sc.ao_samples if ao_samples is None else ao_samples
-        return int(ao) + int(self.dscene.num_area_lights) * int(sc.area_light_samples)
+        env = self.textured_params.env_samples if self.textured else 0
+        return int(ao) + int(self.dscene.num_area_lights) * int(sc.area_light_samples) + int(env)
 
     def params(self, camera: Camera, frame_index: int, ao_samples: Optional[int] = None) -> ShadeParams:
         sc, ds = self.config, self.dscene
@@ -149,11 +178,24 @@ class ShadeStage:
         g, ds = gbuffer, self.dscene
         return [g.position, g.normal, ds.face_albedo, g.face, g.hit, ds.lights, ds.area_lights, ds.face_emission]
 
+    def textured_inputs(self, gbuffer) -> list:
+        """The textured shading launches' scene and G-buffer arrays after the parameters: the per-scene constants,
+        position, normal, albedo, material, emission, hit, lights, area lights."""
+        g, ds = gbuffer, self.dscene
+        return [self.textured_params, g.position, g.normal, g.albedo, g.material, g.emission, g.hit, ds.lights,
+                ds.area_lights]
+
     def full(self, gbuffer, out, out_stoch, display=None) -> None:
         """Shade every pixel into ``out`` (and ``out_stoch``); ``display`` (an (H, W) vec3 array, or None): also
         the tone-mapped values, with the config's exposure and white point, in the same pass."""
         sc = self.config
         disp = self._dummy_display if display is None else display
+        if self.textured:
+            parallel.launch(shade_textured_full_kernel, dim=(self.height, self.width),
+                            inputs=[self.params_dev, *self.textured_inputs(gbuffer), float(sc.exposure),
+                                    float(sc.white_point), 0 if display is None else 1],
+                            outputs=[out, out_stoch, disp], device=self.device)
+            return
         wlog2 = check_order_width("ShadeStage.order_width", self.order_width)
         args = dict(inputs=[self.params_dev, *self.inputs(gbuffer), float(sc.exposure), float(sc.white_point),
                             0 if display is None else 1],
@@ -168,19 +210,32 @@ class ShadeStage:
 
     def masked(self, gbuffer, mask, out, out_stoch) -> None:
         """Every pixel launched, unsampled threads exit at once (the unreordered baseline)."""
+        if self.textured:
+            parallel.launch(shade_textured_masked_kernel, dim=(self.height, self.width),
+                            inputs=[self.params_dev, mask, *self.textured_inputs(gbuffer)], outputs=[out, out_stoch],
+                            device=self.device)
+            return
         parallel.launch_rows(shade_masked_kernel, shade_masked_rows_kernel, (self.height, self.width),
                              inputs=[self.params_dev, mask, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                              device=self.device)
 
     def rows(self, gbuffer, coords, counts, out, out_stoch) -> None:
         """Row-CSR launch (thesis strategies 1/2)."""
+        if self.textured:
+            parallel.launch(shade_textured_rows_kernel, dim=(self.height, self.width),
+                            inputs=[self.params_dev, coords, counts, *self.textured_inputs(gbuffer)],
+                            outputs=[out, out_stoch], device=self.device)
+            return
         parallel.launch(shade_rows_kernel, dim=(self.height, self.width),
                         inputs=[self.params_dev, coords, counts, *self.inputs(gbuffer)], outputs=[out, out_stoch],
                         device=self.device)
 
     def ao_lanes(self) -> int:
         """Threads per pixel that ``list`` gives the AO rays of the last uploaded parameters: ``min(ao_lanes,
-        ao_samples)``; below 2, one thread per pixel traces them with its shading."""
+        ao_samples)``; below 2, one thread per pixel traces them with its shading (always for a textured scene:
+        its list shading has no lanes)."""
+        if self.textured:
+            return 1
         return min(int(self.config.ao_lanes), self._ao_samples)
 
     def list(self, gbuffer, work, count, out, out_stoch) -> None:
@@ -195,6 +250,11 @@ class ShadeStage:
         dev = self.device
         if n * lanes > 2**31 - 1:
             lanes = 1  # the lane launch's thread index is a 32-bit int: one thread per pixel (same values)
+        if self.textured:
+            parallel.launch(shade_textured_list_kernel, dim=n,
+                            inputs=[self.params_dev, work, count, *self.textured_inputs(gbuffer)],
+                            outputs=[out, out_stoch], device=dev, count=count, max_blocks=blocks)
+            return
         if lanes < 2:
             parallel.launch(shade_list_kernel, dim=n, inputs=[self.params_dev, work, count, *self.inputs(gbuffer),
                                                               self._no_part, 0],

@@ -17,6 +17,13 @@ from ..kernels.sparse import (
     sparse_sampling_kernel,
     trace_shade_list_kernel,
 )
+from ..kernels.gbuffer_textured import (
+    coarse_gbuffer_textured_kernel,
+    coarse_saliency_lab_kernel,
+    trace_shade_textured_list_kernel,
+)
+from ..kernels.saliency import lab_kernel
+from ..surface import environment_map, is_textured, surface_data
 from .sampling import launch_tile_pass
 
 __all__ = ["SparseGBufferStage"]
@@ -39,16 +46,33 @@ class SparseGBufferStage:
         device: Warp device.
     """
 
+    # a textured scene's texture LOD (ShadingConfig.texture_lod); FrameLoop sets it
+    texture_lod = "ray_cone"
+
     def __init__(self, dscene, width: int, height: int, cell: int, device):
         self.dscene, self.width, self.height, self.device = dscene, width, height, device
         self.cell = check_int_range("cell", cell, 1, 64)
         self.coarse_width = (width + self.cell - 1) // self.cell
         self.coarse_height = (height + self.cell - 1) // self.cell
         self.coarse = GBuffer(self.coarse_width, self.coarse_height, device, cell=self.cell, image_size=(width, height))
-        self.coarse.bind_albedo(dscene.face_albedo)
+        self.textured = is_textured(dscene)
+        self._sample_probability = None
+        if self.textured:
+            # the coarse entries store their base colour and material; the saliency reads their Lab
+            self.coarse.store_surface()
+            self.coarse_lab = wp.zeros((self.coarse_height, self.coarse_width), dtype=wp.vec3, device=device)
+        else:
+            self.coarse.bind_albedo(dscene.face_albedo)
         self.coarse_saliency = wp.zeros((self.coarse_height, self.coarse_width), dtype=float, device=device)
         self.primary = wp.zeros(1, dtype=FrameContext, device=device)  # the frame context, for trace_shade
         self._contexts = None  # trace_coarse's frame contexts (made on first use)
+
+    def _probability(self) -> wp.array:
+        """(H, W) float32: the sampling probability of the last ``sample`` (1 everywhere before one: a one-pixel
+        cone)."""
+        if self._sample_probability is None:
+            self._sample_probability = wp.full((self.height, self.width), 1.0, dtype=float, device=self.device)
+        return self._sample_probability
 
     @property
     def num_coarse_rays(self) -> int:
@@ -66,6 +90,16 @@ class SparseGBufferStage:
         """``trace_coarse`` for the frame context ``frame`` (its cameras and ray length), which ``trace_shade``
         reads from the device."""
         ds, c = self.dscene, self.coarse
+        if self.textured:
+            env, has_env = environment_map(ds)
+            parallel.launch(coarse_gbuffer_textured_kernel, dim=(self.coarse_height, self.coarse_width),
+                            inputs=[ds.mesh.id, surface_data(ds, self.texture_lod), env, int(has_env), ds.points_prev,
+                                    frame.struct, self.cell],
+                            outputs=[c.position, c.normal, c.depth, c.face, c.hit, c.reproj_uv, c.prev_dist, c.moved,
+                                     c.albedo, c.material, c.emission], device=self.device)
+            wp.launch(set_frame_context_kernel, dim=1, inputs=[frame.struct], outputs=[self.primary],
+                      device=self.device)
+            return
         parallel.launch(
             coarse_gbuffer_kernel,
             dim=(self.coarse_height, self.coarse_width),
@@ -82,14 +116,24 @@ class SparseGBufferStage:
         dev, c = self.device, self.coarse
         sampling.num_samples.zero_()
         sampling.num_cache_hits.zero_()
-        parallel.launch(coarse_saliency_kernel, dim=(self.coarse_height, self.coarse_width),
-                        inputs=[sampling.params, sampling.frame_params, c.face, self.dscene.face_lab, c.normal, c.hit,
-                                c.position, c.reproj_uv, self.cell, self.width, self.height],
-                        outputs=[self.coarse_saliency], device=dev)
+        if self.textured:
+            parallel.launch(lab_kernel, dim=(self.coarse_height, self.coarse_width), inputs=[c.albedo],
+                            outputs=[self.coarse_lab], device=dev)
+            parallel.launch(coarse_saliency_lab_kernel, dim=(self.coarse_height, self.coarse_width),
+                            inputs=[sampling.params, sampling.frame_params, self.coarse_lab, c.normal, c.hit,
+                                    c.position, c.reproj_uv, self.cell, self.width, self.height],
+                            outputs=[self.coarse_saliency], device=dev)
+        else:
+            parallel.launch(coarse_saliency_kernel, dim=(self.coarse_height, self.coarse_width),
+                            inputs=[sampling.params, sampling.frame_params, c.face, self.dscene.face_lab, c.normal,
+                                    c.hit, c.position, c.reproj_uv, self.cell, self.width, self.height],
+                            outputs=[self.coarse_saliency], device=dev)
+        maps = sampling.map_buffers()
+        self._sample_probability = maps[1]  # the probability each pixel's sample was drawn with (trace_shade)
         parallel.launch(sparse_sampling_kernel, dim=(self.height, self.width),
                         inputs=[sampling.params, sampling.frame_params, sampling.ranks, self.coarse_saliency,
                                 self.cell],
-                        outputs=[*sampling.map_buffers(), sampling.sample_map], device=dev)
+                        outputs=[*maps, sampling.sample_map], device=dev)
         launch_tile_pass(sampling.ranks, sampling.params, sampling.frame_params, sampling.tiles, sampling.sample_map,
                          sampling.cache_hit, sampling.num_samples, sampling.num_cache_hits, dev,
                          sampling.tile_counts)
@@ -98,6 +142,16 @@ class SparseGBufferStage:
         """Trace and shade the flat pixel indices ``work[0:count[0]]`` (``shade``: a :class:`ShadeStage` whose
         parameters were uploaded this frame). Writes ``gbuffer`` at those pixels only."""
         ds, g = self.dscene, gbuffer
+        if self.textured:
+            # the cone of each sample spreads over its spacing at the sampling map's probability
+            g.store_surface()
+            parallel.launch(trace_shade_textured_list_kernel, dim=work.shape[0],
+                            inputs=[self.primary, shade.params_dev, shade.textured_params, work, count, ds.mesh.id,
+                                    ds.points_prev, self._probability(), ds.lights, ds.area_lights],
+                            outputs=[g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved,
+                                     g._albedo, g.material, g.emission, out, out_stoch],
+                            device=self.device, count=count)
+            return
         parallel.launch(
             trace_shade_list_kernel,
             dim=work.shape[0],
