@@ -290,3 +290,23 @@ def test_degenerate_uvs_and_faces_give_finite_values(uv_scale, collapse, lod, ns
     assert np.all(np.isfinite(g.emission.numpy()))
     n = g.normal.numpy()[g.hit.numpy() != 0]
     np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-5)
+
+
+@pytest.mark.parametrize("gbuffer", ["full", "sparse"])
+def test_saliency_sees_the_texture(device, gbuffer):
+    # one face material, a texture of two colours split down the middle: only the texture gives an albedo edge
+    img = np.zeros((1, 2, 3), np.float32)
+    img[0, 0], img[0, 1] = (0.9, 0.9, 0.9), (0.05, 0.05, 0.05)
+    m = Material(base_color_texture=TextureRef(0, filter="nearest", color_space="srgb"), metallic_factor=0.0)
+    sc = make_scene([quad(x0=-3, x1=3, y0=-3, y1=3)], [m], [img])
+    cfg = Config().with_(foveation={"gbuffer": gbuffer, "fovea_deg": 0.0}, saliency={"use_normal": False},
+                         shading={"texture_lod": "none"})
+    loop = FrameLoop(sc, width=W, height=H, config=cfg, device=device)
+    loop.render(CAM, gaze_px=(2.0, 2.0))
+    sal = loop.sampling.saliency.numpy()
+    prob = loop.sampling.probability.numpy()
+    edge = sal[:, W // 2 - 4:W // 2 + 4]
+    assert np.all(edge.max(axis=1) >= 0.99)  # the texture's edge is salient on every row
+    # away from the edge the saliency is the eccentricity probability alone
+    far = np.r_[0:W // 2 - 8, W // 2 + 8:W]
+    np.testing.assert_allclose(sal[:, far][prob[:, far] < 0.9], prob[:, far][prob[:, far] < 0.9], atol=1e-6)
