@@ -330,6 +330,50 @@ def test_depth2_point_light_exact(kind):
     np.testing.assert_allclose(img, ref, rtol=2e-4, atol=1e-7)
 
 
+def np_gltf_f(wo, wi, base, rough, spec):
+    """glTF metallic-roughness f (metallic 0) in NumPy, local frame: GGX D, height-correlated Smith V, Schlick
+    dielectric Fresnel Fd = s (0.04 + 0.96 (1 - wo.h)^5) on the lobe, (1 - Fd) base / pi diffuse."""
+    alpha = max(rough * rough, 1e-3)
+    h = wo + wi
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    a2 = alpha * alpha
+    d = a2 / (np.pi * (h[..., 0] ** 2 + h[..., 1] ** 2 + a2 * h[..., 2] ** 2) ** 2)
+    zo, zi = wo[..., 2], wi[..., 2]
+    ao = np.sqrt(zo * zo + a2 * (1 - zo * zo))
+    ai = np.sqrt(zi * zi + a2 * (1 - zi * zi))
+    v = 0.5 / (zi * ao + zo * ai)
+    fd = spec * (0.04 + 0.96 * (1.0 - np.clip((wo * h).sum(-1), 0, 1)) ** 5)
+    return (d * v * fd)[..., None] + ((1.0 - fd) / np.pi)[..., None] * np.asarray(base)
+
+
+def test_depth2_point_light_glossy():
+    """Depth 2 with the Blinn-Phong stand-in lobe (specular 0.15, shininess 48: roughness 0.447, specularFactor 1)
+    under a point light: f cos I / r^2 with f from the NumPy glTF BSDF at the pixel-centre hits."""
+    a = np.array([0.3, 0.5, 0.7])
+    v, f = quad_mesh((-2, 0, -2), (0, 0, 4), (4, 0, 0))
+    light = fw.Light(position=(0.2, 0.7, -0.6), intensity=(2.0, 2.0, 2.0))
+    sc = fw.Scene(vertices=v, faces=f, face_albedo=np.tile(a, (2, 1)), lights=[light])
+    cam = fw.Camera(eye=(0.0, 1.2, 1.8), target=(0, 0, -0.4), up=(0, 1, 0), fov_y_deg=50)
+    w, h = 16, 12
+    cfg = fw.ShadingConfig(specular=0.15, shininess=48.0, background=(0.0, 0.0, 0.0))
+    img = passes(sc, cam, w, h, 1, 1, config=cfg, max_depth=2)[0]
+    p, on = plane_hits(cam, w, h, 2.0)
+    dl = np.asarray(light.position) - p
+    r2 = (dl ** 2).sum(-1)
+    wi = dl / np.sqrt(r2)[..., None]
+    wo = np.asarray(cam.eye) - p
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    # the plane's frame: z = +y; any tangent frame gives the same isotropic BSDF
+    loc = lambda x: np.stack([x[..., 0], x[..., 2], x[..., 1]], axis=-1)  # noqa: E731
+    fv = np_gltf_f(loc(wo), loc(wi), a, math.sqrt(math.sqrt(2.0 / 50.0)), 1.0)
+    ref = np.where(on[..., None], fv * np.asarray(light.intensity) * (wi[..., 1] / r2)[..., None], 0.0)
+    assert on.sum() > 0.5 * on.size
+    # the highlight is in view: somewhere the lobe gives over 1.5 times the Lambert term alone
+    lambert = a / np.pi * np.asarray(light.intensity) * (wi[..., 1] / r2)[..., None]
+    assert (ref[on] / lambert[on]).max() > 1.5
+    np.testing.assert_allclose(img, ref, rtol=1e-3, atol=1e-6)
+
+
 def test_depth2_area_light():
     """Depth 2 under an area light over a plane: the light-sampled and BSDF-sampled estimates (MIS) against the
     irradiance integral (a / pi) Le int cos_i cos_l / r^2 dA by 48 x 48 Gauss-Legendre quadrature; no light
