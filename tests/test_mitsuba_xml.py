@@ -63,7 +63,8 @@ def _shape_arrays(d, i):
 
 def _np_rotate(axis, angle_deg):
     m = np.eye(4)
-    m[:3, :3] = Rotation.from_rotvec(np.asarray(axis, float) / np.linalg.norm(axis) * math.radians(angle_deg)).as_matrix()
+    rotvec = np.asarray(axis, float) / np.linalg.norm(axis) * math.radians(angle_deg)
+    m[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
     return m
 
 
@@ -302,7 +303,8 @@ def test_sensor_rays_match_mitsuba(tmp_path, axis, size):
 
 
 def test_sensor_matrix_version_05_names_and_defaults(tmp_path):
-    mat = "0.264209 0.071763 -0.961792 5.10518 0 0.997228 0.074407 0.731065 0.964465 -0.019659 0.263476 -2.31789 0 0 0 1"
+    mat = ("0.264209 0.071763 -0.961792 5.10518 0 0.997228 0.074407 0.731065 0.964465 -0.019659 0.263476 -2.31789 "
+           "0 0 0 1")
     body = (f'<sensor type="perspective"><float name="fov" value="90"/><string name="fovAxis" value="y"/>'
             f'<float name="nearClip" value="0.05"/><transform name="toWorld"><matrix value="{mat}"/></transform>'
             f'</sensor>')
@@ -409,7 +411,8 @@ def test_bitmaps_masks_and_normal_maps(tmp_path):
     nm[..., :3] = (128, 128, 255)
     _png(tmp_path / "n.png", nm)
     bsdf = ('<bsdf type="mask" id="m"><texture name="opacity" type="bitmap"><string name="filename" value="leaf.png"/>'
-            '</texture><bsdf type="normalmap"><texture name="normalmap" type="bitmap"><boolean name="raw" value="true"/>'
+            '</texture><bsdf type="normalmap"><texture name="normalmap" type="bitmap">'
+            '<boolean name="raw" value="true"/>'
             '<string name="filename" value="n.png"/></texture><bsdf type="twosided"><bsdf type="diffuse">'
             '<texture name="reflectance" type="bitmap"><string name="filename" value="leaf.png"/>'
             '<string name="filter_type" value="nearest"/><string name="wrap_mode" value="mirror"/>'
@@ -427,7 +430,8 @@ def test_bitmaps_masks_and_normal_maps(tmp_path):
     # version 0.5: wrapModeU/V and the u/v scale and offset; a constant opacity
     m, _, msgs = _material(tmp_path, '<bsdf type="mask" id="m"><float name="opacity" value="0.3"/>'
                                      '<bsdf type="diffuse"><texture name="reflectance" type="bitmap">'
-                                     '<string name="filename" value="leaf.png"/><string name="wrapModeU" value="clamp"/>'
+                                     '<string name="filename" value="leaf.png"/>'
+                                     '<string name="wrapModeU" value="clamp"/>'
                                      '<float name="uscale" value="4"/><float name="voffset" value="0.5"/></texture>'
                                      '</bsdf></bsdf>', version="0.5.0")
     t = m.base_color_texture

@@ -15,9 +15,9 @@ The file:
       (``x y z`` or ``value``); colours ``rgb`` (linear), ``srgb`` (decoded; ``#rrggbb`` too), ``spectrum``
       (one value; ``wavelength:value`` pairs become their mean, with a warning), ``float``.
     - ``transform``: ``matrix`` (16 numbers row-major, or 9 for the linear part), ``translate``, ``rotate``
-      (axis, normalized, and angle in degrees, right-handed), ``scale`` (one ``value`` or ``x y z``), ``lookat`` (origin,
-      target, up: the local +z looks at the target, +y is up, +x is ``cross(up, direction)``), each op applied
-      after those before it, ``M = op_n ... op_1``, as Mitsuba composes them.
+      (axis, normalized, and angle in degrees, right-handed), ``scale`` (one ``value`` or ``x y z``), ``lookat``
+      (origin, target, up: the local +z looks at the target, +y is up, +x is ``cross(up, direction)``), each op
+      applied after those before it, ``M = op_n ... op_1``, as Mitsuba composes them.
 
 Shapes (each placed by its ``to_world``; normals by the inverse transpose, the winding reversed by a mirror):
     - ``obj`` (:func:`foveawarp.io.obj.parse_obj`; UVs flipped to the top-left origin unless
