@@ -349,7 +349,8 @@ def part_reference(args, dev, sizes, repeats):
             loop = fw.FrameLoop(scene, w, h, device=dev, timing=False)
             cam = scene.camera
             loop.render_reference(cam)  # compile + warm
-            g = time_ms(lambda: loop._gbuffer(cam, cam), dev, repeats, args.warmup)
+            view = loop._contexts.build(cam, cam, (w * 0.5, h * 0.5), loop.frame_index, loop._max_t(cam))
+            g = time_ms(lambda: loop._gbuffer(view), dev, repeats, args.warmup)
             s = time_ms(lambda: loop.shade_full(cam), dev, repeats, args.warmup)
             ao = time_ms(lambda: loop.shade_full(cam, ao_samples=8), dev, repeats, args.warmup)
             t = time_ms(lambda: loop._tonemap(loop.radiance, loop.image), dev, repeats, args.warmup)
