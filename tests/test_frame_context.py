@@ -105,9 +105,9 @@ def test_context_rays_and_reprojection_match_numpy(device):
 def test_context_rays_finite_unit_and_equal_to_camera_functions(e, t, fov, w, h):
     """Any camera (degenerate sizes of 1 pixel, fields of view up to 179 deg): finite unit rays, the camera
     functions' bits."""
-    d = np.subtract(t, e)
-    if np.linalg.norm(d) < 1e-3 or abs(d[1]) > 0.999 * np.linalg.norm(d):
-        return
+    for d in (np.subtract(t, e), np.subtract(t, np.add(e, (0.5, 0.0, 0.0)))):  # both cameras well defined
+        if np.linalg.norm(d) < 1e-3 or abs(d[1]) > 0.999 * np.linalg.norm(d):
+            return
     cam = fw.Camera(eye=e, target=t, up=(0, 1, 0), fov_y_deg=fov)
     prev = fw.Camera(eye=tuple(np.add(e, (0.5, 0.0, 0.0))), target=t, up=(0, 1, 0), fov_y_deg=fov)
     _, _, (centre, offset, proj), same = _probe(cam, prev, w, h, "cpu")

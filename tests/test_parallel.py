@@ -119,7 +119,7 @@ def test_work_list_count(every_band):
     for n, fl in loops.items():
         cam = fl.scene.camera_at(0.0)
         g = fl.gbuffer
-        fl._gbuffer(cam, cam)
+        fl._gbuffer(fl._contexts.build(cam, cam, (12.0, 8.0), fl.frame_index, fl._max_t(cam)))
         work = wp.array(np.arange(24 * 16, dtype=np.int32)[::-1].copy(), dtype=wp.int32, device=DEV)
         count = wp.array([100], dtype=wp.int32, device=DEV)
         out = wp.full((16, 24), wp.vec3(-1.0, -1.0, -1.0), dtype=wp.vec3, device=DEV)

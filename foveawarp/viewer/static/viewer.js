@@ -20,7 +20,6 @@
   let serverStats = {};
   let dragging = false;
   let lastDrag = null;
-  let lastMouse = null;      // the mouse over the canvas, kept until the first frame gives the render size
   const keys = new Set();
 
   function send(obj) {
@@ -76,11 +75,7 @@
       }
       ctx.drawImage(bmp, 0, 0);
       bmp.close();
-      const first = renderW === 0;
       renderW = header.render_width; renderH = header.render_height;
-      // a mouse that moved before the first frame is mapped now, through the real canvas size (the page's
-      // 640x360 placeholder would give a wrong gaze)
-      if (first && lastMouse && !pendingGaze) pendingGaze = toRender(lastMouse);
       frameShown(header);
       decodeNext();
     }, () => decodeNext());
@@ -108,8 +103,7 @@
   }
 
   canvas.addEventListener("mousemove", (ev) => {
-    lastMouse = { clientX: ev.clientX, clientY: ev.clientY };
-    if (renderW) pendingGaze = toRender(lastMouse);   // before the first frame the canvas size is a placeholder
+    pendingGaze = toRender(ev);
     if (dragging && lastDrag) {
       const dx = ev.clientX - lastDrag[0], dy = ev.clientY - lastDrag[1];
       if (dx || dy) send({ type: "orbit", dx: dx, dy: dy });
