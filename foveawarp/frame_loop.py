@@ -201,6 +201,8 @@ class FrameLoop:
         self.gbuffer_stage.texture_lod = cfg.shading.texture_lod  # a textured scene's texture LOD
         self._contexts = FrameContextBuilder(w, h)  # the per-frame view constants (frame context), one struct
         self.shade = ShadeStage(self.dscene, cfg.shading, w, h, dev)
+        # a scene with an environment: its misses show the environment the G-buffer saw, not one background colour
+        self._env_misses = bool(self.shade.textured and self.shade.textured_params.has_env)
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
@@ -719,6 +721,8 @@ class FrameLoop:
                                   count=self.reorder.count if listed else None, sampling=srows)
                 if sample_in_resolve:
                     self.sampling.sum_row_counts()
+                if self._env_misses:
+                    self.temporal.show_misses(self.gbuffer.hit, self.gbuffer.emission)
         with self._stage("reconstruct", foveated):
             if foveated:
                 sc = cfg.shading

@@ -168,3 +168,18 @@ def test_viewer_offers_the_textured_scenes():
     _check_scene_sources(scenes)
     session = ViewerSession(scenes, 32, 18, device="cpu")
     assert list(session.limits.scenes)[: 4] == ["cornell", "room", "suzanne", "wicker"]
+
+
+def test_room_foveated_frame_shows_the_sky_where_rays_miss(device):
+    """Where primary rays miss, the room's foveated frame shows its sky (the environment along each pixel's ray,
+    as the G-buffer saw it), equal to the full-resolution reference there, not one background colour."""
+    w, h = 64, 36
+    loop = fw.FrameLoop("room", w, h, device=device, policy="foveated")
+    cam = loop.scene.camera
+    for _ in range(2):
+        img = loop.render(cam, gaze_px=(0.3 * w, 0.6 * h)).image.numpy().copy()
+    miss = loop.gbuffer.hit.numpy() == 0
+    ref = loop.render_reference(cam).image.numpy()
+    assert miss.sum() > 0.05 * w * h  # the camera sees the sky through the open side
+    np.testing.assert_array_equal(img[miss], ref[miss])
+    assert np.ptp(img[miss], axis=0).max() > 0.01  # the sky's gradient, not a constant

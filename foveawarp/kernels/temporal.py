@@ -371,6 +371,17 @@ resolve_stoch_boxed_kernel, _, _ = _make_resolve_kernels(True, boxed=True)
 
 
 @wp.kernel(enable_backward=False)
+def misses_seen_kernel(hit: wp.array2d(dtype=wp.uint8), seen: wp.array2d(dtype=wp.vec3),
+                       color: wp.array2d(dtype=wp.vec3), row0: int):
+    """Each miss's colour: what the G-buffer's primary ray saw past the scene (``seen``, a textured scene's
+    G-buffer ``emission``: its environment along the pixel-centre ray), exact without tracing."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    if hit[y, x] == wp.uint8(0):
+        color[y, x] = seen[y, x]
+
+
+@wp.kernel(enable_backward=False)
 def stoch_box_list_kernel(
     tp: TemporalParams,
     work: wp.array(dtype=wp.int32),

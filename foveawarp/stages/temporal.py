@@ -10,6 +10,7 @@ from ..config import TemporalConfig, check_int_range
 from ..kernels.temporal import (
     META_SHIFT,
     TemporalParams,
+    misses_seen_kernel,
     refresh_thin_kernel,
     resolve_kernel,
     resolve_rows_kernel,
@@ -129,6 +130,14 @@ class TemporalStage:
     def depth(self) -> wp.array:
         """(H, W) float: the G-buffer depth of the last resolved frame (the next frame's previous depth)."""
         return self._depth[self._cur]
+
+    def show_misses(self, hit: wp.array, seen: wp.array) -> None:
+        """Overwrite the last resolved colour at the G-buffer's misses with ``seen`` (H, W) vec3, what each
+        miss's primary ray saw: the environment of a scene that has one, where the resolve wrote the constant
+        background. Read by the reconstruction like any filled pixel; the next frame's hits never take a miss's
+        history (its depth test fails)."""
+        parallel.launch(misses_seen_kernel, dim=(self.height, self.width), inputs=[hit, seen, self.color],
+                        device=self.device)
 
     def reset(self) -> None:
         """Forget all history (camera cut, resize of the content, change of the shading kind)."""
