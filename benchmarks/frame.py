@@ -13,10 +13,13 @@ scene's camera path (1/30 s a frame) with a moving gaze (a Lissajous figure):
   ``flip-evaluator`` is installed) of the foveated frame, with their mean and min over ``--frames`` frames, and
   FovVideoVDP (when the optional ``pyfvvdp`` is installed; ``--fvvdp-max-pixels``) of the whole video in its
   foveated mode with each frame's gaze, in JOD (10 = no visible difference).
-  Target: ``render_reference`` of the same camera, time and gaze; with AO rays the target is a converged frame
-  (``--converged-ao`` rays per pixel), and the full-resolution frame with as many AO rays as the foveated one
-  gets its own error against it too (so both sit on the time-vs-error plot).
+  Target: ``render_reference`` of the same camera, time and gaze; with stochastic shading the target is a
+  converged frame (``--converged-ao`` AO rays per pixel, ``--converged-samples`` samples per area light and of a
+  textured scene's environment), and the full-resolution frame with the foveated frame's shading gets its own
+  error against it too (so both sit on the time-vs-error plot).
 * ``--configs``: other foveation settings as ``name=python-dict`` Config.with_ overrides, each its own record.
+* ``--keep FILE.json``: the records of an earlier frame JSON that this run does not repeat stay in the output,
+  each with its own ``commit`` (a re-run of some scenes replaces only theirs).
 
 Writes frame-<tag>.json / .md and frame-<tag>.png (x = frame ms, y = PSNR: foveated and reference points).
 
@@ -27,6 +30,7 @@ Writes frame-<tag>.json / .md and frame-<tag>.png (x = frame ms, y = PSNR: fovea
 from __future__ import annotations
 
 import ast
+import json
 import math
 import sys
 import textwrap
@@ -38,7 +42,7 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import (REPO, base_parser, md_table, parse_sizes, plot_path, progress,  # noqa: E402
+from benchmarks._common import (REPO, base_parser, git_commit, md_table, parse_sizes, plot_path, progress,  # noqa: E402
                                 pyplot, scenes_present, write_results)
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
@@ -257,20 +261,32 @@ def _with_flip(metrics):
 SERIES = ("psnr", "ssim", "fovea_psnr", "flip")  # per frame; "fovvdp" (one value per video) joins them
 
 
-def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0, video=False):
+def path_quality(fw, scene, w, h, dev, cfg, frames, metrics, converged_ao=0, converged_area=0, video=False):
     """Per-frame error series along the camera path with the moving gaze: ``fov`` of the foveated frame (history
-    on, ``policy="foveated"``) and, with ``converged_ao`` > 0, ``ref`` of the full-resolution frame with ``cfg``'s
-    shading, both against a converged frame (``converged_ao`` AO rays per pixel); with 0 the target is
-    ``render_reference`` of ``cfg`` and ``ref`` is None (the reference is the target). Also the sampling rates;
-    with ``video``, FovVideoVDP (``foveawarp.metrics.fovvdp``) of each whole video against the target's, as
-    ``fovvdp`` (one value per series)."""
+    on, ``policy="foveated"``) and, where ``cfg``'s shading is stochastic (AO rays; area-light or environment
+    samples), ``ref`` of the full-resolution frame with ``cfg``'s shading, both against a converged frame
+    (``converged_ao`` AO rays per pixel where ``cfg`` has AO rays, ``converged_area`` samples per area light and
+    of the environment where it has those); with deterministic shading the target is ``render_reference`` of
+    ``cfg`` and ``ref`` is None (the reference is the target). Also the sampling rates and ``target`` (what the
+    target is); with ``video``, FovVideoVDP (``foveawarp.metrics.fovvdp``) of each whole video against the
+    target's, as ``fovvdp`` (one value per series)."""
     fov_deg = scene.camera.fov_y_deg
-    target_cfg = cfg.with_(shading={"ao_samples": int(converged_ao)}) if converged_ao else cfg
-    target = fw.FrameLoop(scene, w, h, config=target_cfg, device=dev, timing=False, policy="foveated")
     fovl = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="foveated")
-    full = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full") if converged_ao else None
+    sc = cfg.shading
+    over = {}
+    if fovl.shade.stochastic():
+        if sc.ao_samples and converged_ao:
+            over["ao_samples"] = int(converged_ao)
+        if fovl.shade.stochastic_samples() > sc.ao_samples and converged_area:
+            over["area_light_samples"] = int(converged_area)
+    target_cfg = cfg.with_(shading=over) if over else cfg
+    target = fw.FrameLoop(scene, w, h, config=target_cfg, device=dev, timing=False, policy="foveated")
+    full = fw.FrameLoop(scene, w, h, config=cfg, device=dev, timing=False, policy="full") if over else None
+    names = {"ao_samples": "AO rays", "area_light_samples": "light and environment samples"}
+    what = " + ".join(f"{v} {names[k]}" for k, v in over.items()) or "render_reference"
     tgt = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    out = {"fov": {k: [] for k in SERIES}, "ref": {k: [] for k in SERIES} if full else None, "sampling_rate": []}
+    out = {"fov": {k: [] for k in SERIES}, "ref": {k: [] for k in SERIES} if full else None, "sampling_rate": [],
+           "target": what}
     vids = {"target": [], "fov": [], "ref": [], "gaze": []} if video else None
 
     def add(series, m):
@@ -424,6 +440,12 @@ def main(argv=None):
     p.add_argument("--ao-samples", default="0,8", help="comma list of AO rays per pixel (0: the default shading)")
     p.add_argument("--converged-ao", type=int, default=256,
                    help="AO rays per pixel of the quality target when --ao-samples > 0 (above every item, <= 4096)")
+    p.add_argument("--converged-samples", type=int, default=256,
+                   help="samples per area light and of the environment of the quality target where the shading "
+                        "samples them (area lights, textured scenes with an environment), in [1, 256]")
+    p.add_argument("--keep", default=None, metavar="FILE.json",
+                   help="a frame JSON whose records this run does not repeat (scene, size, config, AO) are kept "
+                        "in the output, each with its own commit")
     p.add_argument("--frames", type=int, default=30, help="frames of the quality series (0: no quality)")
     p.add_argument("--timing-frames", type=int, default=30, help="timed frames per loop (0: no timing)")
     p.add_argument("--turns", default="frames", choices=TURNS,
@@ -462,6 +484,9 @@ def main(argv=None):
     if not max(aos) < args.converged_ao <= 4096:
         p.error(f"--converged-ao must be in [{max(aos) + 1}, 4096] (above every --ao-samples), got "
                 f"{args.converged_ao}")
+    if not 1 <= args.converged_samples <= 256:
+        p.error(f"--converged-samples must be in [1, 256], got {args.converged_samples}")
+    kept = _kept_records(p, args.keep)
     if args.frames < 0 or args.timing_frames < 0:
         p.error(f"--frames and --timing-frames must be >= 0, got {args.frames} and {args.timing_frames}")
     if args.fvvdp_max_pixels < 0:
@@ -488,10 +513,10 @@ def main(argv=None):
                "frames": args.frames,
                "timing_frames": args.timing_frames}
         if args.frames:
-            q = path_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.converged_ao if ao else 0,
-                             video=with_fvvdp and w * h <= args.fvvdp_max_pixels)
+            q = path_quality(fw, scene, w, h, dev, cfg, args.frames, metrics, args.converged_ao,
+                             args.converged_samples, video=with_fvvdp and w * h <= args.fvvdp_max_pixels)
             rec.update(sampling_rate=float(np.mean(q["sampling_rate"])), sampling_rate_series=q["sampling_rate"],
-                       quality_target=f"{args.converged_ao} AO rays" if ao else "render_reference",
+                       quality_target=q["target"],
                        **_summary("", q["fov"]),
                        series={k: v for k, v in q["fov"].items() if v and k != "fovvdp"})
             if q["ref"] is not None:
@@ -503,19 +528,51 @@ def main(argv=None):
             rec.update(tm)
         rec["seconds"] = time.perf_counter() - t0
         records.append(rec)
-        row = {"scene": scene.name, "size": f"{w}x{h}", "config": cname, "ao": ao}
-        for k in ("sampling_rate", "ref_ms", "fov_ms", "speedup", "auto_ms", "auto_path", "psnr_mean", "psnr_min",
-                  "ssim_mean", "fovea_psnr_mean", "fovea_psnr_min", "flip_mean", "fovvdp_jod", "ref_psnr_mean"):
-            if k in rec:
-                row[k] = rec[k]
-        rows.append(row)
+    commit = git_commit()
+    for r in records:
+        r["commit"] = commit
+    done = {_record_key(r) for r in records}
+    kept = [r for r in kept if _record_key(r) not in done]
+    records = kept + records
+    rows = [_table_row(r) for r in records]
     cols = list(dict.fromkeys(k for r in rows for k in r))
     md = md_table(rows, cols)
     write_results("frame", dev, records, md, args.out, args.tag,
-                  extra={"frames": args.frames, "timing_frames": args.timing_frames, "turns": args.turns})
+                  extra={"frames": args.frames, "timing_frames": args.timing_frames, "turns": args.turns,
+                         "kept_from": args.keep and Path(args.keep).name, "kept_records": len(kept)})
     plot(records, plot_path("frame", dev, args.out, args.tag), dev)
     print(md)
     return records
+
+
+def _record_key(r: dict) -> tuple:
+    return r["scene"], int(r["width"]), int(r["height"]), r.get("config", "default"), int(r.get("ao_samples", 0))
+
+
+def _table_row(rec: dict) -> dict:
+    row = {"scene": rec["scene"], "size": f"{rec['width']}x{rec['height']}", "config": rec.get("config", "default"),
+           "ao": rec.get("ao_samples", 0)}
+    for k in ("sampling_rate", "ref_ms", "fov_ms", "speedup", "auto_ms", "auto_path", "psnr_mean", "psnr_min",
+              "ssim_mean", "fovea_psnr_mean", "fovea_psnr_min", "flip_mean", "fovvdp_jod", "ref_psnr_mean"):
+        if k in rec:
+            row[k] = rec[k]
+    return row
+
+
+def _kept_records(p, path) -> list:
+    """The records of ``--keep FILE.json`` (each given the file's commit where it has none of its own)."""
+    if path is None:
+        return []
+    try:
+        d = json.loads(Path(path).read_text())
+        recs = d["records"]
+        for r in recs:
+            _record_key(r)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        p.error(f"--keep must name a frame JSON with records (scene, width, height), got {path!r}: {e}")
+    if d.get("benchmark") != "frame":
+        p.error(f"--keep must name a frame JSON, got {path!r} (benchmark {d.get('benchmark')!r})")
+    return [{**r, "commit": r.get("commit", d.get("commit", "unknown"))} for r in recs]
 
 
 def plot(records, path, dev):

@@ -15,12 +15,16 @@ Parts (``--parts``, comma list; default all):
   synthetic frames (a gradient with texture and the same plus noise, sigma 0.05); their largest difference.
 * ``reference``: the full-resolution reference path per scene: G-buffer, shading, shading with 8 AO rays, tone
   map and the whole ``render_reference``.
+* ``textures``: what textures cost: per textured scene (``--textured-scenes``), the full-resolution G-buffer and
+  shading with its materials and textures, and of the same geometry without them (each face its mean base
+  colour: the untextured kernels).
 
 Medians of ``--repeats`` synchronized runs after ``--warmup``. Writes stages-<tag>.json / .md.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 import sys
@@ -44,9 +48,11 @@ from foveawarp.kernels.saliency import lab_kernel  # noqa: E402
 from foveawarp.stages.reconstruct import ReconstructStage, jfa_start_step_for_block, sibson_window_for_block  # noqa
 from foveawarp.stages.sampling import SamplingStage, launch_tile_pass  # noqa: E402
 
+# the textures part has its own canonical run (tools/canonical.sh "textures": stages-textures-h200)
 CANONICAL = ("python benchmarks/stages.py --device cuda:0 --out benchmarks/results --tag h200 "
-             "--sizes 1920x1080,3840x2160 --scenes cornell,city,bunny,nefertiti")
-PARTS = ("sampling", "reconstruct", "bvh", "metrics", "reference")
+             "--parts sampling,reconstruct,bvh,metrics,reference --sizes 1920x1080,3840x2160 "
+             "--scenes cornell,city,bunny,nefertiti")
+PARTS = ("sampling", "reconstruct", "bvh", "metrics", "reference", "textures")
 BLOCK = 4
 
 
@@ -364,11 +370,44 @@ def part_reference(args, dev, sizes, repeats):
                   "synchronization)\n\n" + md_table(rows, cols))
 
 
+def untextured(scene):
+    """``scene`` without materials, textures or environment: the same geometry, lights and camera, each face its
+    mean base colour (``Scene.face_albedo``), drawn by the untextured G-buffer and shading."""
+    return dataclasses.replace(scene, name=f"{scene.name} (untextured)", materials=None, face_material=None,
+                               uvs=None, uvs1=None, tangents=None, images=[], environment=None)
+
+
+def part_textures(args, dev, sizes, repeats):
+    rows = []
+    for scene in scenes_present(fw, args.textured_scenes):
+        for w, h in sizes:
+            row = {"part": "textures", "scene": scene.name, "triangles": scene.num_triangles, "width": w,
+                   "height": h, "resolution": f"{w}x{h}"}
+            for kind, sc in (("textured", scene), ("untextured", untextured(scene))):
+                loop = fw.FrameLoop(sc, w, h, device=dev, timing=False)
+                cam = sc.camera
+                loop.render_reference(cam)  # compile + warm
+                view = loop._contexts.build(cam, cam, (w * 0.5, h * 0.5), loop.frame_index, loop._max_t(cam))
+                row[f"gbuffer_{kind}_ms"] = time_ms(lambda: loop._gbuffer(view), dev, repeats,
+                                                    args.warmup)["median_ms"]
+                row[f"shade_{kind}_ms"] = time_ms(lambda: loop.shade_full(cam), dev, repeats,
+                                                  args.warmup)["median_ms"]
+            row["gbuffer_ratio"] = row["gbuffer_textured_ms"] / row["gbuffer_untextured_ms"]
+            row["shade_ratio"] = row["shade_textured_ms"] / row["shade_untextured_ms"]
+            rows.append(row)
+    cols = ["scene", "triangles", "resolution", "gbuffer_textured_ms", "gbuffer_untextured_ms", "gbuffer_ratio",
+            "shade_textured_ms", "shade_untextured_ms", "shade_ratio"]
+    return rows, ("## Textures: the full-resolution G-buffer and shading with the scene's materials and textures "
+                  "against the same geometry untextured (each face its mean base colour)\n\n" + md_table(rows, cols))
+
+
 def main(argv=None):
     p = base_parser(__doc__, CANONICAL)
     p.add_argument("--parts", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
     p.add_argument("--sizes", default="1920x1080,3840x2160")
     p.add_argument("--scenes", default="cornell,city,bunny,nefertiti", help="scenes of the bvh / reference parts")
+    p.add_argument("--textured-scenes", default="room,suzanne,wicker,barrel,milk-truck",
+                   help="scenes of the textures part (those not found are skipped and named)")
     p.add_argument("--bvh-configs", default="auto,sah-4,sah-2,cubql,lbvh-2",
                    help="BVH constructors of the bvh part: ctor or ctor-leaf, comma list")
     args = p.parse_args(argv)
@@ -379,6 +418,7 @@ def main(argv=None):
     sizes = [(64, 36)] if args.quick else parse_sizes(p, args.sizes)
     if args.quick:
         args.scenes = args.scenes.split(",")[0]
+        args.textured_scenes = args.textured_scenes.split(",")[0]
     repeats = args.repeats or (3 if args.quick else 20)
     wp.config.quiet = True
     dev = wp.get_device(args.device)

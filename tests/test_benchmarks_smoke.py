@@ -111,6 +111,31 @@ def test_frame(tmp_path):
     assert "| speedup |" in md and "| psnr_mean |" in md and "| auto_path |" in md
 
 
+def test_frame_stochastic_target_and_keep(tmp_path):
+    """frame.py on the room (its environment is sampled: stochastic shading): the target is converged with
+    --converged-samples and the full-resolution frame gets its own error; --keep keeps an earlier JSON's records
+    that the run does not repeat, with their commit, and the repeated one is replaced; a bad --keep is refused."""
+    old = {"benchmark": "frame", "commit": "c0ffee", "records": [
+        {"scene": "cornell", "width": 64, "height": 36, "config": "default", "ao_samples": 0, "psnr_mean": 40.0},
+        {"scene": "room", "width": 64, "height": 36, "config": "default", "ao_samples": 0, "psnr_mean": 14.5}]}
+    keep = tmp_path / "old.json"
+    keep.write_text(json.dumps(old))
+    _run("frame", ["--quick", "--device", "cpu", "--scenes", "room", "--ao-samples", "0", "--frames", "2",
+                   "--timing-frames", "0", "--converged-samples", "16", "--keep", str(keep), "--tag", "keep"],
+         tmp_path)
+    res = _result("frame", tmp_path, "keep", png=False)  # no timing: no time-vs-error plot
+    kept, room = res["records"]
+    assert (kept["scene"], kept["commit"], kept["psnr_mean"]) == ("cornell", "c0ffee", 40.0)
+    assert room["scene"] == "room" and room["commit"] == res["commit"] != "c0ffee"
+    assert room["quality_target"] == "16 light and environment samples" and len(room["ref_series"]["psnr"]) == 2
+    assert 10.0 < room["psnr_mean"] < 100.0 and 10.0 < room["ref_psnr_mean"] < 100.0
+    assert res["kept_from"] == "old.json" and res["kept_records"] == 1
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"benchmark": "stages", "records": []}')
+    r = _run("frame", ["--quick", "--device", "cpu", "--scenes", "room", "--keep", str(bad)], tmp_path, ok=False)
+    assert r.returncode == 2 and "--keep must name a frame JSON" in r.stderr
+
+
 def test_frame_summarize_prints_the_readme_table(tmp_path):
     """frame.py --summarize: one row per timed and measured record with the figures of the JSON, the plot's link,
     and --readme writes it between the markers (a README without them is refused by name)."""
@@ -165,15 +190,16 @@ def test_reorder(tmp_path):
 def test_stages(tmp_path):
     """stages.py, every part: sampling runs and rates, JFA variants with their wrong-pixel share against the
     exact distance transform, bounded against exact Sibson, BVH configurations that draw the same G-buffer, device
-    metrics equal to the host's, the reference's parts."""
+    metrics equal to the host's, the reference's parts, a textured scene's G-buffer and shading with and without its
+    textures."""
     _run("stages", ["--quick", "--device", "cpu"], tmp_path)
     res = _result("stages", tmp_path, png=False)
-    assert res["parts"] == ["sampling", "reconstruct", "bvh", "metrics", "reference"]
+    assert res["parts"] == ["sampling", "reconstruct", "bvh", "metrics", "reference", "textures"]
     by = {}
     for r in res["records"]:
         by.setdefault(r["part"], []).append(r)
     assert set(by) == {"sampling", "sampling_rate", "reconstruct", "reconstruct_stage", "bvh", "metrics",
-                       "reference"}
+                       "reference", "textures"}
     assert all(_pos(r["median_ms"]) and 0 < r["sampling_rate"] <= 1 for r in by["sampling"])
     for r in by["reconstruct"]:
         assert 0 < r["seeds_pct"] < 100 and _pos(r["sibson_bounded_ms"], r["sibson_exact_ms"])
@@ -185,6 +211,10 @@ def test_stages(tmp_path):
     assert m["max_abs_diff"] < 1e-3 and _pos(m["device_ms"], m["host_ms"])
     (ref,) = by["reference"]
     assert _pos(ref["gbuffer_ms"], ref["shade_ms"], ref["shade_ao8_ms"], ref["frame_ms"])
+    (tex,) = by["textures"]
+    assert tex["scene"] == "room" and _pos(tex["gbuffer_textured_ms"], tex["gbuffer_untextured_ms"],
+                                           tex["shade_textured_ms"], tex["shade_untextured_ms"])
+    assert tex["gbuffer_ratio"] == tex["gbuffer_textured_ms"] / tex["gbuffer_untextured_ms"]
 
 
 def test_dof(tmp_path):
@@ -332,7 +362,7 @@ def test_help_shows_the_common_options_and_the_canonical_run(capsys):
 
 def test_canonical_sh_parts(tmp_path):
     """tools/canonical.sh with a stand-in python that logs its arguments: part1 and part2 together run every
-    entry point once, each part its own; a list runs the names given; an unknown name is refused; without
+    entry point once, each part its own, part3 the textured frame and stages runs; a list runs the names given; an unknown name is refused; without
     frame-h200.json the README step fails and the exit status says so."""
     fake = tmp_path / "bin"
     fake.mkdir()
@@ -357,6 +387,8 @@ def test_canonical_sh_parts(tmp_path):
     entries = {f"benchmarks/{n}.py" for n in ENTRY_POINTS}
     assert set(s1[:2]) | set(s2) == entries and not set(s1[:2]) & set(s2)
     assert s2.count("benchmarks/robustness.py") == 2  # the parity's CPU half, then the CUDA run
+    r5, s5 = run("part3")
+    assert r5.returncode == 0 and s5 == ["benchmarks/frame.py", "benchmarks/stages.py"], r5.stderr
     r3, s3 = run("dof", "cpu")
     assert r3.returncode == 0 and s3 == ["benchmarks/dof.py", "benchmarks/cpu.py"]
     r4, s4 = run("bogus")

@@ -3,13 +3,16 @@
 # entry point's canonical run (the command its --help begins with), then the README's results table from
 # frame-h200.json.
 #
-#   tools/canonical.sh [all | part1 | part2 | readme | ENTRY ...]
+#   tools/canonical.sh [all | part1 | part2 | part3 | readme | ENTRY ...]
 #
 #   part1   frame, reorder, then readme (estimated 8 minutes of H200 time: one call of under 10 minutes)
 #   part2   stages, dof, indirect, viewer, robustness, cpu (estimated 7 minutes)
-#   all     part1 then part2 (the default)
+#   part3   textured (frame-textured: the textured scenes), textures (stages-textures: their G-buffer and shading
+#           with and without textures) (estimated 10 minutes)
+#   all     part1, part2 and part3 (the default)
 #   readme  only the README's results table, from benchmarks/results/frame-h200.json
-#   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu)
+#   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu,
+#           textured, textures)
 #
 # The GPU machine has a copy of the working tree without .git: set FOVEAWARP_COMMIT to the commit it came from
 # (every JSON records it). Meshes that assets/ does not ship (nefertiti) are read from $FOVEAWARP_SCENES or a
@@ -48,12 +51,22 @@ canonical_frame() {
         --scenes cornell,city,bunny,nefertiti --sizes 1920x1080,3840x2160 --ao-samples 0,8 \
         --frames 30 --timing-frames 30
 }
+canonical_textured() {
+    run textured python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag textured-h200 \
+        --scenes room,suzanne,wicker,barrel,milk-truck --sizes 1920x1080,3840x2160 --ao-samples 0 \
+        --frames 20 --timing-frames 20
+}
+canonical_textures() {
+    run textures python benchmarks/stages.py --device cuda:0 --out benchmarks/results --tag textures-h200 \
+        --parts textures --sizes 1920x1080,3840x2160
+}
 canonical_reorder() {
     run reorder python benchmarks/reorder.py --device cuda:0 --out benchmarks/results --tag h200 \
         --scenes cornell,city,bunny --sizes 1920x1080,3840x2160
 }
 canonical_stages() {
     run stages python benchmarks/stages.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --parts sampling,reconstruct,bvh,metrics,reference \
         --sizes 1920x1080,3840x2160 --scenes cornell,city,bunny,nefertiti
 }
 canonical_dof() {
@@ -93,7 +106,8 @@ canonical_readme() {
 
 PART1=(frame reorder readme)
 PART2=(stages dof indirect viewer robustness cpu)
-ENTRIES=(frame reorder stages dof indirect viewer robustness cpu readme)
+PART3=(textured textures)
+ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures readme)
 
 todo=()
 [ $# -eq 0 ] && set -- all
@@ -103,14 +117,15 @@ if [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
 fi
 for arg in "$@"; do
     case "$arg" in
-        all) todo+=("${PART1[@]}" "${PART2[@]}") ;;
+        all) todo+=("${PART1[@]}" "${PART2[@]}" "${PART3[@]}") ;;
         part1) todo+=("${PART1[@]}") ;;
         part2) todo+=("${PART2[@]}") ;;
+        part3) todo+=("${PART3[@]}") ;;
         *)
             if [[ " ${ENTRIES[*]} " == *" $arg "* ]]; then
                 todo+=("$arg")
             else
-                echo "canonical.sh: unknown part or entry point '$arg' (allowed: all, part1, part2, ${ENTRIES[*]})" >&2
+                echo "canonical.sh: unknown part or entry point '$arg' (allowed: all, part1, part2, part3, ${ENTRIES[*]})" >&2
                 exit 2
             fi ;;
     esac
