@@ -47,8 +47,7 @@ from benchmarks._common import (REPO, base_parser, git_commit, md_table, parse_s
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
 CANONICAL = ("python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 "
-             "--scenes cornell,city,bunny,nefertiti --sizes 1920x1080,3840x2160 --ao-samples 0,8 "
-             "--frames 30 --timing-frames 30")
+             "--scenes cornell,bunny --sizes 1920x1080,3840x2160 --ao-samples 0,8 --frames 20 --timing-frames 20")
 
 
 def gaze_path(i, n, w, h):

@@ -48,8 +48,7 @@ run() {  # run NAME COMMAND...: the command, its time and its exit status
 
 canonical_frame() {
     run frame python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 \
-        --scenes cornell,city,bunny,nefertiti --sizes 1920x1080,3840x2160 --ao-samples 0,8 \
-        --frames 30 --timing-frames 30
+        --scenes cornell,bunny --sizes 1920x1080,3840x2160 --ao-samples 0,8 --frames 20 --timing-frames 20
 }
 canonical_textured() {
     run textured python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag textured-h200 \
