@@ -18,6 +18,7 @@ Over K consecutive frames each pixel takes every rank once: successive frames sa
 import warp as wp
 
 from .camera import CameraParams, camera_project
+from .context import FrameContext
 from .fpbits import nan_f32
 from .gbuffer import NO_REPROJ, reproj_velocity
 from .load import (load_f32, load_i32, load_u8, load_vec2, load_vec3, nine_equal_mask64_i32, nine_equal_mask64_vec3,
@@ -447,11 +448,9 @@ def dither_sample_shifted(p: float, x: int, y: int, width: int, height: int, ran
 
 @wp.kernel(enable_backward=False)
 def frame_setup_kernel(
-    gaze_x: float,
-    gaze_y: float,
+    ctx: FrameContext,  # the frame context: gaze, this frame's field of view, the previous camera
     width: int,
     height: int,
-    tan_half_fov_y: float,
     mar_slope: float,
     mar_fovea_deg: float,
     falloff_deg: float,  # eccentricity of the eq. 2 normalizer; >= e_max: the thesis's (largest on screen)
@@ -460,17 +459,19 @@ def frame_setup_kernel(
     depth: wp.array2d(dtype=float),
     hit: wp.array2d(dtype=wp.uint8),
     use_velocity: int,
-    object_velocity: int,
-    cam_prev: CameraParams,
-    eye_prev: wp.vec3,
-    do_cache: int,
+    object_velocity: int,  # 1: the previous camera (ctx.cam_prev) removes camera motion from the velocity term
+    do_cache: int,  # 1: the cache test runs, against the previous eye (ctx.cam_prev.eye)
     rot: int,
     phase: float,
     xi: float,
     fovea_deg: float,
     out: wp.array(dtype=FrameParams),
 ):
-    """One thread: derive the per-frame scalars on the device (no host round trip for the focus depth)."""
+    """One thread: derive the per-frame scalars on the device from the frame context and the stage's settings (no
+    host round trip for the focus depth)."""
+    gaze_x = ctx.gaze[0]
+    gaze_y = ctx.gaze[1]
+    tan_half_fov_y = ctx.cam.tan_half_fov_y
     fw = float(width)
     fh = float(height)
     f = FrameParams()
@@ -494,8 +495,12 @@ def frame_setup_kernel(
             f.focus_m = depth[gy, gx]
     f.use_velocity = use_velocity
     f.object_velocity = object_velocity
-    f.cam_prev = cam_prev
-    f.eye_prev = eye_prev
+    f.cam_prev = CameraParams()
+    if object_velocity != 0:
+        f.cam_prev = ctx.cam_prev
+    f.eye_prev = wp.vec3(0.0, 0.0, 0.0)
+    if do_cache != 0:
+        f.eye_prev = ctx.cam_prev.eye
     f.do_cache = do_cache
     f.rot = rot
     f.phase = phase

@@ -8,6 +8,7 @@ ambient, emission). The temporal resolve accumulates only the stochastic part ov
 
 import warp as wp
 
+from .context import FrameContext
 from .gbuffer import surface_albedo
 from .order import tile_order_pixel
 from .rng import cosine_hemisphere, pixel_rng
@@ -589,3 +590,12 @@ def set_shade_params_kernel(sp: ShadeParams, out: wp.array(dtype=ShadeParams)):
     """Write the frame's shading parameters to the device (the entry kernels read them from there, so a
     captured CUDA graph picks up each frame's eye and frame index)."""
     out[0] = sp
+
+
+@wp.kernel(enable_backward=False)
+def set_shade_params_view_kernel(sp: ShadeParams, ctx: FrameContext, out: wp.array(dtype=ShadeParams)):
+    """``set_shade_params_kernel`` with the frame's eye and frame index taken from the frame context."""
+    p = sp
+    p.eye = ctx.cam.eye
+    p.frame = ctx.frame
+    out[0] = p

@@ -13,6 +13,7 @@ from .._util import as_wp, check_image_size, get_device
 from ..camera import _check_gaze
 from ..config import Config, FoveationConfig, check_array, check_int_range, check_range, check_vec
 from ..kernels.camera import CameraParams
+from ..kernels.context import FrameContext
 from ..kernels.reproject import cache_test_kernel
 from ..kernels.sampling import (
     FrameParams,
@@ -54,10 +55,16 @@ def _frame(width, height, gaze_px, fov_y_deg, dev, *, mar_slope=1.0, mar_fovea_d
     out = wp.zeros(1, dtype=FrameParams, device=dev)
     dummy_d = wp.zeros((1, 1), dtype=float, device=dev)
     dummy_h = wp.zeros((1, 1), dtype=wp.uint8, device=dev)
+    ctx = FrameContext()  # the gaze and the field of view; no previous camera (no velocity, no cache test)
+    cam = CameraParams()
+    cam.tan_half_fov_y = math.tan(math.radians(fov) * 0.5)
+    cam.aspect = float(w) / float(h)
+    cam.width, cam.height = w, h
+    ctx.cam = cam
+    ctx.gaze = wp.vec2(gx, gy)
     wp.launch(frame_setup_kernel, dim=1,
-              inputs=[gx, gy, w, h, math.tan(math.radians(fov) * 0.5), float(mar_slope), float(mar_fovea_deg),
-                      float(falloff_deg), 0, 0.0, dummy_d, dummy_h, 0, 0, CameraParams(), wp.vec3(0.0, 0.0, 0.0), 0,
-                      rot, phase, 0.0, 0.0],
+              inputs=[ctx, w, h, float(mar_slope), float(mar_fovea_deg), float(falloff_deg), 0, 0.0, dummy_d, dummy_h,
+                      0, 0, 0, rot, phase, 0.0, 0.0],
               outputs=[out], device=dev)
     return out, w, h
 

@@ -15,6 +15,7 @@ from .._util import check_image_size, get_device
 from ..camera import Camera, _check_gaze
 from ..config import Config, check_bool, check_int_range, check_range, check_vec, show
 from ..kernels.camera import CameraParams
+from ..kernels.context import FrameContext
 from ..kernels.saliency import LAB_STEP_FULL, NORMAL_STEP_FULL, SOBEL_GAIN, lab_kernel
 from ..kernels.sampling import (
     FrameParams,
@@ -238,8 +239,6 @@ class SamplingStage:
         self._sum_launch = parallel.Relaunch(tile_counts_sum_kernel, bands=False)
         self._setup_launch = parallel.Relaunch(frame_setup_kernel, bands=False)  # recorded once on CUDA
         self.skipped: dict = {}
-        self._no_cam = CameraParams()
-        self._zero = wp.vec3(0.0, 0.0, 0.0)
 
     # -- per frame ---------------------------------------------------------------------------------------------
     def run(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
@@ -252,18 +251,19 @@ class SamplingStage:
 
     def set_frame_view(self, gbuffer, frame, *, moving: bool, history: bool,
                        min_probability: Optional[float] = None) -> None:
-        """``set_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``: its camera, gaze
-        and frame index; with ``history``, its previous camera is the reprojection's, else the frame is a first
-        frame or follows a cut)."""
-        prev = frame.prev_camera if history else None
-        self.set_frame(gbuffer, frame.camera, frame.gaze, frame.frame_index, moving=moving, first_frame=not history,
-                       eye_prev=None if prev is None else prev.eye, camera_prev=prev, min_probability=min_probability)
+        """``set_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``), whose struct the
+        setup kernel reads: its gaze, camera and frame index, and with ``history`` its previous camera (the cache
+        test's previous eye, and the velocity term's camera motion); without, the frame is a first frame or follows
+        a cut."""
+        self._setup(gbuffer, frame.struct, frame.frame_index, moving=moving, first_frame=not history,
+                    object_prev=history, min_probability=min_probability)
 
     def set_frame(self, gbuffer, camera: Camera, gaze_px, frame_index: int, *, moving: bool, first_frame: bool,
                   eye_prev=None, camera_prev: Optional[Camera] = None, min_probability: Optional[float] = None) -> None:
         """Validate this frame's inputs, decide what to skip (``self.skipped``) and launch the one-thread setup
         kernel that writes every per-frame value (gaze, w_min, w_far, focus depth read from the G-buffer at the
-        gaze pixel, threshold rotation, flags) to ``self.frame_params`` on the device.
+        gaze pixel, threshold rotation, flags) to ``self.frame_params`` on the device, from a frame context
+        packed of these arguments (``set_frame_view`` takes one already packed).
 
         Args:
             gbuffer: the current :class:`GBuffer` (same size and device).
@@ -284,6 +284,34 @@ class SamplingStage:
         fi = check_int_range("frame_index", frame_index, 0, None)
         if not isinstance(camera, Camera):
             raise ValueError(f"camera must be a foveawarp.Camera, got {type(camera).__name__}")
+        first = check_bool("first_frame", first_frame)
+        if camera_prev is not None and not isinstance(camera_prev, Camera):
+            raise ValueError(f"camera_prev must be a foveawarp.Camera or None, got {type(camera_prev).__name__}")
+        if not first and self.config.temporal.enabled and eye_prev is None:
+            raise ValueError("eye_prev must be 3 finite numbers (the previous eye position) unless first_frame "
+                             "is True, got None")
+        ctx = FrameContext()
+        ctx.cam = camera.params(w, h)
+        gx, gy = clamp_gaze(gaze, w, h)
+        ctx.gaze = wp.vec2(gx, gy)
+        ctx.frame = fi
+        ctx.max_t = 1.0  # unused by the setup kernel
+        # the previous camera's parameters with the previous eye (a copy: params are cached per camera)
+        src = (camera_prev if camera_prev is not None else camera).params(w, h)
+        prev = CameraParams()
+        for k in ("right", "up", "forward", "tan_half_fov_y", "aspect", "width", "height"):
+            setattr(prev, k, getattr(src, k))
+        prev.eye = _eye("eye_prev", eye_prev) if eye_prev is not None else src.eye
+        ctx.cam_prev = prev
+        self._setup(gbuffer, ctx, fi, moving=moving, first_frame=first, object_prev=camera_prev is not None,
+                    min_probability=min_probability)
+
+    def _setup(self, gbuffer, ctx, frame_index: int, *, moving: bool, first_frame: bool, object_prev: bool,
+               min_probability: Optional[float]) -> None:
+        """The setup launch of ``set_frame`` / ``set_frame_view`` for the frame context struct ``ctx``: the skip
+        decisions, then the kernel. ``object_prev``: ``ctx.cam_prev`` is the previous frame's camera (the velocity
+        term removes camera motion with it)."""
+        w, h = self.width, self.height
         self._check_gbuffer(gbuffer)
         moving = check_bool("moving", moving)
         first_frame = check_bool("first_frame", first_frame)
@@ -297,13 +325,6 @@ class SamplingStage:
         elif first_frame:
             do_cache = 0
             skipped["cache_test"] = "first frame or camera cut: no history"
-        if do_cache:
-            if eye_prev is None:
-                raise ValueError("eye_prev must be 3 finite numbers (the previous eye position) unless first_frame "
-                                 "is True, got None")
-            eye_p = _eye("eye_prev", eye_prev)
-        else:
-            eye_p = self._zero
         use_vel = 0
         focus_mode, focus = 0, 0.0
         if not fc.enabled:
@@ -329,25 +350,18 @@ class SamplingStage:
                 focus_mode, focus = 1, float(cfg.dof.focus_depth_m)
             else:
                 focus_mode = 2  # the G-buffer depth at the gaze pixel, read on the device
-        obj_vel = 0
-        cam_prev = self._no_cam
-        if use_vel and camera_prev is not None:
-            if not isinstance(camera_prev, Camera):
-                raise ValueError(f"camera_prev must be a foveawarp.Camera or None, got {type(camera_prev).__name__}")
-            obj_vel = 1
-            cam_prev = camera_prev.params(w, h)
+        obj_vel = 1 if use_vel and object_prev else 0
         xi = float(self.params.xi)
         if min_probability is not None:
             xi = max(xi, check_range("min_probability", min_probability, 0.0, 1.0))
-        rot, phase = frame_rotation(fi, self.block)
-        gx, gy = clamp_gaze(gaze, w, h)
+        rot, phase = frame_rotation(frame_index, self.block)
         self.skipped = skipped
         self._maps_gbuffer, self._maps_current = gbuffer, False
         self._setup_launch(1,
-                           inputs=[gx, gy, w, h, float(camera.tan_half_fov_y), self.params.mar_slope,
-                                   self.params.mar_fovea_deg, NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg),
-                                   focus_mode, focus, gbuffer.depth, gbuffer.hit, use_vel, obj_vel, cam_prev, eye_p,
-                                   do_cache, rot, phase, xi, float(fc.fovea_deg)],
+                           inputs=[ctx, w, h, self.params.mar_slope, self.params.mar_fovea_deg,
+                                   NO_FALLOFF if fc.falloff_deg is None else float(fc.falloff_deg), focus_mode, focus,
+                                   gbuffer.depth, gbuffer.hit, use_vel, obj_vel, do_cache, rot, phase, xi,
+                                   float(fc.fovea_deg)],
                            outputs=[self.frame_params], device=self.device)
 
     def launch(self, gbuffer, *, depth_prev=None, valid_prev=None, face_lab=None) -> None:

@@ -14,6 +14,7 @@ from .._util import check_order_width, tile_order_threads
 from ..kernels.shade import (
     ShadeParams,
     set_shade_params_kernel,
+    set_shade_params_view_kernel,
     shade_ao_list_kernel,
     shade_full_kernel,
     shade_full_rows_kernel,
@@ -88,6 +89,7 @@ class ShadeStage:
         self.dscene, self.config, self.width, self.height, self.device = dscene, config, width, height, device
         self.params_dev = wp.zeros(1, dtype=ShadeParams, device=device)
         self._upload_launch = parallel.Relaunch(set_shade_params_kernel, bands=False)  # recorded once on CUDA
+        self._view_launch = parallel.Relaunch(set_shade_params_view_kernel, bands=False)
         self._dummy_display = wp.zeros((1, 1), dtype=wp.vec3, device=device)  # ``full`` without a display
         self._ao_samples = int(config.ao_samples)  # the last uploaded parameters' AO rays per pixel
         self._ao_part = None  # (list capacity, lanes) uint8: ``list``'s unoccluded AO counts per pixel and lane
@@ -161,9 +163,15 @@ class ShadeStage:
         return self.upload(sp)
 
     def upload_view(self, frame, ao_samples: Optional[int] = None) -> wp.array:
-        """``upload_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``: the eye of its
-        camera and its frame index)."""
-        return self.upload_frame(frame.camera, frame.frame_index, ao_samples)
+        """``upload_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``): the upload
+        kernel takes the eye and the frame index from its struct, the other fields from the kept parameters."""
+        cache = self.__dict__.setdefault("_frame_sp", {})
+        sp = cache.get(ao_samples)
+        if sp is None:
+            sp = cache[ao_samples] = self.params(frame.camera, frame.frame_index, ao_samples)
+        self._view_launch(1, inputs=[sp, frame.struct], outputs=[self.params_dev], device=self.device)
+        self._ao_samples = int(sp.ao_samples)
+        return self.params_dev
 
     def upload(self, sp: ShadeParams) -> wp.array:
         """Write ``sp`` to the device array the launches read; returns that array."""
