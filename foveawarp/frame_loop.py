@@ -203,6 +203,7 @@ class FrameLoop:
         self.shade = ShadeStage(self.dscene, cfg.shading, w, h, dev)
         # a scene with an environment: its misses show the environment the G-buffer saw, not one background colour
         self._env_misses = bool(self.shade.textured and self.shade.textured_params.has_env)
+        self.path = self._path_stage() if cfg.shading.integrator == "path" else None
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
@@ -318,15 +319,34 @@ class FrameLoop:
             ao_samples = check_int_range("ao_samples", ao_samples, 0, 256)
         return self._require_camera(camera), ao_samples
 
+    def _path_stage(self):
+        """The path integrator's stage (``ShadingConfig.integrator = "path"``), after the checks of what it
+        cannot combine with."""
+        from .stages.path import PathStage
+
+        cfg = self.config
+        if self.shade.textured:
+            raise ValueError(f"ShadingConfig.integrator 'path' shades untextured scenes (per-face albedo) only; scene "
+                             f"{self.scene.name!r} has materials: use integrator 'direct'")
+        if self.sparse_gbuffer:
+            raise ValueError("ShadingConfig.integrator 'path' needs the full G-buffer (FoveationConfig.gbuffer "
+                             "'full'), got 'sparse'")
+        if cfg.shading.indirect != "none":
+            raise ValueError(f"ShadingConfig.integrator 'path' computes indirect light itself: ShadingConfig.indirect "
+                             f"must be 'none', got {cfg.shading.indirect!r}")
+        return PathStage(self.dscene, cfg.shading, self.width, self.height, self.device)
+
     def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:
         """Whether the shading has Monte Carlo terms whose noise changes per frame (AO rays, area-light
-        samples): the temporal resolve then accumulates them (``TemporalStage``)."""
-        return self.shade.stochastic(ao_samples)
+        samples, every term of the path integrator): the temporal resolve then accumulates them
+        (``TemporalStage``)."""
+        return self.path is not None or self.shade.stochastic(ao_samples)
 
     def _resolve_kind(self) -> dict:
         """The temporal resolve's shading-kind arguments: ``stochastic`` and its Monte Carlo ``samples`` per pixel
-        per frame (1 for deterministic shading, where the resolve does not use it), from one count."""
-        n = self.shade.stochastic_samples()
+        per frame (1 for deterministic shading, where the resolve does not use it), from one count (the path
+        integrator: its paths per pixel)."""
+        n = int(self.config.shading.spp) if self.path is not None else self.shade.stochastic_samples()
         return {"stochastic": n > 0, "samples": max(n, 1)}
 
     @staticmethod
@@ -422,10 +442,14 @@ class FrameLoop:
         with self._stage("gbuffer"):
             self._gbuffer(frame)
         # the shading writes the display image itself when nothing follows it (as in render's full path)
-        fused = self.indirect is None and not (self.config.dof.enabled and dof)
+        fused = self.indirect is None and self.path is None and not (self.config.dof.enabled and dof)
         with self._stage("shade"):
             self.shade.upload_view(frame)
-            self.shade.full(self.gbuffer, self.radiance, self.radiance_stoch, self.image if fused else None)
+            if self.path is not None:
+                self.path.upload(frame.camera, frame.frame_index)
+                self.path.launch(self.radiance)
+            else:
+                self.shade.full(self.gbuffer, self.radiance, self.radiance_stoch, self.image if fused else None)
         with self._stage("indirect", self.indirect is not None):
             if self.indirect is not None:
                 self.indirect.update()
@@ -545,6 +569,8 @@ class FrameLoop:
             if dof_focus:
                 self.dof.focus_at_pixel(self.gbuffer.depth, self.gbuffer.hit, gaze, fov_y_deg=camera.fov_y_deg)
             self.shade.upload_view(frame)
+            if self.path is not None:
+                self.path.upload(frame.camera, frame.frame_index)
         rebuilt = False
         with self._stage("indirect_build", self.indirect is not None):
             if self.indirect is not None:
@@ -598,11 +624,17 @@ class FrameLoop:
             ns, nh = self.sampling.num_samples, self.sampling.num_cache_hits
             stats.defer("sampling_rate", lambda: float(ns.numpy()[0]) / n)
             stats.defer("cache_hit_rate", lambda: float(nh.numpy()[0]) / n)
-            if sparse:
+            if self.path is not None:
+                # a path's rays vary (bounces, Russian roulette): the paths are counted, not the rays
+                spp = int(self.config.shading.spp)
+                stats.defer("paths_traced", lambda: int(ns.numpy()[0]) * spp)
+            elif sparse:
                 nc = self.sparse.num_coarse_rays
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
             else:
                 stats.defer("rays_traced", lambda: n + int(ns.numpy()[0]) * self._rays_per_sample())
+        elif self.path is not None:
+            stats.update(sampling_rate=1.0, cache_hit_rate=0.0, paths_traced=n * int(self.config.shading.spp))
         else:
             stats.update(sampling_rate=1.0, cache_hit_rate=0.0, rays_traced=n + n * self._rays_per_sample())
         if self.timing:
@@ -745,7 +777,7 @@ class FrameLoop:
         """Whether the temporal resolve shades the sampled pixels in its own launch (TemporalStage.can_shade: the
         CPU's rows kernels, deterministic shading) instead of a separate masked shading pass: the masked
         strategy, with nothing (indirect light) added to the shading between the two."""
-        return (strategy == "none" and self.indirect is None and not self.shade.textured
+        return (strategy == "none" and self.indirect is None and not self.shade.textured and self.path is None
                 and self.temporal.can_shade(self._stochastic_shading()))
 
     def _tonemap_fused(self, strategy: str) -> bool:
@@ -755,7 +787,7 @@ class FrameLoop:
         if self.config.dof.enabled:
             return False
         if strategy == "full":
-            return self.indirect is None
+            return self.indirect is None and self.path is None
         rc = self.reconstruct
         return bool(rc.config.sibson and not rc.exact_sibson)
 
@@ -854,7 +886,9 @@ class FrameLoop:
         """Shade the sampled pixels with the shading parameters last uploaded by ``upload_shade_params``
         (``display``: the full-resolution shading also writes the tone-mapped image)."""
         g, out, st = self.gbuffer, self.radiance, self.radiance_stoch
-        if strategy == "full":
+        if self.path is not None:
+            self._trace_paths(smap, strategy)
+        elif strategy == "full":
             self.shade.full(g, out, st, display)
         elif strategy == "none":
             self.shade.masked(g, smap, out, st)
@@ -862,6 +896,19 @@ class FrameLoop:
             self.shade.rows(g, self.reorder.coords, self.reorder.counts, out, st)
         else:
             self.shade.list(g, self.reorder.work, self.reorder.count, out, st)
+
+    def _trace_paths(self, smap, strategy: str) -> None:
+        """The path integrator's ``_trace``: ``ShadingConfig.spp`` paths per sampled pixel (every pixel with the
+        "full" strategy) from the parameters uploaded in the head, over the traced pixels' flat list (compacted
+        here for the row and masked strategies). Every term of a path estimate is Monte Carlo: the radiance is
+        also the stochastic part that the temporal resolve accumulates."""
+        if strategy == "full":
+            self.path.launch(self.radiance)
+        else:
+            if strategy not in ("scan", "tile"):
+                self.reorder.run(smap, strategy="scan", keep=self._list_keep())
+            self.path.launch(self.radiance, self.reorder.work, self.reorder.count)
+        wp.copy(self.radiance_stoch, self.radiance)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

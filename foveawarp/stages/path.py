@@ -191,6 +191,12 @@ class PathStage:
         flat indices ``work[0:count[0]]`` (int32 arrays on the device; ``count`` None: all of ``work``)."""
         self._check_out(out)
         self.upload(camera, frame_index, spp)
+        self.launch(out, work, count)
+
+    def launch(self, out, work=None, count=None) -> None:
+        """``run``'s launches with the parameters last uploaded (``upload``): fixed arguments, so a captured CUDA
+        graph of them replays each frame with the frame's uploaded camera and index."""
+        self._check_out(out)
         dev = self.device
         if work is None:
             parallel.launch(path_full_kernel, dim=(self.height, self.width),
