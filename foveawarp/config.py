@@ -376,6 +376,12 @@ class ShadingConfig:
         max_depth: longest path of the "path" integrator, in [1, 4096], Mitsuba 3's convention: 1 = emitters seen
             directly, 2 = direct light, 3 = one indirect bounce, ...
         spp: paths per traced pixel per frame of the "path" integrator, in [1, 65536].
+        path_budget: how a foveated frame of the "path" integrator spends its paths: "pixel" (default: ``spp`` at
+            every traced pixel) or "frame" (a full-resolution frame's ``spp * width * height`` paths shared among
+            the traced pixels in proportion to their sampling probability, so the fovea gets more than the
+            periphery: each traced pixel at least 1 path and at most ``max_spp``, rounded stochastically; a cap that
+            binds leaves part of the budget unspent). The full-resolution frame traces ``spp`` everywhere.
+        max_spp: the most paths one pixel gets under ``path_budget = "frame"``, in [1, 65536].
         rr_depth: path depth from which the "path" integrator applies Russian roulette, in [1, 4096] (Mitsuba 3's
             ``rr_depth``: a path that has made ``rr_depth`` bounces continues with probability min(max channel of
             its throughput, 0.95)).
@@ -405,6 +411,8 @@ class ShadingConfig:
     integrator: str = "direct"
     max_depth: int = 5
     spp: int = 1
+    path_budget: str = "pixel"
+    max_spp: int = 64
     rr_depth: int = 5
     radiance_clamp: Optional[float] = None
     background: tuple = (0.02, 0.02, 0.03)
@@ -426,6 +434,8 @@ class ShadingConfig:
         check_choice("ShadingConfig.integrator", self.integrator, ("direct", "path"))
         check_int_range("ShadingConfig.max_depth", self.max_depth, 1, 4096)
         check_int_range("ShadingConfig.spp", self.spp, 1, 65536)
+        check_choice("ShadingConfig.path_budget", self.path_budget, ("pixel", "frame"))
+        check_int_range("ShadingConfig.max_spp", self.max_spp, 1, 65536)
         check_int_range("ShadingConfig.rr_depth", self.rr_depth, 1, 4096)
         if self.radiance_clamp is not None:
             check_range("ShadingConfig.radiance_clamp", self.radiance_clamp, 0.0, FLOAT32_MAX, lo_open=True)

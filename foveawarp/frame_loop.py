@@ -626,8 +626,10 @@ class FrameLoop:
             stats.defer("cache_hit_rate", lambda: float(nh.numpy()[0]) / n)
             if self.path is not None:
                 # a path's rays vary (bounces, Russian roulette): the paths are counted, not the rays
-                spp = int(self.config.shading.spp)
-                stats.defer("paths_traced", lambda: int(ns.numpy()[0]) * spp)
+                # (the traced pixels' list: sampled hits, the misses take the background without a path)
+                fov = float(camera.fov_y_deg)
+                stats.defer("paths_traced", lambda: sum(b["paths"] for b in self._paths_by_band(gaze, fov).values()))
+                stats.defer("paths_by_band", lambda: self._paths_by_band(gaze, fov))
             elif sparse:
                 nc = self.sparse.num_coarse_rays
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
@@ -897,6 +899,26 @@ class FrameLoop:
         else:
             self.shade.list(g, self.reorder.work, self.reorder.count, out, st)
 
+    def _paths_by_band(self, gaze, fov_y_deg: float) -> dict:
+        """Paths of the last foveated frame by eccentricity band around ``gaze`` (degrees: "0-5", "5-20",
+        "20+"): the band's pixels, its traced pixels, their paths and the paths per pixel of the band (host reads
+        of the list and of the paths per pixel)."""
+        from .ops.sampling import eccentricity_deg
+
+        n = int(self.reorder.count.numpy()[0])
+        idx = self.reorder.work.numpy()[:n]
+        paths = self.path.spp_used.numpy().ravel()[idx].astype(np.int64)
+        ecc = eccentricity_deg(self.width, self.height, gaze, fov_y_deg, device="cpu").ravel()
+        e = ecc[idx]
+        out = {}
+        for name, lo, hi in (("0-5", -1.0, 5.0), ("5-20", 5.0, 20.0), ("20+", 20.0, math.inf)):
+            pix = int(np.count_nonzero((ecc > lo) & (ecc <= hi)))
+            sel = (e > lo) & (e <= hi)
+            p = int(paths[sel].sum())
+            out[name] = {"pixels": pix, "traced": int(np.count_nonzero(sel)), "paths": p,
+                         "paths_per_pixel": p / pix if pix else 0.0}
+        return out
+
     def _trace_paths(self, smap, strategy: str) -> None:
         """The path integrator's ``_trace``: ``ShadingConfig.spp`` paths per sampled pixel (every pixel with the
         "full" strategy) from the parameters uploaded in the head, over the traced pixels' flat list (compacted
@@ -907,7 +929,7 @@ class FrameLoop:
         else:
             if strategy not in ("scan", "tile"):
                 self.reorder.run(smap, strategy="scan", keep=self._list_keep())
-            self.path.launch(self.radiance, self.reorder.work, self.reorder.count)
+            self.path.launch(self.radiance, self.reorder.work, self.reorder.count, self.sampling.probability)
         wp.copy(self.radiance_stoch, self.radiance)
 
     def _indirect(self, smap, strategy: str) -> None:

@@ -43,7 +43,7 @@ def _still_series(scene, cfg, device, conv, frames=24):
         hdr = loop.recon.numpy()
         assert np.isfinite(hdr).all(), i
         errs.append(float(np.sqrt(np.mean((hdr[lit] - conv[lit]) ** 2))))
-        assert f.stats["paths_traced"] == round(f.stats["sampling_rate"] * W * H) * PATH["spp"]
+        assert f.stats["paths_traced"] == int(loop.reorder.count.numpy()[0]) * PATH["spp"]
         assert "rays_traced" not in f.stats
     return errs, float(hdr[lit].mean() / conv[lit].mean())
 
@@ -81,3 +81,38 @@ def test_refused_combinations(over, scene, match):
     cfg = fw.Config().with_(shading=PATH).with_(**over)
     with pytest.raises(ValueError, match=match):
         fw.FrameLoop(scene, W, H, config=cfg, device="cpu")
+
+
+def test_frame_budget_moves_paths_to_the_fovea(device):
+    """path_budget "frame": the traced pixels share a full-resolution frame's paths by sampling probability, so
+    the fovea's pixels get more paths than a full-resolution frame gives them and the periphery fewer per pixel;
+    the paths spent are the budget within the stochastic rounding (no pixel at the max_spp cap here), each
+    traced pixel at least 1; stats by band add up to the list."""
+    scene = _cornell()
+    w, h = 160, 90
+    cfg = fw.Config().with_(shading={**PATH, "path_budget": "frame", "max_spp": 64})
+    loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, policy="foveated")
+    for _ in range(3):
+        f = loop.render(scene.camera, gaze_px=(0.4 * w, 0.5 * h))
+    n = int(loop.reorder.count.numpy()[0])
+    idx = loop.reorder.work.numpy()[:n]
+    used = loop.path.spp_used.numpy().ravel()[idx]
+    p = loop.sampling.probability.numpy().ravel()[idx]
+    budget = PATH["spp"] * w * h
+    share = budget * p / p.sum()
+    assert used.min() >= 1 and used.max() <= 64 and share.max() < 64
+    assert abs(int(used.sum()) - budget) <= 4.0 * np.sqrt(n) + np.count_nonzero(share < 1.0)
+    np.testing.assert_allclose(used, share, atol=1.0 + 1e-4)  # stochastic rounding of each share
+    bands = f.stats["paths_by_band"]
+    assert sum(b["paths"] for b in bands.values()) == f.stats["paths_traced"] == int(used.sum())
+    assert sum(b["pixels"] for b in bands.values()) == w * h and sum(b["traced"] for b in bands.values()) == n
+    # the fovea gets the saved paths: more per pixel than a full-resolution frame, the periphery fewer
+    assert bands["0-5"]["paths_per_pixel"] > 2 * PATH["spp"] > 4 * bands["20+"]["paths_per_pixel"]
+    assert np.isfinite(f.image.numpy()).all()
+
+
+def test_budget_config_validated():
+    with pytest.raises(ValueError, match="path_budget"):
+        fw.ShadingConfig(path_budget="fovea")
+    with pytest.raises(ValueError, match="max_spp"):
+        fw.ShadingConfig(max_spp=0)

@@ -66,6 +66,8 @@ class PathParams:
     max_depth: int
     rr_depth: int
     spp: int
+    budget: float  # > 0: the list launch shares this many paths by sampling probability (path_budget "frame")
+    max_spp: int  # the most paths of one pixel under the budget
     jitter: int  # 1: a path's camera ray through a uniform point of its pixel; 0: through the pixel centre
     clamp: float  # > 0: a path's largest channel is scaled down to at most this; 0: off
     roughness: float  # glTF roughness of every surface (today's material; see path_material)
@@ -428,12 +430,13 @@ def pixel_radiance(
     face_emit_prob: wp.array(dtype=float),
     x: int,
     y: int,
+    spp: int,
 ) -> wp.vec3:
-    """The mean of ``pp.spp`` paths through pixel (x, y), each clamped (module docstring), from the pixel's
+    """The mean of ``spp`` paths through pixel (x, y), each clamped (module docstring), from the pixel's
     random stream of the frame (``pixel_rng(seed, frame, y * width + x)``)."""
     rng = pixel_rng(pp.seed, pp.frame, y * pp.width + x)
     acc = wp.vec3(0.0, 0.0, 0.0)
-    for s in range(pp.spp):
+    for s in range(spp):
         jx = float(0.5)
         jy = float(0.5)
         if pp.jitter != 0:
@@ -448,7 +451,7 @@ def pixel_radiance(
             if mc > pp.clamp:
                 c = c * (pp.clamp / mc)
         acc += c
-    return finite_radiance(acc / float(wp.max(pp.spp, 1)))
+    return finite_radiance(acc / float(wp.max(spp, 1)))
 
 
 @wp.kernel(enable_backward=False)
@@ -472,8 +475,9 @@ def path_full_kernel(
     """Every pixel's path-traced radiance into out[y, x]."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    out[y, x] = pixel_radiance(ppa[0], env, face_albedo, face_emission, vnormals, face_smooth, points, indices,
-                               lights, area_lights, emit_face, emit_cdf, face_emit_prob, x, y)
+    pp = ppa[0]
+    out[y, x] = pixel_radiance(pp, env, face_albedo, face_emission, vnormals, face_smooth, points, indices,
+                               lights, area_lights, emit_face, emit_cdf, face_emit_prob, x, y, pp.spp)
 
 
 @wp.kernel(enable_backward=False)
@@ -493,10 +497,16 @@ def path_list_kernel(
     face_emit_prob: wp.array(dtype=float),
     work: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
+    probability: wp.array2d(dtype=float),
+    prob_sum: wp.array(dtype=float),
     out: wp.array2d(dtype=wp.vec3),
+    spp_out: wp.array2d(dtype=wp.int32),
     row0: int,
 ):
-    """The radiance of the flat pixel indices work[0:count[0]] (y * width + x), each into out[y, x]."""
+    """The radiance of the flat pixel indices work[0:count[0]] (y * width + x), each into out[y, x], and the paths
+    it took into spp_out[y, x]: ``pp.spp``, or with a budget (``pp.budget`` > 0) its share ``budget * p / sum p``
+    of the listed pixels' sampling probabilities ``p`` (``prob_sum[0]``, from ``budget_sum_kernel``), rounded
+    stochastically and clamped to [1, ``pp.max_spp``]."""
     i = wp.tid() + row0  # band offset (foveawarp.parallel)
     if i >= count[0]:
         return
@@ -506,8 +516,29 @@ def path_list_kernel(
     x = idx - y * pp.width
     if y < 0 or y >= out.shape[0] or x < 0 or x >= out.shape[1]:
         return
+    n = pp.spp
+    if pp.budget > 0.0 and prob_sum[0] > 0.0:
+        share = pp.budget * probability[y, x] / prob_sum[0]
+        # a stream of its own (the paths' stream is the pixel's, as with a fixed count)
+        rr = pixel_rng(pp.seed ^ 0x5BD1E995, pp.frame, idx)
+        share = wp.min(share, float(pp.max_spp))
+        n = wp.clamp(int(wp.floor(share + wp.randf(rr))), 1, pp.max_spp)
+    spp_out[y, x] = n
     out[y, x] = pixel_radiance(pp, env, face_albedo, face_emission, vnormals, face_smooth, points, indices, lights,
-                               area_lights, emit_face, emit_cdf, face_emit_prob, x, y)
+                               area_lights, emit_face, emit_cdf, face_emit_prob, x, y, n)
+
+
+@wp.kernel(enable_backward=False)
+def budget_sum_kernel(work: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), width: int,
+                      probability: wp.array2d(dtype=float), out: wp.array(dtype=float), row0: int):
+    """The sum of the sampling probabilities of the listed pixels work[0:count[0]] into out[0] (zeroed first)."""
+    i = wp.tid() + row0  # band offset (foveawarp.parallel)
+    if i >= count[0]:
+        return
+    idx = work[i]
+    y = idx // width
+    x = idx - y * width
+    wp.atomic_add(out, 0, probability[y, x])
 
 
 @wp.kernel(enable_backward=False)

@@ -28,7 +28,8 @@ import warp as wp
 from .. import parallel
 from ..camera import Camera
 from ..config import ShadingConfig, check_choice, check_int_range
-from ..kernels.path import PathParams, path_full_kernel, path_list_kernel, set_path_params_kernel
+from ..kernels.path import (PathParams, budget_sum_kernel, path_full_kernel, path_list_kernel,
+                            set_path_params_kernel)
 
 __all__ = ["PathStage", "material_from_blinn_phong", "emitter_tables"]
 
@@ -132,6 +133,10 @@ class PathStage:
         self.params_dev = wp.zeros(1, dtype=PathParams, device=dev)
         self._count = wp.zeros(1, dtype=wp.int32, device=dev)  # ``run``'s count of a whole work list
         self._upload_launch = parallel.Relaunch(set_path_params_kernel, bands=False)
+        # the list launch's budget inputs (the sum of the listed pixels' probabilities) and the paths per pixel
+        self._prob_sum = wp.zeros(1, dtype=float, device=dev)
+        self._no_prob = wp.zeros((1, 1), dtype=float, device=dev)
+        self.spp_used = wp.zeros((self.height, self.width), dtype=wp.int32, device=dev)
         self._roughness, self._specular = material_from_blinn_phong(config.specular, config.shininess)
 
     def _far(self, camera: Camera) -> float:
@@ -156,6 +161,9 @@ class PathStage:
         pp.max_depth = int(sc.max_depth)
         pp.rr_depth = int(sc.rr_depth)
         pp.spp = int(sc.spp) if spp is None else check_int_range("spp", spp, 1, 65536)
+        # the "frame" budget: a full-resolution frame's paths, shared by the list launch
+        pp.budget = float(pp.spp) * self.width * self.height if sc.path_budget == "frame" else 0.0
+        pp.max_spp = int(sc.max_spp)
         pp.jitter = 1 if self.pixel_filter == "box" else 0
         pp.clamp = 0.0 if sc.radiance_clamp is None else float(sc.radiance_clamp)
         pp.roughness = float(self._roughness)
@@ -193,9 +201,12 @@ class PathStage:
         self.upload(camera, frame_index, spp)
         self.launch(out, work, count)
 
-    def launch(self, out, work=None, count=None) -> None:
+    def launch(self, out, work=None, count=None, probability=None) -> None:
         """``run``'s launches with the parameters last uploaded (``upload``): fixed arguments, so a captured CUDA
-        graph of them replays each frame with the frame's uploaded camera and index."""
+        graph of them replays each frame with the frame's uploaded camera and index. ``probability``: the (H, W)
+        float sampling probability of a foveated frame's list, which ``ShadingConfig.path_budget = "frame"``
+        shares the paths by (None, or the "pixel" budget: ``spp`` at every listed pixel); the paths each listed
+        pixel took are in ``spp_used``."""
         self._check_out(out)
         dev = self.device
         if work is None:
@@ -213,5 +224,17 @@ class PathStage:
         n = int(work.shape[0])
         if n == 0:
             return
-        parallel.launch(path_list_kernel, dim=n, inputs=[self.params_dev, *self.inputs(), work, count],
-                        outputs=[out], device=dev, count=count)
+        self._prob_sum.zero_()
+        prob = self._no_prob
+        if probability is not None and self.config.path_budget == "frame":
+            if (not isinstance(probability, wp.array) or probability.dtype != wp.float32
+                    or tuple(probability.shape) != (self.height, self.width)):
+                raise ValueError(f"probability must be a ({self.height}, {self.width}) float32 wp.array, got "
+                                 f"{getattr(probability, 'shape', type(probability).__name__)}")
+            prob = probability
+            # one thread on the CPU: its atomic adds are not shared between the bands' threads
+            parallel.launch(budget_sum_kernel, dim=n, inputs=[work, count, self.width, prob],
+                            outputs=[self._prob_sum], device=dev, count=count, threads=1 if dev.is_cpu else None)
+        parallel.launch(path_list_kernel, dim=n, inputs=[self.params_dev, *self.inputs(), work, count, prob,
+                                                         self._prob_sum],
+                        outputs=[out, self.spp_used], device=dev, count=count)
