@@ -204,6 +204,8 @@ class FrameLoop:
         # a scene with an environment: its misses show the environment the G-buffer saw, not one background colour
         self._env_misses = bool(self.shade.textured and self.shade.textured_params.has_env)
         self.path = self._path_stage() if cfg.shading.integrator == "path" else None
+        # the fresh stochastic part the temporal resolve accumulates: the whole path radiance, else the shading's
+        self._fresh_stoch = self.radiance if self.path is not None else self.radiance_stoch
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
@@ -627,9 +629,10 @@ class FrameLoop:
             if self.path is not None:
                 # a path's rays vary (bounces, Russian roulette): the paths are counted, not the rays
                 # (the traced pixels' list: sampled hits, the misses take the background without a path)
-                fov = float(camera.fov_y_deg)
-                stats.defer("paths_traced", lambda: sum(b["paths"] for b in self._paths_by_band(gaze, fov).values()))
-                stats.defer("paths_by_band", lambda: self._paths_by_band(gaze, fov))
+                bands = functools.lru_cache(maxsize=1)(functools.partial(self._paths_by_band, gaze,
+                                                                          float(camera.fov_y_deg)))
+                stats.defer("paths_traced", lambda: sum(b["paths"] for b in bands().values()))
+                stats.defer("paths_by_band", bands)
             elif sparse:
                 nc = self.sparse.num_coarse_rays
                 stats.defer("rays_traced", lambda: nc + int(ns.numpy()[0]) * (1 + self._rays_per_sample()))
@@ -690,7 +693,7 @@ class FrameLoop:
         where the foveated frame keeps no per-pixel history (sparse G-buffer, TemporalConfig.enabled False)."""
         if self.sparse_gbuffer or not self.config.temporal.enabled:
             return False
-        self.temporal.run(self.full_map, self.gbuffer, self.radiance, self.radiance_stoch, use_history=False,
+        self.temporal.run(self.full_map, self.gbuffer, self.radiance, self._fresh_stoch, use_history=False,
                           background=self.config.shading.background, **self._resolve_kind())
         return True
 
@@ -748,7 +751,7 @@ class FrameLoop:
                 srows = None
                 if sample_in_resolve:
                     srows = self.sampling.rows_pass_args(self.gbuffer, **pass_inputs)
-                self.temporal.run(smap, self.gbuffer, self.radiance, self.radiance_stoch, use_history=history,
+                self.temporal.run(smap, self.gbuffer, self.radiance, self._fresh_stoch, use_history=history,
                                   background=cfg.shading.background, **self._resolve_kind(),
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
@@ -922,15 +925,14 @@ class FrameLoop:
     def _trace_paths(self, smap, strategy: str) -> None:
         """The path integrator's ``_trace``: ``ShadingConfig.spp`` paths per sampled pixel (every pixel with the
         "full" strategy) from the parameters uploaded in the head, over the traced pixels' flat list (compacted
-        here for the row and masked strategies). Every term of a path estimate is Monte Carlo: the radiance is
-        also the stochastic part that the temporal resolve accumulates."""
+        here for the row and masked strategies). Every term of a path estimate is Monte Carlo: the resolve reads
+        the radiance as its stochastic part too (``_fresh_stoch``)."""
         if strategy == "full":
             self.path.launch(self.radiance)
         else:
             if strategy not in ("scan", "tile"):
                 self.reorder.run(smap, strategy="scan", keep=self._list_keep())
             self.path.launch(self.radiance, self.reorder.work, self.reorder.count, self.sampling.probability)
-        wp.copy(self.radiance_stoch, self.radiance)
 
     def _indirect(self, smap, strategy: str) -> None:
         """Add the light-tree indirect light at the sampled pixels (the structures were updated in the head)."""

@@ -153,22 +153,26 @@ class ShadeStage:
         """``upload(params(camera, frame_index, ao_samples))`` with one kept struct per ``ao_samples`` whose
         per-frame fields (eye, frame) are the only ones set again (the per-frame head: a Warp struct field costs
         ~1-2 us of Python to set)."""
-        cache = self.__dict__.setdefault("_frame_sp", {})
-        sp = cache.get(ao_samples)
-        if sp is None:
-            sp = cache[ao_samples] = self.params(camera, frame_index, ao_samples)
-        else:
+        sp, kept = self._kept_params(camera, frame_index, ao_samples)
+        if kept:
             sp.frame = int(frame_index)
             sp.eye = camera.eye
         return self.upload(sp)
 
+    def _kept_params(self, camera: Camera, frame_index: int, ao_samples: Optional[int]) -> tuple:
+        """(the kept ShadeParams of ``ao_samples``, whether it was kept from an earlier frame): made from
+        ``camera`` and ``frame_index`` the first time."""
+        cache = self.__dict__.setdefault("_frame_sp", {})
+        sp = cache.get(ao_samples)
+        if sp is not None:
+            return sp, True
+        sp = cache[ao_samples] = self.params(camera, frame_index, ao_samples)
+        return sp, False
+
     def upload_view(self, frame, ao_samples: Optional[int] = None) -> wp.array:
         """``upload_frame`` for the frame context ``frame`` (``foveawarp.frame_context.FrameView``): the upload
         kernel takes the eye and the frame index from its struct, the other fields from the kept parameters."""
-        cache = self.__dict__.setdefault("_frame_sp", {})
-        sp = cache.get(ao_samples)
-        if sp is None:
-            sp = cache[ao_samples] = self.params(frame.camera, frame.frame_index, ao_samples)
+        sp, _ = self._kept_params(frame.camera, frame.frame_index, ao_samples)
         self._view_launch(1, inputs=[sp, frame.struct], outputs=[self.params_dev], device=self.device)
         self._ao_samples = int(sp.ao_samples)
         return self.params_dev
