@@ -330,7 +330,7 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
                     intensity=(9.0, 8.3, 7.2), penumbra=0.3)]
     areas = []
     if area_light:
-        areas.append(AreaLight(corner=(-0.25, 1.99, -0.25), edge_u=(0.0, 0.0, 0.5), edge_v=(0.5, 0.0, 0.0),
+        areas.append(AreaLight(corner=(-0.25, 1.99, -0.25), edge_u=(0.5, 0.0, 0.0), edge_v=(0.0, 0.0, 0.5),
                                radiance=(6.0, 5.6, 5.0)))
     cam = Camera(eye=(0.0, 1.0, 3.4), target=(0.0, 1.0, 0.0), up=(0.0, 1.0, 0.0), fov_y_deg=45.0)
     return b, lights, areas, cam
@@ -339,7 +339,8 @@ def _cornell_builder(area_light: bool = False, motion: bool = False) -> tuple:
 def cornell(area_light: bool = False, motion: bool = False, bvh_constructor: str = "auto",
             bvh_leaf_size: Optional[int] = None) -> Scene:
     """Cornell box, 2 x 2 x 2 m, open at +z; red left wall, green right wall; a tall and a short block;
-    a spot light under the ceiling pointing down. ``motion=True`` slides the short block."""
+    a spot light under the ceiling pointing down. ``area_light=True`` adds a 0.5 x 0.5 m area light 1 cm under
+    the ceiling, emitting downwards; ``motion=True`` slides the short block."""
     check_bool("area_light", area_light)
     check_bool("motion", motion)
     check_bvh(bvh_constructor, bvh_leaf_size)
