@@ -166,6 +166,36 @@ def test_frame_summarize_prints_the_readme_table(tmp_path):
     assert bad.returncode == 2 and "--summarize must name a frame JSON" in bad.stderr
 
 
+def test_path(tmp_path):
+    """path.py: per scene x size one record with the full-resolution and foveated items (frame ms, fovea PSNR and
+    FLIP against the converged target, whole-frame PSNR), the equal-time and equal-quality read-offs with the
+    fields the canonical JSON carries, the pair's image; --keep keeps the records this run does not repeat."""
+    imgs = tmp_path / "img"
+    _run("path", ["--device", "cpu", "--quick", "--scenes", "cornell", "--images", str(imgs)], tmp_path)
+    res = _result("path", tmp_path)
+    (r,) = res["records"]
+    for k in ("device", "scene", "width", "height", "integrator", "max_depth", "ref_ms", "fov_ms",
+              "equal_quality_speedup", "fovea_psnr_fov", "fovea_psnr_ref", "fovea_flip_fov", "fovea_flip_ref",
+              "fvvdp_jod_fov", "fvvdp_jod_ref", "commit"):
+        assert k in r, k
+    assert r["integrator"] == "path" and r["max_depth"] == 5 and _pos(r["ref_ms"], r["fov_ms"])
+    pols = [(it["policy"], it["path_budget"]) for it in r["items"]]
+    assert pols.count(("full", "pixel")) == 2 and ("foveated", "pixel") in pols and ("foveated", "frame") in pols
+    for it in r["items"]:
+        assert _pos(it["ms"]) and len(it["series"]["fovea_psnr"]) == r["frames"] == 3
+        assert 0 < it["fovea_psnr"] <= 100 and 0 <= it["fovea_flip_mean"] <= 1
+        if it["policy"] == "foveated":
+            assert _pos(it["equal_quality_speedup"]) and set(it["paths_per_pixel_by_band"]) == {"0-5", "5-20", "20+"}
+    # more paths per pixel bring the full-resolution frame's fovea closer to the converged target
+    full = sorted((it for it in r["items"] if it["policy"] == "full"), key=lambda it: it["spp"])
+    assert full[1]["fovea_psnr"] > full[0]["fovea_psnr"]
+    assert (imgs / "path-cornell-64x36.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    keep = tmp_path / "keep.json"
+    keep.write_text((tmp_path / "path-cpu.json").read_text().replace('"cornell"', '"elsewhere"'))
+    _run("path", ["--device", "cpu", "--quick", "--scenes", "cornell", "--keep", str(keep)], tmp_path)
+    assert [x["scene"] for x in _result("path", tmp_path)["records"]] == ["elsewhere", "cornell"]
+
+
 def test_reorder(tmp_path):
     """reorder.py: per scene, shading, mask and rate the full, masked ("none") and reordered times, each strategy's
     total the sum of its compaction and tracing, the best the fastest, the achieved rate near the asked one."""
@@ -362,7 +392,8 @@ def test_help_shows_the_common_options_and_the_canonical_run(capsys):
 
 def test_canonical_sh_parts(tmp_path):
     """tools/canonical.sh with a stand-in python that logs its arguments: part1 and part2 together run every
-    entry point once, each part its own, part3 the textured frame and stages runs; a list runs the names given; an unknown name is refused; without
+    entry point but path once, each part its own, part3 the textured frame and stages runs, part4 path at two
+    sizes; a list runs the names given; an unknown name is refused; without
     frame-h200.json the README step fails and the exit status says so."""
     fake = tmp_path / "bin"
     fake.mkdir()
@@ -385,10 +416,13 @@ def test_canonical_sh_parts(tmp_path):
     r2, s2 = run("part2")
     assert r2.returncode == 0, r2.stderr
     entries = {f"benchmarks/{n}.py" for n in ENTRY_POINTS}
-    assert set(s1[:2]) | set(s2) == entries and not set(s1[:2]) & set(s2)
+    assert not set(s1[:2]) & set(s2)
     assert s2.count("benchmarks/robustness.py") == 2  # the parity's CPU half, then the CUDA run
     r5, s5 = run("part3")
     assert r5.returncode == 0 and s5 == ["benchmarks/frame.py", "benchmarks/stages.py"], r5.stderr
+    r6, s6 = run("part4")
+    assert r6.returncode == 0 and s6 == ["benchmarks/path.py", "benchmarks/path.py"], r6.stderr
+    assert set(s1[:2]) | set(s2) | set(s5) | set(s6) == entries
     r3, s3 = run("dof", "cpu")
     assert r3.returncode == 0 and s3 == ["benchmarks/dof.py", "benchmarks/cpu.py"]
     r4, s4 = run("bogus")

@@ -9,10 +9,12 @@
 #   part2   stages, dof, indirect, viewer, robustness, cpu (estimated 7 minutes)
 #   part3   textured (frame-textured: the textured scenes), textures (stages-textures: their G-buffer and shading
 #           with and without textures) (estimated 10 minutes)
-#   all     part1, part2 and part3 (the default)
+#   part4   path (path: foveated against full-resolution path tracing at 1920x1080, then path4k: at 3840x2160,
+#           kept in the same JSON) (estimated 2 x 8 minutes)
+#   all     part1 to part4 (the default)
 #   readme  only the README's results table, from benchmarks/results/frame-h200.json
 #   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu,
-#           textured, textures)
+#           textured, textures, path, path4k)
 #
 # The GPU machine has a copy of the working tree without .git: set FOVEAWARP_COMMIT to the commit it came from
 # (every JSON records it). Meshes that assets/ does not ship (nefertiti) are read from $FOVEAWARP_SCENES or a
@@ -58,6 +60,16 @@ canonical_textured() {
 canonical_textures() {
     run textures python benchmarks/stages.py --device cuda:0 --out benchmarks/results --tag textures-h200 \
         --parts textures --sizes 1920x1080,3840x2160
+}
+canonical_path() {
+    run path python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes cornell,bunny,city --sizes 1920x1080 --images benchmarks/out/path-images
+}
+canonical_path4k() {
+    local keep=()
+    [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
+    run path4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes cornell,bunny,city --sizes 3840x2160 --images benchmarks/out/path-images "${keep[@]}"
 }
 canonical_reorder() {
     run reorder python benchmarks/reorder.py --device cuda:0 --out benchmarks/results --tag h200 \
@@ -106,7 +118,8 @@ canonical_readme() {
 PART1=(frame reorder readme)
 PART2=(stages dof indirect viewer robustness cpu)
 PART3=(textured textures)
-ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures readme)
+PART4=(path path4k)
+ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures path path4k readme)
 
 todo=()
 [ $# -eq 0 ] && set -- all
@@ -116,15 +129,16 @@ if [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
 fi
 for arg in "$@"; do
     case "$arg" in
-        all) todo+=("${PART1[@]}" "${PART2[@]}" "${PART3[@]}") ;;
+        all) todo+=("${PART1[@]}" "${PART2[@]}" "${PART3[@]}" "${PART4[@]}") ;;
         part1) todo+=("${PART1[@]}") ;;
         part2) todo+=("${PART2[@]}") ;;
         part3) todo+=("${PART3[@]}") ;;
+        part4) todo+=("${PART4[@]}") ;;
         *)
             if [[ " ${ENTRIES[*]} " == *" $arg "* ]]; then
                 todo+=("$arg")
             else
-                echo "canonical.sh: unknown part or entry point '$arg' (allowed: all, part1, part2, part3, ${ENTRIES[*]})" >&2
+                echo "canonical.sh: unknown part or entry point '$arg' (allowed: all, part1, part2, part3, part4, ${ENTRIES[*]})" >&2
                 exit 2
             fi ;;
     esac
