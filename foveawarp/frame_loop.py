@@ -911,7 +911,8 @@ class FrameLoop:
         n = int(self.reorder.count.numpy()[0])
         idx = self.reorder.work.numpy()[:n]
         paths = self.path.spp_used.numpy().ravel()[idx].astype(np.int64)
-        ecc = eccentricity_deg(self.width, self.height, gaze, fov_y_deg, device="cpu").ravel()
+        # on the loop's device (a CPU kernel would need Warp's CPU compiler on a CUDA machine)
+        ecc = eccentricity_deg(self.width, self.height, gaze, fov_y_deg, device=self.device).ravel()
         e = ecc[idx]
         out = {}
         for name, lo, hi in (("0-5", -1.0, 5.0), ("5-20", 5.0, 20.0), ("20+", 20.0, math.inf)):
