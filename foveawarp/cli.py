@@ -104,7 +104,7 @@ def _panel(frame, ref_img=None) -> np.ndarray:
 
 
 def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: Path, debug=False, dof=False,
-                     panel=True, desc="frames", gaze_trace=None):
+                     panel=True, desc="frames", gaze_trace=None, integrator="direct"):
     from tqdm import tqdm
 
     import foveawarp as fw
@@ -112,8 +112,9 @@ def _render_sequence(scene_name, width, height, frames, device, gaze, out_dir: P
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = fw.load_scene(scene_name)
     # the demo shows foveation: the default "auto" policy would render full frames where they are cheaper
-    loop = fw.FrameLoop(scene, width, height, device=device, policy="foveated")
-    ref_loop = fw.FrameLoop(scene, width, height, device=device) if panel else None
+    cfg = fw.Config().with_(shading={"integrator": integrator})
+    loop = fw.FrameLoop(scene, width, height, config=cfg, device=device, policy="foveated")
+    ref_loop = fw.FrameLoop(scene, width, height, config=cfg, device=device) if panel else None
     all_stats, pngs = [], []
     fps = 30.0
     for i in tqdm(range(frames), desc=desc, unit="frame"):
@@ -191,7 +192,7 @@ def cmd_demo(args) -> int:
     n = args.frames or (60 if cuda else 24)
     t0 = time.perf_counter()
     s = _render_sequence(args.scene, w, h, n, device, None, Path(args.out), debug=False, panel=True, desc="demo",
-                         gaze_trace=_load_trace(args.gaze_trace))
+                         gaze_trace=_load_trace(args.gaze_trace), integrator=args.integrator)
     ms = [f.get("ms_frame", float("nan")) for f in s["frames"]]
     print(f"demo: {n} frames of {s['scene']} at {w}x{h} on {s['device']} in {time.perf_counter() - t0:.1f} s "
           f"(median frame {np.median(ms):.1f} ms incl. timing syncs); output in {args.out}/")
@@ -204,7 +205,7 @@ def cmd_render(args) -> int:
         raise ValueError("give --gaze or --gaze-trace, not both")
     s = _render_sequence(args.scene, args.width, args.height, args.frames, device, args.gaze, Path(args.out),
                          debug=args.debug, dof=args.dof, panel=args.panel, desc="render",
-                         gaze_trace=_load_trace(args.gaze_trace))
+                         gaze_trace=_load_trace(args.gaze_trace), integrator=args.integrator)
     print(f"render: {len(s['frames'])} frames of {s['scene']} at {args.width}x{args.height} on {s['device']}; "
           f"output in {args.out}/")
     return 0
@@ -360,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--height", type=_positive_int, default=None)
     d.add_argument("--frames", type=_positive_int, default=None)
     d.add_argument("--out", default="foveawarp-out/demo")
+    d.add_argument("--integrator", choices=("direct", "path"), default="direct",
+                   help="direct light (default) or path tracing (ShadingConfig.integrator; untextured scenes)")
     d.add_argument("--gaze-trace", default=None, metavar="FILE.csv",
                    help="replay a recorded gaze (CSV columns t_s,x_px,y_px; frame i at t = i / 30 s)")
     d.set_defaults(func=cmd_demo)
@@ -372,6 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--device", default=None)
     r.add_argument("--gaze", type=_parse_gaze, default=None, help="X,Y in pixels (default: a moving gaze)")
     r.add_argument("--out", default="foveawarp-out/render")
+    r.add_argument("--integrator", choices=("direct", "path"), default="direct",
+                   help="direct light (default) or path tracing (ShadingConfig.integrator; untextured scenes)")
     r.add_argument("--debug", action="store_true", help="also write the sampling-map debug views")
     r.add_argument("--dof", action="store_true", help="also write the depth-of-field comparison")
     r.add_argument("--no-panel", dest="panel", action="store_false", help="write only the foveated image")

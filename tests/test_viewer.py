@@ -117,6 +117,8 @@ _KNOB_FIELDS = {
     "falloff_deg": ("foveation", "falloff_deg"),
     "block": ("foveation", "block"),
     "ao_samples": ("shading", "ao_samples"),
+    "max_depth": ("shading", "max_depth"),
+    "spp": ("shading", "spp"),
 }
 
 
@@ -148,7 +150,11 @@ def test_session_config_follows_the_knobs():
     assert cfg.temporal.enabled is False and cfg.shading.ao_samples == 4
     assert cfg.dof.enabled and cfg.shading.indirect == "lighttree"
     off = ViewerSession.config_for({**knobs, "dof": False, "indirect": False})
-    assert not off.dof.enabled and off.shading.indirect == "none"
+    assert not off.dof.enabled and off.shading.indirect == "none" and off.shading.integrator == "direct"
+    path = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "max_depth": 3, "spp": 2})
+    assert (path.shading.integrator, path.shading.max_depth, path.shading.spp) == ("path", 3, 2)
+    with pytest.raises(ValueError, match="indirect light off"):
+        ViewerSession.config_for({**knobs, "path": True})
 
 
 def test_scene_labels_hide_paths():

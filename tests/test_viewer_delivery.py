@@ -270,3 +270,22 @@ def test_the_viewer_renders_with_the_band_parallel_cpu_path(monkeypatch, env, ex
     s._ensure_loops(snap)
     want = parallel.usable_cores() if expected == "cores" else expected
     assert s._loop.cpu_threads == want
+
+
+def test_path_knob_renders_path_traced_frames():
+    """The page's path knob (with max_depth and spp) switches the session's loops to the path integrator: the
+    frame's stats count the paths traced, spp per traced pixel, and the frame is finite."""
+    s = ViewerSession(["cornell"], W, H, device="cpu")
+    s.apply({"type": "set", "knob": "indirect", "value": False})
+    for knob, value in (("path", True), ("max_depth", 3), ("spp", 2)):
+        s.apply({"type": "set", "knob": knob, "value": value})
+    with s._cond:
+        snap = s._snapshot()
+    s._ensure_loops(snap)
+    assert s._loop.path is not None and s._loop.config.shading.max_depth == 3
+    for _ in range(2):
+        payload, meta = s._render(snap)
+    st = s.stats_snapshot()
+    n = int(s._loop.reorder.count.numpy()[0]) if st.get("sampling_rate", 1.0) < 1.0 else W * H
+    assert st["paths_traced"] == 2 * n and "rays_traced" not in st
+    assert np.isfinite(s._loop.recon.numpy()).all()

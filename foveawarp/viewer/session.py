@@ -92,6 +92,9 @@ class ViewerSession:
             "dof": bool(base.dof.enabled),
             "indirect": base.shading.indirect == "lighttree",
             "timing": bool(timing),
+            "path": base.shading.integrator == "path",
+            "max_depth": int(base.shading.max_depth),
+            "spp": int(base.shading.spp),
         }
         self._config = self.config_for(self.knobs)
         # shared state (guarded by _cond)
@@ -143,10 +146,18 @@ class ViewerSession:
         """The FrameLoop config for the page's knob values (ValueError when a combination is invalid)."""
         base = Config()
         aperture = (base.dof.aperture_m if base.dof.enabled else DOF_APERTURE_M) if knobs["dof"] else 0.0
+        path = bool(knobs.get("path", False))
+        if path and knobs["indirect"]:
+            raise ValueError("path tracing computes indirect light itself: turn indirect light off first")
+        shading = {"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none",
+                   "integrator": "path" if path else "direct"}
+        for k in ("max_depth", "spp"):
+            if k in knobs:
+                shading[k] = knobs[k]
         return base.with_(
             foveation={"falloff_deg": knobs["falloff_deg"], "block": knobs["block"]},
             temporal={"enabled": knobs["temporal"]},
-            shading={"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none"},
+            shading=shading,
             dof={"aperture_m": aperture},
         )
 
@@ -572,7 +583,7 @@ def _frame_stats(st) -> dict:
     """The JSON-able part of ``frame.stats``: rates, counts, ``ms_<stage>`` (the loop's own ``ms_frame``
     becomes ``ms_loop``), the names of the skipped stages."""
     out = {}
-    for k in ("sampling_rate", "cache_hit_rate", "rays_traced", "static_frames", "graph", "strategy"):
+    for k in ("sampling_rate", "cache_hit_rate", "rays_traced", "paths_traced", "static_frames", "graph", "strategy"):
         if k in st:
             out[k] = st[k]
     for k, v in st.items():

@@ -170,8 +170,8 @@
     $("falloff_deg").disabled = off;
     if (!off) $("falloff_deg").value = k.falloff_deg;
     $("falloff_deg_out").textContent = off ? "null" : String(k.falloff_deg);
-    for (const id of ["block", "ao_samples"]) if (document.activeElement !== $(id)) $(id).value = k[id];
-    for (const id of ["temporal", "dof", "indirect", "timing"]) $(id).checked = !!k[id];
+    for (const id of ["block", "ao_samples", "max_depth", "spp"]) if (document.activeElement !== $(id)) $(id).value = k[id];
+    for (const id of ["temporal", "dof", "indirect", "timing", "path"]) $(id).checked = !!k[id];
     for (const el of document.querySelectorAll("small.range")) {
       const i = s.knob_info[el.dataset.range];
       if (i) el.textContent = "[" + i.lo + ", " + i.hi + "]";
@@ -193,10 +193,10 @@
   $("falloff_deg").addEventListener("input", (e) => { $("falloff_deg_out").textContent = e.target.value; });
   $("falloff_deg").addEventListener("change", (e) => setKnob("falloff_deg", Number(e.target.value)));
   $("falloff_off").addEventListener("change", (e) => setKnob("falloff_deg", e.target.checked ? null : Number($("falloff_deg").value)));
-  for (const id of ["block", "ao_samples"]) {
+  for (const id of ["block", "ao_samples", "max_depth", "spp"]) {
     $(id).addEventListener("change", (e) => { const v = Number(e.target.value); if (Number.isInteger(v)) setKnob(id, v); else showError(id + " must be an integer"); });
   }
-  for (const id of ["temporal", "dof", "indirect", "timing"]) {
+  for (const id of ["temporal", "dof", "indirect", "timing", "path"]) {
     $(id).addEventListener("change", (e) => setKnob(id, e.target.checked));
   }
 
@@ -221,6 +221,7 @@
     rows.push(["sampling rate", pct(st.sampling_rate)]);
     rows.push(["cache hits", pct(st.cache_hit_rate)]);
     rows.push(["rays traced", st.rays_traced !== undefined ? Number(st.rays_traced).toLocaleString() : "-"]);
+    if (st.paths_traced !== undefined) rows.push(["paths traced", Number(st.paths_traced).toLocaleString()]);
     rows.push(["gaze->frame p50 (srv)", ms(serverStats.latency_ms_p50)]);
     rows.push(["gaze->frame p95 (srv)", ms(serverStats.latency_ms_p95)]);
     rows.push(["gaze->frame p95 (msgs)", ms(serverStats.latency_msg_ms_p95)]);
