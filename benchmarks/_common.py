@@ -236,3 +236,20 @@ def checked_shadings_sizes(p: argparse.ArgumentParser, args) -> tuple:
     if not shadings or any(s not in SHADINGS for s in shadings):
         p.error(f"--shadings must be a comma list of {', '.join(SHADINGS)}, got {args.shadings!r}")
     return shadings, parse_sizes(p, args.sizes)
+
+
+def kept_records(p, path, benchmark: str, key) -> list:
+    """The records of ``--keep FILE.json``, a ``benchmark`` JSON (each given the file's commit where it has none
+    of its own; ``key(record)`` must read every record), or a parser error naming the file and what was wrong."""
+    if path is None:
+        return []
+    try:
+        d = json.loads(Path(path).read_text())
+        recs = d["records"]
+        for r in recs:
+            key(r)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        p.error(f"--keep must name a {benchmark} JSON with records (scene, width, height), got {path!r}: {e}")
+    if d.get("benchmark") != benchmark:
+        p.error(f"--keep must name a {benchmark} JSON, got {path!r} (benchmark {d.get('benchmark')!r})")
+    return [{**r, "commit": r.get("commit", d.get("commit", "unknown"))} for r in recs]

@@ -42,8 +42,8 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import (REPO, base_parser, git_commit, md_table, parse_sizes, plot_path, progress,  # noqa: E402
-                                pyplot, scenes_present, write_results)
+from benchmarks._common import (REPO, base_parser, git_commit, kept_records, md_table, parse_sizes,  # noqa: E402
+                                plot_path, progress, pyplot, scenes_present, write_results)
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
 CANONICAL = ("python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 "
@@ -559,19 +559,8 @@ def _table_row(rec: dict) -> dict:
 
 
 def _kept_records(p, path) -> list:
-    """The records of ``--keep FILE.json`` (each given the file's commit where it has none of its own)."""
-    if path is None:
-        return []
-    try:
-        d = json.loads(Path(path).read_text())
-        recs = d["records"]
-        for r in recs:
-            _record_key(r)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        p.error(f"--keep must name a frame JSON with records (scene, width, height), got {path!r}: {e}")
-    if d.get("benchmark") != "frame":
-        p.error(f"--keep must name a frame JSON, got {path!r} (benchmark {d.get('benchmark')!r})")
-    return [{**r, "commit": r.get("commit", d.get("commit", "unknown"))} for r in recs]
+    """The records of ``--keep FILE.json`` (``_common.kept_records`` of a frame JSON)."""
+    return kept_records(p, path, "frame", _record_key)
 
 
 def plot(records, path, dev):

@@ -50,8 +50,8 @@ sys.path.append(str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from benchmarks._common import (base_parser, git_commit, md_table, parse_sizes, plot_path, progress,  # noqa: E402
-                                pyplot, write_results)
+from benchmarks._common import (base_parser, git_commit, kept_records, md_table, parse_sizes, plot_path,  # noqa: E402
+                                progress, pyplot, write_results)
 from benchmarks.frame import gaze_path  # noqa: E402
 
 CANONICAL = ("python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 "
@@ -295,7 +295,7 @@ def main(argv=None):
     if args.quick:
         sizes, full_spp, fov_spp = [(64, 36)], full_spp[:2], fov_spp[:1]
         args.frames, args.warm, args.fovea_spp, args.converged_spp = 3, 2, 32, 16
-    kept = kept_records(p, args.keep)
+    kept = kept_records(p, args.keep, "path", lambda r: (r["scene"], int(r["width"]), int(r["height"])))
     dev = wp.get_device(args.device)
     flip_on, fvvdp_on = flip_available(), fovvdp_available()
     records = []
@@ -391,22 +391,6 @@ def main(argv=None):
     write_results("path", dev, records, md_table(rows), args.out, args.tag,
                   extra={"flip": flip_on, "fovvdp": fvvdp_on})
     plot(records, plot_path("path", dev, args.out, args.tag), dev)
-
-
-def kept_records(p, path) -> list:
-    """The records of ``--keep FILE.json`` (each given the file's commit where it has none of its own)."""
-    if path is None:
-        return []
-    import json
-
-    try:
-        d = json.loads(Path(path).read_text())
-        recs = [r for r in d["records"] if (r["scene"], r["width"], r["height"])]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        p.error(f"--keep must name a path JSON with records (scene, width, height), got {path!r}: {e}")
-    if d.get("benchmark") != "path":
-        p.error(f"--keep must name a path JSON, got {path!r} (benchmark {d.get('benchmark')!r})")
-    return [{**r, "commit": r.get("commit", d.get("commit", "unknown"))} for r in recs]
 
 
 def _pair(a, b, fmt):
