@@ -81,13 +81,12 @@ class Target:
     path stage of the loops' scene and shading, on the device."""
 
     def __init__(self, fw, scene, w, h, dev, shading, fovea_spp: int, whole_spp: int):
+        from foveawarp.scene import DeviceScene
         from foveawarp.stages.path import PathStage
 
-        self.fw, self.w, self.h, self.dev = fw, w, h, dev
-        loop = fw.FrameLoop(scene, w, h, config=fw.Config().with_(shading=shading_dict(shading, radiance_clamp=None)),
-                            device=dev, policy="full")
-        self.stage = PathStage(loop.dscene, loop.config.shading, w, h, dev)
-        self.shading = loop.config.shading
+        self.w, self.h, self.dev = w, h, dev
+        self.shading = fw.Config().with_(shading={**shading, "radiance_clamp": None}).shading
+        self.stage = PathStage(DeviceScene(scene, device=dev), self.shading, w, h, dev)
         self.fovea_spp, self.whole_spp = int(fovea_spp), int(whole_spp)
         self.one = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.disp = wp.zeros((h, w), dtype=wp.vec3, device=dev)
@@ -125,10 +124,6 @@ class Target:
         if full is not None and fov is not None and self.fovea_spp <= self.whole_spp:
             fov = full[box[0]:box[1], box[2]:box[3]].copy()
         return fov, full
-
-
-def shading_dict(shading: dict, **over) -> dict:
-    return {**shading, **over}
 
 
 def flip_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -218,11 +213,9 @@ def equal_quality(full_pts, q):
         return pts[0][0], q < pts[0][1]
     if q > pts[-1][1]:
         return pts[-1][0], True
-    for (t0, q0), (t1, q1) in zip(pts, pts[1:]):
-        if q0 <= q <= q1:
-            s = 0.0 if q1 == q0 else (q - q0) / (q1 - q0)
-            return float(math.exp(math.log(t0) + s * (math.log(t1) - math.log(t0)))), False
-    return pts[-1][0], True
+    (t0, q0), (t1, q1) = next((a, b) for a, b in zip(pts, pts[1:]) if a[1] <= q <= b[1])
+    s = 0.0 if q1 == q0 else (q - q0) / (q1 - q0)
+    return float(math.exp(math.log(t0) + s * (math.log(t1) - math.log(t0)))), False
 
 
 def save_pair(folder: Path, scene: str, w: int, h: int, fov_img, ref_img, gaze, fov_deg, labels):

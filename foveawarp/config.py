@@ -432,6 +432,9 @@ class ShadingConfig:
         check_int_range("ShadingConfig.area_light_samples", self.area_light_samples, 1, 256)
         check_choice("ShadingConfig.indirect", self.indirect, ("none", "lighttree"))
         check_choice("ShadingConfig.integrator", self.integrator, ("direct", "path"))
+        if self.integrator == "path" and self.indirect != "none":
+            raise ValueError(f"ShadingConfig.integrator 'path' computes indirect light itself: ShadingConfig.indirect "
+                             f"must be 'none', got {self.indirect!r}")
         check_int_range("ShadingConfig.max_depth", self.max_depth, 1, 4096)
         check_int_range("ShadingConfig.spp", self.spp, 1, 65536)
         check_choice("ShadingConfig.path_budget", self.path_budget, ("pixel", "frame"))

@@ -333,9 +333,6 @@ class FrameLoop:
         if self.sparse_gbuffer:
             raise ValueError("ShadingConfig.integrator 'path' needs the full G-buffer (FoveationConfig.gbuffer "
                              "'full'), got 'sparse'")
-        if cfg.shading.indirect != "none":
-            raise ValueError(f"ShadingConfig.integrator 'path' computes indirect light itself: ShadingConfig.indirect "
-                             f"must be 'none', got {cfg.shading.indirect!r}")
         return PathStage(self.dscene, cfg.shading, self.width, self.height, self.device)
 
     def _stochastic_shading(self, ao_samples: Optional[int] = None) -> bool:

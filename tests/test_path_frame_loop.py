@@ -78,8 +78,10 @@ def test_full_policy_frame_is_one_path_traced_frame(device):
     ({"shading": {"indirect": "lighttree"}}, "cornell", "ShadingConfig.indirect must be 'none'"),
 ])
 def test_refused_combinations(over, scene, match):
-    cfg = fw.Config().with_(shading=PATH).with_(**over)
+    """Refused by name: by FrameLoop (what the scene or the G-buffer cannot give the path integrator) or already
+    by the Config (settings that exclude each other)."""
     with pytest.raises(ValueError, match=match):
+        cfg = fw.Config().with_(shading=PATH).with_(**over)
         fw.FrameLoop(scene, W, H, config=cfg, device="cpu")
 
 

@@ -144,7 +144,7 @@ def test_knob_ranges_match_the_config_validation(name):
 
 def test_session_config_follows_the_knobs():
     knobs = {"falloff_deg": 20.0, "block": 8, "temporal": False, "ao_samples": 4, "dof": True, "indirect": True,
-             "timing": True}
+             "timing": True, "path": False, "max_depth": 5, "spp": 1}
     cfg = ViewerSession.config_for(knobs)
     assert cfg.foveation.falloff_deg == 20.0 and cfg.foveation.block == 8
     assert cfg.temporal.enabled is False and cfg.shading.ao_samples == 4
@@ -153,7 +153,7 @@ def test_session_config_follows_the_knobs():
     assert not off.dof.enabled and off.shading.indirect == "none" and off.shading.integrator == "direct"
     path = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "max_depth": 3, "spp": 2})
     assert (path.shading.integrator, path.shading.max_depth, path.shading.spp) == ("path", 3, 2)
-    with pytest.raises(ValueError, match="indirect light off"):
+    with pytest.raises(ValueError, match="computes indirect light itself"):
         ViewerSession.config_for({**knobs, "path": True})
 
 

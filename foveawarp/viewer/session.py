@@ -146,18 +146,12 @@ class ViewerSession:
         """The FrameLoop config for the page's knob values (ValueError when a combination is invalid)."""
         base = Config()
         aperture = (base.dof.aperture_m if base.dof.enabled else DOF_APERTURE_M) if knobs["dof"] else 0.0
-        path = bool(knobs.get("path", False))
-        if path and knobs["indirect"]:
-            raise ValueError("path tracing computes indirect light itself: turn indirect light off first")
-        shading = {"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none",
-                   "integrator": "path" if path else "direct"}
-        for k in ("max_depth", "spp"):
-            if k in knobs:
-                shading[k] = knobs[k]
         return base.with_(
             foveation={"falloff_deg": knobs["falloff_deg"], "block": knobs["block"]},
             temporal={"enabled": knobs["temporal"]},
-            shading=shading,
+            shading={"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none",
+                     "integrator": "path" if knobs["path"] else "direct", "max_depth": knobs["max_depth"],
+                     "spp": knobs["spp"]},
             dof={"aperture_m": aperture},
         )
 
