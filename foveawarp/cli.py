@@ -362,7 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--frames", type=_positive_int, default=None)
     d.add_argument("--out", default="foveawarp-out/demo")
     d.add_argument("--integrator", choices=("direct", "path"), default="direct",
-                   help="direct light (default) or path tracing (ShadingConfig.integrator; untextured scenes)")
+                   help="direct light (default) or path tracing (ShadingConfig.integrator)")
     d.add_argument("--gaze-trace", default=None, metavar="FILE.csv",
                    help="replay a recorded gaze (CSV columns t_s,x_px,y_px; frame i at t = i / 30 s)")
     d.set_defaults(func=cmd_demo)
@@ -376,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--gaze", type=_parse_gaze, default=None, help="X,Y in pixels (default: a moving gaze)")
     r.add_argument("--out", default="foveawarp-out/render")
     r.add_argument("--integrator", choices=("direct", "path"), default="direct",
-                   help="direct light (default) or path tracing (ShadingConfig.integrator; untextured scenes)")
+                   help="direct light (default) or path tracing (ShadingConfig.integrator)")
     r.add_argument("--debug", action="store_true", help="also write the sampling-map debug views")
     r.add_argument("--dof", action="store_true", help="also write the depth-of-field comparison")
     r.add_argument("--no-panel", dest="panel", action="store_false", help="write only the foveated image")

@@ -372,7 +372,8 @@ class ShadingConfig:
         integrator: "direct" (default: the fields above: lights with shadow rays, ambient or AO, optional
             light-tree indirect) or "path" (unidirectional path tracing with next-event estimation and multiple
             importance sampling, ``foveawarp.stages.path``; ambient, AO and ``indirect`` do not apply to it;
-            ``FrameLoop`` traces it at the sampled pixels of untextured scenes with the full G-buffer).
+            ``FrameLoop`` traces it at the sampled pixels with the full G-buffer; scenes with materials are shaded
+            with their textured materials).
         max_depth: longest path of the "path" integrator, in [1, 4096], Mitsuba 3's convention: 1 = emitters seen
             directly, 2 = direct light, 3 = one indirect bounce, ...
         spp: paths per traced pixel per frame of the "path" integrator, in [1, 65536].

@@ -327,9 +327,6 @@ class FrameLoop:
         from .stages.path import PathStage
 
         cfg = self.config
-        if self.shade.textured:
-            raise ValueError(f"ShadingConfig.integrator 'path' shades untextured scenes (per-face albedo) only; scene "
-                             f"{self.scene.name!r} has materials: use integrator 'direct'")
         if self.sparse_gbuffer:
             raise ValueError("ShadingConfig.integrator 'path' needs the full G-buffer (FoveationConfig.gbuffer "
                              "'full'), got 'sparse'")

@@ -73,7 +73,6 @@ def test_full_policy_frame_is_one_path_traced_frame(device):
 
 
 @pytest.mark.parametrize("over, scene, match", [
-    ({}, "room", "untextured scenes"),
     ({"foveation": {"gbuffer": "sparse"}}, "cornell", "gbuffer 'full'"),
     ({"shading": {"indirect": "lighttree"}}, "cornell", "ShadingConfig.indirect must be 'none'"),
 ])

@@ -15,6 +15,11 @@ layout. At each surface vertex:
   against the BSDF's pdf (Veach 1997, eq. 9.13 with beta = 2);
 - the BSDF is sampled (kernels/bsdf.py: cosine-weighted Lambert and GGX visible normals) for the next ray.
 
+The material at a vertex is the per-face albedo as glTF base colour (``path_material``) in untextured scenes, or in
+scenes with materials the hit's textured material (kernels/surface.py: ``eval_surface_at``), whose texture LOD
+follows the path's ray cone (``bounce_spread_angle``; ``foveawarp.stages.path`` documents the model); the two
+are separate kernels (``path_*_kernel``, ``path_*_textured_kernel``) of one body.
+
 Depth follows Mitsuba 3's ``path`` integrator: vertex ``k`` (0 = the camera ray's hit) performs next-event
 estimation and continues only when ``k + 1 < max_depth``, so ``max_depth`` 1 gives emitters seen directly, 2
 direct light, 3 one indirect bounce. After ``k + 1 >= rr_depth`` bounces a path continues with probability
@@ -38,8 +43,12 @@ from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_
 from .camera import CameraParams, camera_ray_dir
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
 from .gbuffer import smooth_normal
+from .gbuffer_textured import primary_spread_angle, sample_footprint_px
 from .rng import pixel_rng
 from .shade import AreaLightParams, LightParams, spot_factor
+from .shade_textured import raised_wo
+from .surface import SurfaceData, eval_surface_at, is_cut_out, segment_clear, surface_emission, trace_surface_cone
+from .texture import SPREAD_ANGLE_MAX, cone_footprint_log2, cone_width
 
 # pdfs are raised to at most this before the power heuristic squares their ratio (a pdf of a light of area 1e-35
 # would otherwise overflow float32)
@@ -126,9 +135,22 @@ def finite3(c: wp.vec3) -> bool:
 def path_material(pp: PathParams, face_albedo: wp.array(dtype=wp.vec3), face: int) -> SurfaceMaterial:
     """The material of a path vertex on ``face``: today's per-face albedo as the glTF base colour, metallic 0, and
     the frame's roughness and specularFactor standing in for the direct integrator's Blinn-Phong lobe
-    (``foveawarp.stages.path.material_from_blinn_phong``). The one place a textured scene's per-hit base colour,
-    roughness and metallic (the G-buffer's, or a texture lookup along the path) would enter."""
+    (``foveawarp.stages.path.material_from_blinn_phong``); untextured scenes only."""
     return make_material(face_albedo[face], 0.0, pp.roughness, pp.specular)
+
+
+@wp.func
+def bounce_spread_angle(pdf: float) -> float:
+    """The angle a path's ray cone widens by at a bounce whose direction was drawn with solid-angle density
+    ``pdf``: the apex angle ``2 theta`` of the cone of solid angle ``1 / pdf``, ``2 pi (1 - cos theta) = 1 / pdf``,
+    so ``2 acos(1 - 1 / (2 pi pdf))``, evaluated as ``4 asin(sqrt(1 / (4 pi pdf)))`` (no cancellation for narrow
+    lobes); at most SPREAD_ANGLE_MAX (also for a pdf of 0 or NaN); 0 for an infinite pdf (a mirror)."""
+    if not (pdf > 0.0):
+        return SPREAD_ANGLE_MAX
+    x = 1.0 / (4.0 * wp.pi * pdf)  # sin^2(theta / 2)
+    if x >= 1.0:
+        return SPREAD_ANGLE_MAX
+    return wp.min(4.0 * wp.asin(wp.sqrt(x)), SPREAD_ANGLE_MAX)
 
 
 @wp.func
@@ -153,33 +175,6 @@ def parallelogram_t(a: AreaLightParams, o: wp.vec3, d: wp.vec3, tmax: float) -> 
     if s < 0.0 or s > 1.0 or w < 0.0 or w > 1.0:
         return -1.0
     return t
-
-
-@wp.func
-def occluded(pp: PathParams, area_lights: wp.array(dtype=AreaLightParams), o: wp.vec3, d: wp.vec3,
-             dist: float, skip: int) -> bool:
-    """Whether a triangle or an area light other than ``skip`` (-1: none) lies on the unit ray (o, d) within
-    (0, dist)."""
-    hit = False
-    if dist > 0.0:
-        hit = wp.mesh_query_ray_anyhit(pp.mesh, o, d, dist)
-        if not hit:
-            for li in range(pp.num_area_lights):
-                if li != skip and parallelogram_t(area_lights[li], o, d, dist) > 0.0:
-                    hit = True
-    return hit
-
-
-@wp.func
-def unoccluded_to(pp: PathParams, area_lights: wp.array(dtype=AreaLightParams), o: wp.vec3, q: wp.vec3,
-                  skip: int) -> bool:
-    """Whether the segment from the offset origin o to the light point q is free, but for its last 2 ray_eps (so
-    the light's own surface at q never blocks it) and area light ``skip``."""
-    dq = q - o
-    dist = wp.length(dq)
-    if not (dist > 2.0 * pp.ray_eps):
-        return True
-    return not occluded(pp, area_lights, o, dq / dist, dist - 2.0 * pp.ray_eps, skip)
 
 
 @wp.func
@@ -245,287 +240,408 @@ def nee_weight(f: wp.vec3, cos_s: float, le: wp.vec3, pdf_light: float, pdf_bsdf
 
 
 @wp.func
-def trace_path(
-    pp: PathParams,
-    env: EnvironmentMap,
-    face_albedo: wp.array(dtype=wp.vec3),
-    face_emission: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    face_smooth: wp.array(dtype=wp.uint8),
-    points: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    emit_face: wp.array(dtype=wp.int32),
-    emit_cdf: wp.array(dtype=float),
-    face_emit_prob: wp.array(dtype=float),
-    o_cam: wp.vec3,
-    d_cam: wp.vec3,
-    rng: wp.uint32,
-):
-    """The radiance one path carries along the camera ray (o_cam, d_cam) (before the clamps), and the stream."""
-    L = wp.vec3(0.0, 0.0, 0.0)
-    thr = wp.vec3(1.0, 1.0, 1.0)
-    o = o_cam
-    d = d_cam
-    prev_pdf = float(0.0)  # the BSDF pdf of the ray being traced; 0 for the camera ray
-    eps = pp.ray_eps
-    for depth in range(pp.max_depth):
-        q = wp.mesh_query_ray(pp.mesh, o, d, pp.far)
-        t = pp.far
-        if q.result:
-            t = q.t
-        light = int(-1)
-        for li in range(pp.num_area_lights):
-            tl = parallelogram_t(area_lights[li], o, d, t)
-            if tl > 0.0:
-                t = tl
-                light = li
-        if light >= 0:
-            a = area_lights[light]
-            if wp.dot(wp.cross(a.edge_u, a.edge_v), d) < 0.0:
+def front_emits(sd: SurfaceData, face: int, face_normal: wp.vec3, d: wp.vec3) -> bool:
+    """Whether a ray along ``d`` meeting ``face`` (winding normal ``face_normal``) sees its emission: a
+    double-sided material emits from both sides, a single-sided one from its front only (as a Mitsuba area
+    emitter, and as glTF's back-face culling shows it)."""
+    if sd.double_sided[sd.face_material[face]] != 0:
+        return True
+    return wp.dot(face_normal, d) < 0.0
+
+
+def _make_path(textured: bool):
+    """The path integrator's entry kernels for untextured scenes (per-face albedo and emission: ``path_material``)
+    or, with ``textured``, for scenes with materials (kernels/surface.py: the hit's textured glTF material,
+    cut-outs, culled back faces of single-sided materials on camera rays, texture LOD from the path's ray cone):
+    one body, the textured parts selected at code generation."""
+
+    @wp.func
+    def blocked(pp: PathParams, sd: SurfaceData, area_lights: wp.array(dtype=AreaLightParams), o: wp.vec3,
+                d: wp.vec3, dist: float, skip: int) -> bool:
+        """Whether a surface (textured: an opaque texel, cut-outs let the ray through) or an area light other than
+        ``skip`` (-1: none) lies on the unit ray (o, d) within (0, dist)."""
+        hit = False
+        if dist > 0.0:
+            if wp.static(textured):
+                hit = not segment_clear(pp.mesh, sd, o, d, dist)
+            else:
+                hit = wp.mesh_query_ray_anyhit(pp.mesh, o, d, dist)
+            if not hit:
+                for li in range(pp.num_area_lights):
+                    if li != skip and parallelogram_t(area_lights[li], o, d, dist) > 0.0:
+                        hit = True
+        return hit
+
+    @wp.func
+    def clear_to(pp: PathParams, sd: SurfaceData, area_lights: wp.array(dtype=AreaLightParams), o: wp.vec3,
+                 q: wp.vec3, skip: int) -> bool:
+        """Whether the segment from the offset origin o to the light point q is free, but for its last 2 ray_eps
+        (so the light's own surface at q never blocks it) and area light ``skip``."""
+        dq = q - o
+        dist = wp.length(dq)
+        if not (dist > 2.0 * pp.ray_eps):
+            return True
+        return not blocked(pp, sd, area_lights, o, dq / dist, dist - 2.0 * pp.ray_eps, skip)
+
+    @wp.func
+    def trace_path(
+        pp: PathParams,
+        env: EnvironmentMap,
+        sd: SurfaceData,
+        face_albedo: wp.array(dtype=wp.vec3),
+        face_emission: wp.array(dtype=wp.vec3),
+        vnormals: wp.array(dtype=wp.vec3),
+        face_smooth: wp.array(dtype=wp.uint8),
+        points: wp.array(dtype=wp.vec3),
+        indices: wp.array(dtype=wp.int32),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        emit_face: wp.array(dtype=wp.int32),
+        emit_cdf: wp.array(dtype=float),
+        face_emit_prob: wp.array(dtype=float),
+        o_cam: wp.vec3,
+        d_cam: wp.vec3,
+        spread0: float,
+        rng: wp.uint32,
+    ):
+        """The radiance one path carries along the camera ray (o_cam, d_cam) (before the clamps), and the stream;
+        ``spread0``: the camera ray cone's spread angle (textured scenes' texture LOD)."""
+        L = wp.vec3(0.0, 0.0, 0.0)
+        thr = wp.vec3(1.0, 1.0, 1.0)
+        o = o_cam
+        d = d_cam
+        prev_pdf = float(0.0)  # the BSDF pdf of the ray being traced; 0 for the camera ray
+        eps = pp.ray_eps
+        cone_w = float(0.0)  # the ray cone's width at o and its spread angle (textured scenes)
+        cone_a = spread0
+        for depth in range(pp.max_depth):
+            hit = False
+            t = pp.far
+            f = int(-1)
+            bu = float(0.0)
+            bv = float(0.0)
+            gn = wp.vec3(0.0, 0.0, 1.0)
+            if wp.static(textured):
+                cull = int(0)
+                if depth == 0:
+                    cull = 1  # single-sided materials' back faces are culled on camera rays, as the G-buffer does
+                h = trace_surface_cone(pp.mesh, sd, o, d, pp.far, cone_w, cone_a, cull)
+                if h.result:
+                    hit = True
+                    t = h.t
+                    f = h.face
+                    bu = h.u
+                    bv = h.v
+                    gn = h.normal
+            else:
+                q = wp.mesh_query_ray(pp.mesh, o, d, pp.far)
+                if q.result:
+                    hit = True
+                    t = q.t
+                    f = q.face
+                    bu = q.u
+                    bv = q.v
+                    gn = q.normal
+            light = int(-1)
+            for li in range(pp.num_area_lights):
+                tl = parallelogram_t(area_lights[li], o, d, t)
+                if tl > 0.0:
+                    t = tl
+                    light = li
+            if light >= 0:
+                a = area_lights[light]
+                if wp.dot(wp.cross(a.edge_u, a.edge_v), d) < 0.0:
+                    w = float(1.0)
+                    if depth > 0:
+                        w = power_heuristic(prev_pdf, area_light_pdf(a, d, t))
+                    L += wp.cw_mul(thr, a.radiance) * w
+                break
+            if not hit:
+                if pp.env_light != 0:
+                    w = float(1.0)
+                    if depth > 0 and pp.env_nee != 0:
+                        w = power_heuristic(prev_pdf, env_pdf(env, d))
+                    L += wp.cw_mul(thr, env_eval(env, d)) * w
+                elif depth == 0:
+                    L += pp.background
+                break
+            p = o + d * t
+            # the geometric normal facing the arriving ray
+            ng = gn
+            if wp.dot(ng, d) > 0.0:
+                ng = -ng
+            ns = ng
+            m = SurfaceMaterial()
+            le = wp.vec3(0.0, 0.0, 0.0)
+            cone_hit = cone_w
+            if wp.static(textured):
+                cone_hit = cone_w + cone_width(t, cone_a)
+                fp = cone_footprint_log2(cone_hit, gn, d)
+                sp = eval_surface_at(sd, f, bu, bv, d, gn, fp)
+                if front_emits(sd, f, gn, d):
+                    le = sp.emission
+                ns = sp.normal
+                m = make_material(sp.base_color, sp.metallic, sp.roughness, sp.specular)
+            else:
+                le = face_emission[f]
+            if max3(le) > 0.0:
                 w = float(1.0)
-                if depth > 0:
-                    w = power_heuristic(prev_pdf, area_light_pdf(a, d, t))
-                L += wp.cw_mul(thr, a.radiance) * w
-            break
-        if not q.result:
-            if pp.env_light != 0:
-                w = float(1.0)
-                if depth > 0 and pp.env_nee != 0:
-                    w = power_heuristic(prev_pdf, env_pdf(env, d))
-                L += wp.cw_mul(thr, env_eval(env, d)) * w
-            elif depth == 0:
-                L += pp.background
-            break
-        f = q.face
-        p = o + d * t
-        le = face_emission[f]
-        if max3(le) > 0.0:
-            w = float(1.0)
-            if depth > 0 and pp.num_emitters > 0:
-                w = power_heuristic(prev_pdf, emitter_pdf(points, indices, face_emit_prob, f, d, t))
-            L += wp.cw_mul(thr, le) * w
-        if depth + 1 >= pp.max_depth:
-            break
-        # the geometric normal facing the arriving ray, the shading normal on its side
-        ng = q.normal
-        if wp.dot(ng, d) > 0.0:
-            ng = -ng
-        ns = ng
-        if face_smooth[f] != wp.uint8(0):
-            ns = smooth_normal(ng, q.u, q.v, vnormals[indices[3 * f + 0]], vnormals[indices[3 * f + 1]],
-                               vnormals[indices[3 * f + 2]])
-        fr = frame_from_normal(ns)
-        m = path_material(pp, face_albedo, f)
-        wo = to_local(fr, -d)
-        # every ray leaving this vertex starts here; light samples are placed and weighted from p itself
-        po = p + ng * eps
-        # point and spot lights
-        for li in range(pp.num_lights):
-            lt = lights[li]
-            dl = lt.position - p
-            dist2 = wp.dot(dl, dl)
-            if dist2 > 1.0e-30:
-                dist = wp.sqrt(dist2)
-                wi = dl / dist
-                if wp.dot(wi, ng) > 0.0:
-                    att = spot_factor(lt, -wi)
-                    wil = to_local(fr, wi)
-                    if att > 0.0 and wil[2] > 0.0:
-                        if unoccluded_to(pp, area_lights, po, lt.position, -1):
-                            fv = bsdf_eval(m, wo, wil)
-                            L += wp.cw_mul(thr, wp.cw_mul(fv, lt.intensity)) * (att * wil[2] / dist2)
-        # area lights, one sample each
-        for li in range(pp.num_area_lights):
-            a = area_lights[li]
-            u1 = wp.randf(rng)
-            u2 = wp.randf(rng)
-            an = wp.cross(a.edge_u, a.edge_v)
-            area = wp.length(an)
-            if area > AREA_MIN:
-                ql = a.corner + a.edge_u * u1 + a.edge_v * u2
+                if depth > 0 and pp.num_emitters > 0:
+                    w = power_heuristic(prev_pdf, emitter_pdf(points, indices, face_emit_prob, f, d, t))
+                L += wp.cw_mul(thr, le) * w
+            if depth + 1 >= pp.max_depth:
+                break
+            if wp.static(not textured):
+                if face_smooth[f] != wp.uint8(0):
+                    ns = smooth_normal(ng, bu, bv, vnormals[indices[3 * f + 0]], vnormals[indices[3 * f + 1]],
+                                       vnormals[indices[3 * f + 2]])
+                m = path_material(pp, face_albedo, f)
+            fr = frame_from_normal(ns)
+            wo = to_local(fr, -d)
+            if wp.static(textured):
+                wo = raised_wo(wo)  # as the textured direct integrator: a map normal turned from the viewer
+            # every ray leaving this vertex starts here; light samples are placed and weighted from p itself
+            po = p + ng * eps
+            # point and spot lights
+            for li in range(pp.num_lights):
+                lt = lights[li]
+                dl = lt.position - p
+                dist2 = wp.dot(dl, dl)
+                if dist2 > 1.0e-30:
+                    dist = wp.sqrt(dist2)
+                    wi = dl / dist
+                    if wp.dot(wi, ng) > 0.0:
+                        att = spot_factor(lt, -wi)
+                        wil = to_local(fr, wi)
+                        if att > 0.0 and wil[2] > 0.0:
+                            if clear_to(pp, sd, area_lights, po, lt.position, -1):
+                                fv = bsdf_eval(m, wo, wil)
+                                L += wp.cw_mul(thr, wp.cw_mul(fv, lt.intensity)) * (att * wil[2] / dist2)
+            # area lights, one sample each
+            for li in range(pp.num_area_lights):
+                a = area_lights[li]
+                u1 = wp.randf(rng)
+                u2 = wp.randf(rng)
+                an = wp.cross(a.edge_u, a.edge_v)
+                area = wp.length(an)
+                if area > AREA_MIN:
+                    ql = a.corner + a.edge_u * u1 + a.edge_v * u2
+                    dl = ql - p
+                    dist2 = wp.dot(dl, dl)
+                    if dist2 > 1.0e-30:
+                        dist = wp.sqrt(dist2)
+                        wi = dl / dist
+                        cos_l = -wp.dot(an / area, wi)
+                        wil = to_local(fr, wi)
+                        if cos_l > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                            if clear_to(pp, sd, area_lights, po, ql, li):
+                                pl = wp.min(dist2 / (cos_l * area), PDF_MAX)
+                                L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], a.radiance, pl,
+                                                               bsdf_pdf(m, wo, wil)))
+            # one emissive triangle
+            if pp.num_emitters > 0:
+                ue = wp.randf(rng)
+                u1 = wp.randf(rng)
+                u2 = wp.randf(rng)
+                fe = emit_face[cdf_search(emit_cdf, pp.num_emitters, ue)]
+                p0, p1, p2 = triangle_corners(points, indices, fe)
+                su = wp.sqrt(u1)
+                ql = p0 * (1.0 - su) + p1 * (u2 * su) + p2 * (su * (1.0 - u2))
                 dl = ql - p
                 dist2 = wp.dot(dl, dl)
                 if dist2 > 1.0e-30:
                     dist = wp.sqrt(dist2)
                     wi = dl / dist
-                    cos_l = -wp.dot(an / area, wi)
                     wil = to_local(fr, wi)
-                    if cos_l > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                        if unoccluded_to(pp, area_lights, po, ql, li):
-                            pl = wp.min(dist2 / (cos_l * area), PDF_MAX)
-                            L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], a.radiance, pl,
-                                                           bsdf_pdf(m, wo, wil)))
-        # one emissive triangle
-        if pp.num_emitters > 0:
-            ue = wp.randf(rng)
-            u1 = wp.randf(rng)
-            u2 = wp.randf(rng)
-            fe = emit_face[cdf_search(emit_cdf, pp.num_emitters, ue)]
-            p0, p1, p2 = triangle_corners(points, indices, fe)
-            su = wp.sqrt(u1)
-            ql = p0 * (1.0 - su) + p1 * (u2 * su) + p2 * (su * (1.0 - u2))
-            dl = ql - p
-            dist2 = wp.dot(dl, dl)
-            if dist2 > 1.0e-30:
-                dist = wp.sqrt(dist2)
-                wi = dl / dist
+                    if wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                        pl = emitter_pdf(points, indices, face_emit_prob, fe, wi, dist)
+                        if pl > 0.0:
+                            lq = wp.vec3(0.0, 0.0, 0.0)
+                            if wp.static(textured):
+                                # the point's barycentrics in Warp's convention: p0 u + p1 v + p2 (1 - u - v)
+                                eu = 1.0 - su
+                                ev = u2 * su
+                                visible = front_emits(sd, fe, wp.cross(p1 - p0, p2 - p0), wi)
+                                if visible and sd.has_cutouts != 0:
+                                    visible = not is_cut_out(sd, fe, eu, ev, -128.0)
+                                if visible:
+                                    lq = surface_emission(sd, fe, eu, ev, -128.0)
+                            else:
+                                lq = face_emission[fe]
+                            if max3(lq) > 0.0:
+                                if clear_to(pp, sd, area_lights, po, ql, -1):
+                                    L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], lq, pl,
+                                                                   bsdf_pdf(m, wo, wil)))
+            # the environment
+            if pp.env_nee != 0:
+                u1 = wp.randf(rng)
+                u2 = wp.randf(rng)
+                wi, le_env, pl = env_sample(env, u1, u2)
                 wil = to_local(fr, wi)
-                if wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                    pl = emitter_pdf(points, indices, face_emit_prob, fe, wi, dist)
-                    if pl > 0.0:
-                        if unoccluded_to(pp, area_lights, po, ql, -1):
-                            L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], face_emission[fe], pl,
-                                                           bsdf_pdf(m, wo, wil)))
-        # the environment
-        if pp.env_nee != 0:
+                if pl > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                    if not blocked(pp, sd, area_lights, po, wi, pp.far, -1):
+                        L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], le_env, pl,
+                                                       bsdf_pdf(m, wo, wil)))
+            # the next ray
             u1 = wp.randf(rng)
             u2 = wp.randf(rng)
-            wi, le_env, pl = env_sample(env, u1, u2)
-            wil = to_local(fr, wi)
-            if pl > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                if not occluded(pp, area_lights, po, wi, pp.far, -1):
-                    L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], le_env, pl, bsdf_pdf(m, wo, wil)))
-        # the next ray
-        u1 = wp.randf(rng)
-        u2 = wp.randf(rng)
-        u3 = wp.randf(rng)
-        s = bsdf_sample(m, wo, u1, u2, u3)
-        if not (s.pdf > 0.0):
-            break
-        wi = to_world(fr, s.wi)
-        if not (wp.dot(wi, ng) > 0.0):
-            break
-        thr = wp.cw_mul(thr, s.f) * (s.wi[2] / s.pdf)
-        if not finite3(thr):
-            break
-        prev_pdf = s.pdf
-        if depth + 1 >= pp.rr_depth:
-            qs = wp.min(max3(thr), RR_MAX)
-            if not (wp.randf(rng) < qs):
+            u3 = wp.randf(rng)
+            s = bsdf_sample(m, wo, u1, u2, u3)
+            if not (s.pdf > 0.0):
                 break
-            thr = thr / qs
-        if not (max3(thr) > 0.0):
-            break
-        o = po
-        d = wi
-    return L, rng
+            wi = to_world(fr, s.wi)
+            if not (wp.dot(wi, ng) > 0.0):
+                break
+            thr = wp.cw_mul(thr, s.f) * (s.wi[2] / s.pdf)
+            if not finite3(thr):
+                break
+            prev_pdf = s.pdf
+            if depth + 1 >= pp.rr_depth:
+                qs = wp.min(max3(thr), RR_MAX)
+                if not (wp.randf(rng) < qs):
+                    break
+                thr = thr / qs
+            if not (max3(thr) > 0.0):
+                break
+            if wp.static(textured):
+                cone_w = cone_hit
+                cone_a = wp.min(cone_a + bounce_spread_angle(s.pdf), SPREAD_ANGLE_MAX)
+            o = po
+            d = wi
+        return L, rng
+
+    @wp.func
+    def pixel_radiance(
+        pp: PathParams,
+        env: EnvironmentMap,
+        sd: SurfaceData,
+        face_albedo: wp.array(dtype=wp.vec3),
+        face_emission: wp.array(dtype=wp.vec3),
+        vnormals: wp.array(dtype=wp.vec3),
+        face_smooth: wp.array(dtype=wp.uint8),
+        points: wp.array(dtype=wp.vec3),
+        indices: wp.array(dtype=wp.int32),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        emit_face: wp.array(dtype=wp.int32),
+        emit_cdf: wp.array(dtype=float),
+        face_emit_prob: wp.array(dtype=float),
+        x: int,
+        y: int,
+        spp: int,
+        footprint_px: float,
+    ) -> wp.vec3:
+        """The mean of ``spp`` paths through pixel (x, y), each clamped (module docstring), from the pixel's
+        random stream of the frame (``pixel_rng(seed, frame, y * width + x)``); ``footprint_px``: the pixels the
+        camera ray cone spans (textured scenes' texture LOD)."""
+        rng = pixel_rng(pp.seed, pp.frame, y * pp.width + x)
+        spread0 = primary_spread_angle(pp.cam, footprint_px)
+        acc = wp.vec3(0.0, 0.0, 0.0)
+        for s in range(spp):
+            jx = float(0.5)
+            jy = float(0.5)
+            if pp.jitter != 0:
+                jx = wp.randf(rng)
+                jy = wp.randf(rng)
+            d = camera_ray_dir(pp.cam, float(x) + jx, float(y) + jy)
+            c, rng = trace_path(pp, env, sd, face_albedo, face_emission, vnormals, face_smooth, points, indices,
+                                lights, area_lights, emit_face, emit_cdf, face_emit_prob, pp.cam.eye, d, spread0,
+                                rng)
+            c = finite_radiance(c)
+            if pp.clamp > 0.0:
+                mc = max3(c)
+                if mc > pp.clamp:
+                    c = c * (pp.clamp / mc)
+            acc += c
+        return finite_radiance(acc / float(wp.max(spp, 1)))
+
+    suffix = "_textured" if textured else ""
+
+    @wp.kernel(enable_backward=False, name=f"path_full{suffix}_kernel")
+    def path_full_kernel(
+        ppa: wp.array(dtype=PathParams),
+        env: EnvironmentMap,
+        sd: SurfaceData,
+        face_albedo: wp.array(dtype=wp.vec3),
+        face_emission: wp.array(dtype=wp.vec3),
+        vnormals: wp.array(dtype=wp.vec3),
+        face_smooth: wp.array(dtype=wp.uint8),
+        points: wp.array(dtype=wp.vec3),
+        indices: wp.array(dtype=wp.int32),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        emit_face: wp.array(dtype=wp.int32),
+        emit_cdf: wp.array(dtype=float),
+        face_emit_prob: wp.array(dtype=float),
+        out: wp.array2d(dtype=wp.vec3),
+        row0: int,
+    ):
+        """Every pixel's path-traced radiance into out[y, x] (camera ray cones of one pixel)."""
+        y, x = wp.tid()
+        y += row0  # band offset (foveawarp.parallel)
+        pp = ppa[0]
+        out[y, x] = pixel_radiance(pp, env, sd, face_albedo, face_emission, vnormals, face_smooth, points, indices,
+                                   lights, area_lights, emit_face, emit_cdf, face_emit_prob, x, y, pp.spp, 1.0)
+
+    @wp.kernel(enable_backward=False, name=f"path_list{suffix}_kernel")
+    def path_list_kernel(
+        ppa: wp.array(dtype=PathParams),
+        env: EnvironmentMap,
+        sd: SurfaceData,
+        face_albedo: wp.array(dtype=wp.vec3),
+        face_emission: wp.array(dtype=wp.vec3),
+        vnormals: wp.array(dtype=wp.vec3),
+        face_smooth: wp.array(dtype=wp.uint8),
+        points: wp.array(dtype=wp.vec3),
+        indices: wp.array(dtype=wp.int32),
+        lights: wp.array(dtype=LightParams),
+        area_lights: wp.array(dtype=AreaLightParams),
+        emit_face: wp.array(dtype=wp.int32),
+        emit_cdf: wp.array(dtype=float),
+        face_emit_prob: wp.array(dtype=float),
+        work: wp.array(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+        probability: wp.array2d(dtype=float),
+        prob_sum: wp.array(dtype=float),
+        out: wp.array2d(dtype=wp.vec3),
+        spp_out: wp.array2d(dtype=wp.int32),
+        row0: int,
+    ):
+        """The radiance of the flat pixel indices work[0:count[0]] (y * width + x), each into out[y, x], and the
+        paths it took into spp_out[y, x]: ``pp.spp``, or with a budget (``pp.budget`` > 0) its share
+        ``budget * p / sum p`` of the listed pixels' sampling probabilities ``p`` (``prob_sum[0]``, from
+        ``budget_sum_kernel``), rounded stochastically and clamped to [1, ``pp.max_spp``]. A ``probability`` of
+        the frame's size also widens a textured scene's camera ray cone to the sample's spacing
+        (``sample_footprint_px``), as the sparse G-buffer does; a (1, 1) one leaves it at one pixel."""
+        i = wp.tid() + row0  # band offset (foveawarp.parallel)
+        if i >= count[0]:
+            return
+        pp = ppa[0]
+        idx = work[i]
+        y = idx // pp.width
+        x = idx - y * pp.width
+        if y < 0 or y >= out.shape[0] or x < 0 or x >= out.shape[1]:
+            return
+        n = pp.spp
+        if pp.budget > 0.0 and prob_sum[0] > 0.0:
+            share = pp.budget * probability[y, x] / prob_sum[0]
+            # a stream of its own (the paths' stream is the pixel's, as with a fixed count)
+            rr = pixel_rng(pp.seed ^ 0x5BD1E995, pp.frame, idx)
+            share = wp.min(share, float(pp.max_spp))
+            n = wp.clamp(int(wp.floor(share + wp.randf(rr))), 1, pp.max_spp)
+        spp_out[y, x] = n
+        footprint = float(1.0)
+        if wp.static(textured):
+            if probability.shape[0] == out.shape[0] and probability.shape[1] == out.shape[1]:
+                footprint = sample_footprint_px(probability[y, x])
+        out[y, x] = pixel_radiance(pp, env, sd, face_albedo, face_emission, vnormals, face_smooth, points, indices,
+                                   lights, area_lights, emit_face, emit_cdf, face_emit_prob, x, y, n, footprint)
+
+    return path_full_kernel, path_list_kernel
 
 
-@wp.func
-def pixel_radiance(
-    pp: PathParams,
-    env: EnvironmentMap,
-    face_albedo: wp.array(dtype=wp.vec3),
-    face_emission: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    face_smooth: wp.array(dtype=wp.uint8),
-    points: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    emit_face: wp.array(dtype=wp.int32),
-    emit_cdf: wp.array(dtype=float),
-    face_emit_prob: wp.array(dtype=float),
-    x: int,
-    y: int,
-    spp: int,
-) -> wp.vec3:
-    """The mean of ``spp`` paths through pixel (x, y), each clamped (module docstring), from the pixel's
-    random stream of the frame (``pixel_rng(seed, frame, y * width + x)``)."""
-    rng = pixel_rng(pp.seed, pp.frame, y * pp.width + x)
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for s in range(spp):
-        jx = float(0.5)
-        jy = float(0.5)
-        if pp.jitter != 0:
-            jx = wp.randf(rng)
-            jy = wp.randf(rng)
-        d = camera_ray_dir(pp.cam, float(x) + jx, float(y) + jy)
-        c, rng = trace_path(pp, env, face_albedo, face_emission, vnormals, face_smooth, points, indices, lights,
-                            area_lights, emit_face, emit_cdf, face_emit_prob, pp.cam.eye, d, rng)
-        c = finite_radiance(c)
-        if pp.clamp > 0.0:
-            mc = max3(c)
-            if mc > pp.clamp:
-                c = c * (pp.clamp / mc)
-        acc += c
-    return finite_radiance(acc / float(wp.max(spp, 1)))
-
-
-@wp.kernel(enable_backward=False)
-def path_full_kernel(
-    ppa: wp.array(dtype=PathParams),
-    env: EnvironmentMap,
-    face_albedo: wp.array(dtype=wp.vec3),
-    face_emission: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    face_smooth: wp.array(dtype=wp.uint8),
-    points: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    emit_face: wp.array(dtype=wp.int32),
-    emit_cdf: wp.array(dtype=float),
-    face_emit_prob: wp.array(dtype=float),
-    out: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """Every pixel's path-traced radiance into out[y, x]."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    pp = ppa[0]
-    out[y, x] = pixel_radiance(pp, env, face_albedo, face_emission, vnormals, face_smooth, points, indices,
-                               lights, area_lights, emit_face, emit_cdf, face_emit_prob, x, y, pp.spp)
-
-
-@wp.kernel(enable_backward=False)
-def path_list_kernel(
-    ppa: wp.array(dtype=PathParams),
-    env: EnvironmentMap,
-    face_albedo: wp.array(dtype=wp.vec3),
-    face_emission: wp.array(dtype=wp.vec3),
-    vnormals: wp.array(dtype=wp.vec3),
-    face_smooth: wp.array(dtype=wp.uint8),
-    points: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
-    lights: wp.array(dtype=LightParams),
-    area_lights: wp.array(dtype=AreaLightParams),
-    emit_face: wp.array(dtype=wp.int32),
-    emit_cdf: wp.array(dtype=float),
-    face_emit_prob: wp.array(dtype=float),
-    work: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    probability: wp.array2d(dtype=float),
-    prob_sum: wp.array(dtype=float),
-    out: wp.array2d(dtype=wp.vec3),
-    spp_out: wp.array2d(dtype=wp.int32),
-    row0: int,
-):
-    """The radiance of the flat pixel indices work[0:count[0]] (y * width + x), each into out[y, x], and the paths
-    it took into spp_out[y, x]: ``pp.spp``, or with a budget (``pp.budget`` > 0) its share ``budget * p / sum p``
-    of the listed pixels' sampling probabilities ``p`` (``prob_sum[0]``, from ``budget_sum_kernel``), rounded
-    stochastically and clamped to [1, ``pp.max_spp``]."""
-    i = wp.tid() + row0  # band offset (foveawarp.parallel)
-    if i >= count[0]:
-        return
-    pp = ppa[0]
-    idx = work[i]
-    y = idx // pp.width
-    x = idx - y * pp.width
-    if y < 0 or y >= out.shape[0] or x < 0 or x >= out.shape[1]:
-        return
-    n = pp.spp
-    if pp.budget > 0.0 and prob_sum[0] > 0.0:
-        share = pp.budget * probability[y, x] / prob_sum[0]
-        # a stream of its own (the paths' stream is the pixel's, as with a fixed count)
-        rr = pixel_rng(pp.seed ^ 0x5BD1E995, pp.frame, idx)
-        share = wp.min(share, float(pp.max_spp))
-        n = wp.clamp(int(wp.floor(share + wp.randf(rr))), 1, pp.max_spp)
-    spp_out[y, x] = n
-    out[y, x] = pixel_radiance(pp, env, face_albedo, face_emission, vnormals, face_smooth, points, indices, lights,
-                               area_lights, emit_face, emit_cdf, face_emit_prob, x, y, n)
+path_full_kernel, path_list_kernel = _make_path(False)
+path_full_textured_kernel, path_list_textured_kernel = _make_path(True)
 
 
 @wp.kernel(enable_backward=False)
@@ -579,6 +695,13 @@ def sample_directions_kernel(
     wi_out[i] = to_world(fr, s.wi)
     pdf_out[i] = s.pdf
     pdf_eval[i] = bsdf_pdf(m, wo, s.wi)
+
+
+@wp.kernel(enable_backward=False)
+def bounce_spread_kernel(pdf: wp.array(dtype=float), out: wp.array(dtype=float)):
+    """Test hook: bounce_spread_angle(pdf[i])."""
+    i = wp.tid()
+    out[i] = bounce_spread_angle(pdf[i])
 
 
 @wp.kernel(enable_backward=False)

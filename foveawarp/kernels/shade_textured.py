@@ -54,15 +54,22 @@ def unpack_material(albedo: wp.vec3, m: wp.vec4h):
 
 
 @wp.func
+def raised_wo(wo: wp.vec3) -> wp.vec3:
+    """The unit local direction to the viewer ``wo``, raised to ``z >= WO_Z_MIN`` (its slope capped) where the
+    shading normal faces away from the viewer; unchanged above."""
+    if wo[2] < WO_Z_MIN:
+        return wp.normalize(wp.vec3(wo[0], wo[1], WO_Z_MIN * wp.sqrt(wo[0] * wo[0] + wo[1] * wo[1]) + 1.0e-12))
+    return wo
+
+
+@wp.func
 def shade_textured_parts(sp: ShadeParams, tp: TexturedShadeParams, pixel: int, p: wp.vec3, n: wp.vec3,
                          albedo: wp.vec3, mat: wp.vec4h, lights: wp.array(dtype=LightParams),
                          area_lights: wp.array(dtype=AreaLightParams)):
     """(deterministic light part, stochastic light part, the pixel's random stream after the draws) at p."""
     m, occ = unpack_material(albedo, mat)
     fr = frame_from_normal(n)
-    wo = to_local(fr, wp.normalize(sp.eye - p))
-    if wo[2] < WO_Z_MIN:
-        wo = wp.normalize(wp.vec3(wo[0], wo[1], WO_Z_MIN * wp.sqrt(wo[0] * wo[0] + wo[1] * wo[1]) + 1.0e-12))
+    wo = raised_wo(to_local(fr, wp.normalize(sp.eye - p)))
     col = wp.vec3(0.0, 0.0, 0.0)
     for li in range(sp.num_lights):
         l = lights[li]

@@ -223,7 +223,15 @@ def trace_surface(mesh: wp.uint64, sd: SurfaceData, o: wp.vec3, d: wp.vec3, max_
                   cull_back: int) -> SurfaceHit:
     """The closest hit along the unit ray (o, d) within ``max_t`` that is not a cut-out nor, with ``cull_back``,
     the back face of a single-sided material: each skipped hit restarts the query ``sd.ray_eps`` past it, at most
-    ``MAX_LAYERS`` times (then a miss)."""
+    ``MAX_LAYERS`` times (then a miss). The cut-out test's LOD is a cone from the ray's origin."""
+    return trace_surface_cone(mesh, sd, o, d, max_t, 0.0, spread_angle, cull_back)
+
+
+@wp.func
+def trace_surface_cone(mesh: wp.uint64, sd: SurfaceData, o: wp.vec3, d: wp.vec3, max_t: float, width0: float,
+                       spread_angle: float, cull_back: int) -> SurfaceHit:
+    """:func:`trace_surface` for a cone of width ``width0`` at the origin (a path's ray after a bounce): a hit at
+    distance ``t`` is tested at the footprint ``width0 + cone_width(t, spread_angle)``."""
     h = SurfaceHit()
     h.result = False
     h.t = max_t
@@ -241,7 +249,8 @@ def trace_surface(mesh: wp.uint64, sd: SurfaceData, o: wp.vec3, d: wp.vec3, max_
         if cull_back != 0 and sd.double_sided[m] == 0 and wp.dot(q.normal, d) > 0.0:
             skip = True
         if not skip and sd.has_cutouts != 0:
-            skip = is_cut_out(sd, q.face, q.u, q.v, hit_footprint_log2(t, spread_angle, q.normal, d))
+            skip = is_cut_out(sd, q.face, q.u, q.v,
+                              cone_footprint_log2(width0 + cone_width(t, spread_angle), q.normal, d))
         if not skip:
             h.result = True
             h.t = t
@@ -262,27 +271,34 @@ def surface_visible(mesh: wp.uint64, sd: SurfaceData, p: wp.vec3, n: wp.vec3, ep
     """1 when nothing opaque blocks the segment from p (offset along n) to p + to * dist, else 0: the any-hit
     query when the scene has no cut-outs; else closest-hit queries that step through cut-out texels (at level 0),
     a surface that is not cut out blocking, and more than ``MAX_LAYERS`` cut-outs counting as blocked."""
-    o = p + n * eps
     if dist <= 2.0 * eps:
         return 1.0
-    tmax = dist - 2.0 * eps
-    if sd.has_cutouts == 0:
-        if wp.mesh_query_ray_anyhit(mesh, o, to, tmax):
-            return 0.0
+    if segment_clear(mesh, sd, p + n * eps, to, dist - 2.0 * eps):
         return 1.0
+    return 0.0
+
+
+@wp.func
+def segment_clear(mesh: wp.uint64, sd: SurfaceData, o: wp.vec3, to: wp.vec3, tmax: float) -> bool:
+    """Whether the unit ray (o, to) meets nothing opaque within (0, tmax) (:func:`surface_visible` without the
+    offsets: cut-out texels let it through)."""
+    if not (tmax > 0.0):
+        return True
+    if sd.has_cutouts == 0:
+        return not wp.mesh_query_ray_anyhit(mesh, o, to, tmax)
     t0 = float(0.0)
     k = int(0)
     while k < MAX_LAYERS:  # not unrolled (as in trace_surface)
         k += 1
         q = wp.mesh_query_ray(mesh, o + to * t0, to, tmax - t0)
         if not q.result:
-            return 1.0
+            return True
         if not is_cut_out(sd, q.face, q.u, q.v, -128.0):
-            return 0.0
+            return False
         t0 = t0 + q.t + sd.ray_eps
         if t0 >= tmax:
-            return 1.0
-    return 0.0
+            return True
+    return False
 
 
 @wp.func
@@ -327,7 +343,39 @@ def tangent_frame(sd: SurfaceData, face: int, i0: int, i1: int, i2: int, p0: wp.
 def eval_surface(sd: SurfaceData, face: int, u: float, v: float, d: wp.vec3, t: float, geom_n: wp.vec3,
                  spread_angle: float) -> SurfacePoint:
     """The :class:`SurfacePoint` of the hit at distance ``t`` along the unit ray ``d`` on ``face`` at barycentrics
-    (u, v), ``geom_n`` its unit geometric normal (either side). Every output is finite; factors in [0, 1]."""
+    (u, v), ``geom_n`` its unit geometric normal (either side), its LOD that of a cone of ``spread_angle`` from the
+    ray's origin. Every output is finite; factors in [0, 1]."""
+    fp = float(0.0)
+    if sd.lod_mode != LOD_NONE:
+        fp = hit_footprint_log2(t, spread_angle, geom_n, d)
+    return eval_surface_at(sd, face, u, v, d, geom_n, fp)
+
+
+@wp.func
+def emission_of(sd: SurfaceData, m: int, i0: int, i1: int, i2: int, p0: wp.vec3, p1: wp.vec3, p2: wp.vec3,
+                u: float, v: float, footprint_log2: float) -> wp.vec3:
+    """Material ``m``'s emitted radiance at barycentrics (u, v) of a face: ``emission`` x emissive texture RGB,
+    finite and >= 0."""
+    em = sample_slot(sd, m, SLOT_EMISSIVE, i0, i1, i2, p0, p1, p2, u, v, footprint_log2)
+    return _finite3(wp.max(wp.cw_mul(sd.emission[m], wp.vec3(em[0], em[1], em[2])), wp.vec3(0.0, 0.0, 0.0)))
+
+
+@wp.func
+def surface_emission(sd: SurfaceData, face: int, u: float, v: float, footprint_log2: float) -> wp.vec3:
+    """The emitted radiance at barycentrics (u, v) of ``face`` (:func:`emission_of` of its material), with the
+    texture footprint ``log2(W / |n . d|)`` (-128: the finest level)."""
+    m = sd.face_material[face]
+    i0 = load1_i32(sd.indices, face * 3 + 0)
+    i1 = load1_i32(sd.indices, face * 3 + 1)
+    i2 = load1_i32(sd.indices, face * 3 + 2)
+    return emission_of(sd, m, i0, i1, i2, load1_vec3(sd.points, i0), load1_vec3(sd.points, i1),
+                       load1_vec3(sd.points, i2), u, v, footprint_log2)
+
+
+@wp.func
+def eval_surface_at(sd: SurfaceData, face: int, u: float, v: float, d: wp.vec3, geom_n: wp.vec3,
+                    footprint_log2: float) -> SurfacePoint:
+    """:func:`eval_surface` with the texture footprint ``log2(W / |n . d|)`` given (ignored with ``LOD_NONE``)."""
     m = sd.face_material[face]
     i0 = load1_i32(sd.indices, face * 3 + 0)
     i1 = load1_i32(sd.indices, face * 3 + 1)
@@ -335,9 +383,7 @@ def eval_surface(sd: SurfaceData, face: int, u: float, v: float, d: wp.vec3, t: 
     p0 = load1_vec3(sd.points, i0)
     p1 = load1_vec3(sd.points, i1)
     p2 = load1_vec3(sd.points, i2)
-    fp = float(0.0)
-    if sd.lod_mode != LOD_NONE:
-        fp = hit_footprint_log2(t, spread_angle, geom_n, d)
+    fp = footprint_log2
     sp = SurfacePoint()
     bc = sd.base_color[m]
     c = sample_slot(sd, m, SLOT_BASE_COLOR, i0, i1, i2, p0, p1, p2, u, v, fp)
@@ -348,8 +394,7 @@ def eval_surface(sd: SurfaceData, face: int, u: float, v: float, d: wp.vec3, t: 
     sp.metallic = _unit(sd.metallic[m] * mr[2])
     oc = sample_slot(sd, m, SLOT_OCCLUSION, i0, i1, i2, p0, p1, p2, u, v, fp)
     sp.occlusion = _unit(1.0 + sd.occlusion_strength[m] * (oc[0] - 1.0))
-    em = sample_slot(sd, m, SLOT_EMISSIVE, i0, i1, i2, p0, p1, p2, u, v, fp)
-    sp.emission = _finite3(wp.max(wp.cw_mul(sd.emission[m], wp.vec3(em[0], em[1], em[2])), wp.vec3(0.0, 0.0, 0.0)))
+    sp.emission = emission_of(sd, m, i0, i1, i2, p0, p1, p2, u, v, fp)
     sp.specular = _unit(sd.specular[m])
     # the normal on the front side of the face (the side its winding faces, where the tangent frame is defined),
     # mapped there and turned to the viewer at the end (glTF flips a double-sided back face's normal)

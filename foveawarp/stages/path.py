@@ -9,11 +9,22 @@ they were; ``run(camera, frame_index, out)`` traces every pixel (the full-resolu
 per pixel is ``ShadingConfig.spp`` (``spp=`` overrides it per call). The frame index seeds the per-pixel random
 streams, so successive frames are independent estimates for the temporal resolve to accumulate.
 
-The material: today's scenes carry a per-face albedo and the direct integrator's Blinn-Phong lobe
-(``ShadingConfig.specular``, ``shininess``); the path integrator shades the glTF metallic-roughness BSDF of
-``kernels/bsdf.py`` with that albedo as base colour, metallic 0, and the Blinn-Phong lobe mapped by
-:func:`material_from_blinn_phong`. ``specular = 0`` gives exactly Lambert. Ambient, AO and the light-tree indirect
-term of the direct integrator have no part in it: the path tracer computes the indirect light itself.
+The material is the glTF metallic-roughness BSDF of ``kernels/bsdf.py`` in both kinds of scene:
+
+- untextured scenes carry a per-face albedo and the direct integrator's Blinn-Phong lobe (``ShadingConfig.specular``,
+  ``shininess``): the albedo is the base colour, metallic 0, and the Blinn-Phong lobe is mapped by
+  :func:`material_from_blinn_phong`; ``specular = 0`` gives exactly Lambert;
+- scenes with materials (``Scene.materials``) are shaded with each hit's textured material (kernels/surface.py, as
+  the textured direct integrator: base colour, metallic, roughness, normal map, emission, cut-outs; single-sided
+  materials' back faces culled on camera rays only, so that bounces and shadow rays see the same surfaces). The
+  texture LOD (``ShadingConfig.texture_lod`` "ray_cone") follows a ray cone along the path: the camera ray's spans
+  one pixel, or on a foveated frame's list the sample's spacing; at each hit the cone's width grows by
+  ``2 t tan(spread / 2)`` and a bounce widens its spread by the apex angle of the cone of solid angle
+  ``1 / pdf`` of the sampled direction (``kernels.path.bounce_spread_angle``). The occlusion map is not used: the
+  paths compute the occlusion.
+
+Ambient, AO and the light-tree indirect term of the direct integrator have no part in it: the path tracer computes
+the indirect light itself.
 """
 
 from __future__ import annotations
@@ -28,8 +39,10 @@ import warp as wp
 from .. import parallel
 from ..camera import Camera
 from ..config import ShadingConfig, check_choice, check_int_range
-from ..kernels.path import (PathParams, budget_sum_kernel, path_full_kernel, path_list_kernel,
-                            set_path_params_kernel)
+from ..kernels.path import (PathParams, budget_sum_kernel, path_full_kernel, path_full_textured_kernel,
+                            path_list_kernel, path_list_textured_kernel, set_path_params_kernel)
+from ..kernels.surface import SurfaceData
+from ..surface import is_textured, surface_data
 
 __all__ = ["PathStage", "material_from_blinn_phong", "emitter_tables"]
 
@@ -118,7 +131,18 @@ class PathStage:
 
         env = self.environment if self.environment is not None else Environment.constant((0.0, 0.0, 0.0))
         self.env = env.to_device(dev)
-        face, cdf, prob = emitter_tables(sc.vertices, sc.faces, sc.face_emission)
+        self.textured = is_textured(dscene)
+        if self.textured:
+            # the surfaces with their textures; the emitters are weighted by their materials' emission factor, the
+            # bound of the textured emission (texels <= 1), so every emitting texel has a non-zero pdf
+            self.surface = surface_data(dscene, config.texture_lod)
+            emission = dscene.mat_emission.numpy()[dscene.face_material.numpy()]
+            self._kernels = (path_full_textured_kernel, path_list_textured_kernel)
+        else:
+            self.surface = SurfaceData()  # not read by the untextured kernels
+            emission = sc.face_emission
+            self._kernels = (path_full_kernel, path_list_kernel)
+        face, cdf, prob = emitter_tables(sc.vertices, sc.faces, emission)
         self.num_emitters = int(np.count_nonzero(prob > 0.0))
         self.emit_face = wp.array(face, dtype=wp.int32, device=dev)
         self.emit_cdf = wp.array(cdf, dtype=float, device=dev)
@@ -185,7 +209,7 @@ class PathStage:
     def inputs(self) -> list:
         """The scene arrays every launch reads, in kernel argument order (after the parameters)."""
         ds = self.dscene
-        return [self.env, ds.face_albedo, ds.face_emission, ds.vertex_normals, ds.face_smooth, ds.points,
+        return [self.env, self.surface, ds.face_albedo, ds.face_emission, ds.vertex_normals, ds.face_smooth, ds.points,
                 ds.indices, ds.lights, ds.area_lights, self.emit_face, self.emit_cdf, self.face_emit_prob]
 
     def _check_out(self, out) -> None:
@@ -205,12 +229,14 @@ class PathStage:
         """``run``'s launches with the parameters last uploaded (``upload``): fixed arguments, so a captured CUDA
         graph of them replays each frame with the frame's uploaded camera and index. ``probability``: the (H, W)
         float sampling probability of a foveated frame's list, which ``ShadingConfig.path_budget = "frame"``
-        shares the paths by (None, or the "pixel" budget: ``spp`` at every listed pixel); the paths each listed
+        shares the paths by (None, or the "pixel" budget: ``spp`` at every listed pixel) and which seeds a textured
+        scene's camera ray cones with the samples' spacing (None: one pixel); the paths each listed
         pixel took are in ``spp_used``."""
         self._check_out(out)
         dev = self.device
+        full_kernel, list_kernel = self._kernels
         if work is None:
-            parallel.launch(path_full_kernel, dim=(self.height, self.width),
+            parallel.launch(full_kernel, dim=(self.height, self.width),
                             inputs=[self.params_dev, *self.inputs()], outputs=[out], device=dev)
             return
         if not isinstance(work, wp.array) or work.dtype != wp.int32 or work.ndim != 1:
@@ -226,15 +252,16 @@ class PathStage:
             return
         self._prob_sum.zero_()
         prob = self._no_prob
-        if probability is not None and self.config.path_budget == "frame":
+        if probability is not None:
             if (not isinstance(probability, wp.array) or probability.dtype != wp.float32
                     or tuple(probability.shape) != (self.height, self.width)):
                 raise ValueError(f"probability must be a ({self.height}, {self.width}) float32 wp.array, got "
                                  f"{getattr(probability, 'shape', type(probability).__name__)}")
             prob = probability
+        if probability is not None and self.config.path_budget == "frame":
             # one thread on the CPU: its atomic adds are not shared between the bands' threads
             parallel.launch(budget_sum_kernel, dim=n, inputs=[work, count, self.width, prob],
                             outputs=[self._prob_sum], device=dev, count=count, threads=1 if dev.is_cpu else None)
-        parallel.launch(path_list_kernel, dim=n, inputs=[self.params_dev, *self.inputs(), work, count, prob,
+        parallel.launch(list_kernel, dim=n, inputs=[self.params_dev, *self.inputs(), work, count, prob,
                                                          self._prob_sum],
                         outputs=[out, self.spp_used], device=dev, count=count)

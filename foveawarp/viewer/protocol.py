@@ -95,8 +95,8 @@ KNOBS = {
         Knob("dof", "bool", doc="depth of field: DofConfig.aperture_m = 0.05 m focused at the gaze, or 0"),
         Knob("indirect", "bool", doc='ShadingConfig.indirect: "lighttree" (one-bounce) or "none"'),
         Knob("timing", "bool", doc="FrameLoop(timing=...): per-stage milliseconds (synchronizes each stage)"),
-        Knob("path", "bool", doc='ShadingConfig.integrator: "path" (path tracing; untextured scenes, indirect '
-                                  'off) or "direct"'),
+        Knob("path", "bool", doc='ShadingConfig.integrator: "path" (path tracing; indirect off) or '
+                                  '"direct"'),
         Knob("max_depth", "int", 1, 4096, doc="ShadingConfig.max_depth of the path integrator, [1, 4096]"),
         Knob("spp", "int", 1, 65536, doc="ShadingConfig.spp: paths per traced pixel, [1, 65536]"),
     )
