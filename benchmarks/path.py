@@ -34,8 +34,9 @@ Read off per scene and size:
 
 Writes path-<tag>.json / .md and path-<tag>.png (fovea PSNR against frame ms, both curves, per scene and size);
 ``--images DIR``: the equal-time pair's last frame per scene and size, the gaze and the 5-degree fovea marked.
-The canonical results come from two runs (tools/canonical.sh part4, each under one 10-minute device call): the
-command below at 1920x1080, then the same at 3840x2160 with ``--keep benchmarks/results/path-h200.json``.
+The canonical results come from the command below at 1920x1080 and the same at 3840x2160 (tools/canonical.sh
+part4); where a device call allows less time, a few scenes per run with ``--keep benchmarks/results/path-h200.json``
+build the same JSON.
 """
 
 from __future__ import annotations
