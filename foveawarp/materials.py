@@ -189,6 +189,10 @@ class Material:
         alpha_mode: one of :data:`ALPHA_MODES`.
         alpha_cutoff: >= 0; with "MASK", texels with alpha below it are not there.
         double_sided: False = back faces are culled and lit as seen from the front.
+        transmission_factor: ``KHR_materials_transmission``, in [0, 1]: the fraction of the dielectric that is a
+            smooth glass interface (Fresnel reflection and refraction; the transmitted light tinted by the base
+            colour). Only the path integrator refracts; the direct integrator shows the opaque material.
+        ior: ``KHR_materials_ior``, the index of refraction of the glass, in [1, 5] (default 1.5).
     """
 
     name: str = ""
@@ -207,6 +211,8 @@ class Material:
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
     double_sided: bool = False
+    transmission_factor: float = 0.0
+    ior: float = 1.5
 
     def __post_init__(self):
         if not isinstance(self.name, str):
@@ -223,6 +229,9 @@ class Material:
         check_choice(f"{p} alpha_mode", self.alpha_mode, ALPHA_MODES)
         set_(self, "alpha_cutoff", check_range(f"{p} alpha_cutoff", self.alpha_cutoff, 0.0))
         set_(self, "double_sided", check_bool(f"{p} double_sided", self.double_sided))
+        set_(self, "transmission_factor", check_range(f"{p} transmission_factor", self.transmission_factor, 0.0,
+                                                      1.0))
+        set_(self, "ior", check_range(f"{p} ior", self.ior, 1.0, 5.0))
         for slot in TEXTURE_SLOTS:
             _check_texture(f"{slot}_texture", getattr(self, f"{slot}_texture"), SLOT_COLOR_SPACE[slot])
 
@@ -259,6 +268,7 @@ class MaterialTable:
         base_color_factor (M, 4) float32; metallic_factor, roughness_factor, normal_scale, occlusion_strength,
         alpha_cutoff (M,) float32; emission (M, 3) float32 (``emissive_factor * emissive_strength``);
         alpha_mode (M,) int32 (index into :data:`ALPHA_MODES`); double_sided (M,) int32 (0/1);
+        transmission_factor, ior (M,) float32;
         texture (M, 5) int32: per slot of :data:`TEXTURE_SLOTS`, an index into ``textures`` or -1 for none.
     Texture arrays (T rows, one per distinct :class:`TextureRef`):
         tex_image (T,) int32 (index into the scene's images); tex_texcoord (T,) int32; tex_wrap (T, 2) int32
@@ -277,6 +287,8 @@ class MaterialTable:
     alpha_mode: np.ndarray
     alpha_cutoff: np.ndarray
     double_sided: np.ndarray
+    transmission_factor: np.ndarray
+    ior: np.ndarray
     texture: np.ndarray
     tex_image: np.ndarray
     tex_texcoord: np.ndarray
@@ -326,6 +338,8 @@ class MaterialTable:
             alpha_mode=np.array([_ALPHA_CODE[m.alpha_mode] for m in mats], dtype=np.int32),
             alpha_cutoff=np.array([m.alpha_cutoff for m in mats], dtype=f32),
             double_sided=np.array([int(m.double_sided) for m in mats], dtype=np.int32),
+            transmission_factor=np.array([m.transmission_factor for m in mats], dtype=f32),
+            ior=np.array([m.ior for m in mats], dtype=f32),
             texture=slots,
             tex_image=np.array([t.image for t in textures], dtype=np.int32).reshape(n_t),
             tex_texcoord=np.array([t.texcoord for t in textures], dtype=np.int32).reshape(n_t),

@@ -693,7 +693,8 @@ class DeviceScene:
         - the material table, one row per material (``num_materials`` rows): ``mat_base_color`` vec4 (linear
           RGBA factor), ``mat_metallic``, ``mat_roughness``, ``mat_normal_scale``, ``mat_occlusion_strength``,
           ``mat_alpha_cutoff`` float32, ``mat_emission`` vec3 (factor * strength), ``mat_alpha_mode`` int32
-          (index into ``materials.ALPHA_MODES``), ``mat_double_sided`` int32 (0/1), ``mat_texture`` (M, 5) int32:
+          (index into ``materials.ALPHA_MODES``), ``mat_double_sided`` int32 (0/1), ``mat_transmission`` and
+          ``mat_ior`` float32 (the glass part and its index of refraction), ``mat_texture`` (M, 5) int32:
           per slot of ``materials.TEXTURE_SLOTS`` the texture index, -1 for none.
         - per texture (``num_textures`` of them; the arrays keep one unused row when there are none):
           ``tex_texcoord`` int32 (which UV set), ``tex_uv_linear`` mat22 and ``tex_uv_offset`` vec2 (the slot's
@@ -710,7 +711,8 @@ class DeviceScene:
         self.face_material = None
         self.num_materials = self.num_textures = 0
         for n in ("mat_base_color", "mat_metallic", "mat_roughness", "mat_normal_scale", "mat_occlusion_strength",
-                  "mat_alpha_cutoff", "mat_emission", "mat_alpha_mode", "mat_double_sided", "mat_texture",
+                  "mat_alpha_cutoff", "mat_emission", "mat_alpha_mode", "mat_double_sided", "mat_transmission",
+                  "mat_ior", "mat_texture",
                   "tex_texcoord", "tex_uv_linear", "tex_uv_offset", "textures"):
             setattr(self, n, None)
         t = scene.materials
@@ -723,7 +725,8 @@ class DeviceScene:
         self.mat_base_color = wp.array(t.base_color_factor, dtype=wp.vec4, device=dev)
         for n, a in (("mat_metallic", t.metallic_factor), ("mat_roughness", t.roughness_factor),
                      ("mat_normal_scale", t.normal_scale), ("mat_occlusion_strength", t.occlusion_strength),
-                     ("mat_alpha_cutoff", t.alpha_cutoff)):
+                     ("mat_alpha_cutoff", t.alpha_cutoff), ("mat_transmission", t.transmission_factor),
+                     ("mat_ior", t.ior)):
             setattr(self, n, wp.array(a, dtype=wp.float32, device=dev))
         self.mat_emission = wp.array(t.emission, dtype=wp.vec3, device=dev)
         self.mat_alpha_mode = wp.array(t.alpha_mode, dtype=wp.int32, device=dev)

@@ -426,7 +426,8 @@ def test_materials_textures_and_images(tmp_path):
     ]
     b.doc["samplers"] = [{"wrapS": 33071, "wrapT": 33648, "magFilter": 9728}]
     b.doc["textures"] = [{"source": 0, "sampler": 0}, {"source": 1}, {"source": 2}]
-    b.doc["extensionsUsed"] = ["KHR_materials_emissive_strength", "KHR_texture_transform"]
+    b.doc["extensionsUsed"] = ["KHR_materials_emissive_strength", "KHR_texture_transform",
+                               "KHR_materials_transmission", "KHR_materials_ior"]
     b.doc["materials"] = [
         {"name": "painted",
          "pbrMetallicRoughness": {
@@ -443,17 +444,21 @@ def test_materials_textures_and_images(tmp_path):
          "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}},
          "alphaMode": "MASK", "alphaCutoff": 0.3, "doubleSided": True},
         {"name": "plain"},
+        {"name": "glass", "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.75},
+                                         "KHR_materials_ior": {"ior": 1.33}}},
     ]
-    b.node(mesh=b.mesh(quad_primitive(b, material=1), quad_primitive(b, material=0), quad_primitive(b)))
+    b.node(mesh=b.mesh(quad_primitive(b, material=1), quad_primitive(b, material=0), quad_primitive(b),
+                       quad_primitive(b, material=2)))
     scene = read(b.write_gltf(tmp_path / "mat.gltf"))
 
     assert [im.path for im in scene.images] == [png_file, None, None]
     assert scene.images[1].data == PNG_1PX and scene.images[2].data == PNG_1PX
     assert all(im.mime_type == "image/png" for im in scene.images)
     assert "images[0]" in scene.images[0].name
-    m, plain, dflt = scene.materials
+    m, plain, glass, dflt = scene.materials
     assert plain == Material(name="plain") and dflt == default_material()
-    np.testing.assert_array_equal(scene.material_ids, [1, 1, 0, 0, 2, 2])
+    assert (glass.transmission_factor, glass.ior) == (0.75, 1.33) and (m.transmission_factor, m.ior) == (0.0, 1.5)
+    np.testing.assert_array_equal(scene.material_ids, [1, 1, 0, 0, 3, 3, 2, 2])
     assert m.base_color_factor == (0.5, 0.25, 1.0, 0.75)
     assert (m.metallic_factor, m.roughness_factor) == (0.2, 0.6)
     bc = m.base_color_texture
@@ -472,7 +477,9 @@ def test_materials_textures_and_images(tmp_path):
     assert (m.alpha_mode, m.alpha_cutoff, m.double_sided) == ("MASK", 0.3, True)
 
     table = MaterialTable.build(scene.materials, len(scene.images))
-    assert len(table) == 3 and table.texture.shape == (3, 5)
+    assert len(table) == 4 and table.texture.shape == (4, 5)
+    np.testing.assert_allclose(table.transmission_factor, [0.0, 0.0, 0.75, 0.0])
+    np.testing.assert_allclose(table.ior, [1.5, 1.5, 1.33, 1.5])
     # base colour, metallic-roughness, normal, occlusion, emissive; the occlusion and metallic-roughness slots
     # read the same image with different UV sets, so they are two texture rows
     np.testing.assert_array_equal(table.texture[0], [0, 1, 2, 3, 4])
@@ -481,7 +488,7 @@ def test_materials_textures_and_images(tmp_path):
     np.testing.assert_array_equal(table.tex_srgb, [1, 0, 0, 0, 1])
     np.testing.assert_array_equal(table.tex_wrap[0], [1, 2])
     np.testing.assert_allclose(table.emission[0], [4.0, 2.0, 0.0])
-    np.testing.assert_array_equal(table.alpha_mode, [1, 0, 0])
+    np.testing.assert_array_equal(table.alpha_mode, [1, 0, 0, 0])
     np.testing.assert_allclose(table.tex_uv_transform[1], [[1, 0, 0], [0, 1, 0]])
 
 
@@ -626,6 +633,16 @@ def test_bad_gltf_files(tmp_path):
     with pytest.raises(ValueError, match=r"idx\.glb: .*indices must be below the vertex count 4, got 9"):
         read_gltf(b.write_glb(tmp_path / "idx.glb"))
 
+    b.doc["materials"] = [{"extensions": {"KHR_materials_ior": {"ior": 0.5}}}]
+    b.doc["meshes"][0]["primitives"][0]["material"] = 0
+    with pytest.raises(ValueError, match=r"ior\.glb: .*KHR_materials_ior\.ior must be a finite number in \[1\.0, 5\.0\]"):
+        read_gltf(b.write_glb(tmp_path / "ior.glb"))
+    b.doc["materials"] = [{"extensions": {"KHR_materials_transmission": {"transmissionFactor": "all"}}}]
+    with pytest.raises(ValueError, match=r"KHR_materials_transmission\.transmissionFactor must be a finite number"):
+        read_gltf(b.write_glb(tmp_path / "tr.glb"))
+    del b.doc["meshes"][0]["primitives"][0]["material"]
+    del b.doc["materials"]
+
     bad = tmp_path / "bad.gltf"
     bad.write_text("{not json")
     with pytest.raises(ValueError, match=r"bad\.gltf: the file is not valid UTF-8 JSON"):
@@ -653,6 +670,10 @@ def test_material_model_validation():
         Material(normal_texture=TextureRef(0, color_space="srgb"))
     with pytest.raises(ValueError, match="double_sided must be True or False"):
         Material(double_sided=1)
+    with pytest.raises(ValueError, match=r"transmission_factor must be in \[0\.0, 1\.0\]"):
+        Material(transmission_factor=1.5)
+    with pytest.raises(ValueError, match=r"ior must be in \[1\.0, 5\.0\]"):
+        Material(ior=0.5)
     with pytest.raises(ValueError, match="TextureRef.wrap_s must be one of"):
         TextureRef(0, wrap_s="wrap")
     with pytest.raises(ValueError, match=r"TextureRef.texcoord must be an integer in \[0, 1\]"):

@@ -392,14 +392,31 @@ def test_conductors_against_mitsuba(tmp_path):
     assert ma.roughness_factor == pytest.approx(math.sqrt(0.04)) and "anisotropic" in msgs[0]
 
 
-def test_dielectrics_are_approximated_with_a_warning(tmp_path):
+def test_dielectrics_become_glass_with_a_note(tmp_path):
+    """dielectric: smooth glass (transmission 1) with the relative index of refraction int_ior / ext_ior (numbers,
+    named media, Mitsuba's defaults bk7 / air), tinted by specular_transmittance, double-sided; the note says the
+    direct integrator shows its reflection only. thindielectric: a cut-out. roughdielectric: smooth glass."""
     m, d, msgs = _material(tmp_path, '<bsdf type="dielectric" id="m"><float name="int_ior" value="1.5"/></bsdf>')
-    assert m.base_color_factor == (0.0, 0.0, 0.0, 1.0) and m.roughness_factor == 0.0 and m.double_sided
-    assert len(msgs) == 1 and "dielectric" in msgs[0] and "dielectric" in d.warnings[0]
+    assert m.transmission_factor == 1.0 and m.ior == pytest.approx(1.5 / 1.000277) and m.double_sided
+    assert m.base_color_factor == (1.0, 1.0, 1.0, 1.0) and m.roughness_factor == 0.0
+    assert len(msgs) == 1 and "dielectric" in msgs[0] and "reflection only" in d.warnings[0]
+    m, _, _ = _material(tmp_path, '<bsdf type="dielectric" id="m"><string name="int_ior" value="water"/>'
+                                  '<string name="ext_ior" value="vacuum"/>'
+                                  '<rgb name="specular_transmittance" value="0.5, 0.8, 1"/></bsdf>')
+    assert m.ior == pytest.approx(1.333) and m.base_color_factor == pytest.approx((0.5, 0.8, 1.0, 1.0))
+    m, _, _ = _material(tmp_path, '<bsdf type="dielectric" id="m"/>')
+    assert m.ior == pytest.approx(1.5046 / 1.000277)
+    m, _, msgs = _material(tmp_path, '<bsdf type="dielectric" id="m"><string name="int_ior" value="unobtainium"/>'
+                                     '</bsdf>')
+    assert m.ior == pytest.approx(1.5046 / 1.000277) and "unobtainium" in msgs[0]
     m, _, msgs = _material(tmp_path, '<bsdf type="thindielectric" id="m"/>')
     assert m.alpha_mode == "MASK" and m.base_color_factor[3] == 0.0 and "thindielectric" in msgs[0]
-    m, _, _ = _material(tmp_path, '<bsdf type="roughdielectric" id="m"><float name="alpha" value="0.36"/></bsdf>')
-    assert m.roughness_factor == pytest.approx(0.6)
+    assert m.transmission_factor == 0.0
+    m, _, msgs = _material(tmp_path, '<bsdf type="roughdielectric" id="m"><float name="alpha" value="0.36"/>'
+                                     '</bsdf>')
+    assert m.roughness_factor == 0.0 and m.transmission_factor == 1.0 and "smooth glass" in msgs[0]
+    with pytest.raises(ValueError, match="index of refraction must be > 0"):
+        _material(tmp_path, '<bsdf type="dielectric" id="m"><float name="int_ior" value="-1"/></bsdf>')
 
 
 def test_bitmaps_masks_and_normal_maps(tmp_path):

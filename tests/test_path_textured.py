@@ -220,3 +220,88 @@ def test_textured_scene_in_the_frame_loop(device):
     assert errs[-1] < errs[0], errs
     ratio = float(hdr.mean() / conv.mean())
     assert abs(ratio - 1.0) < 0.08, ratio
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# glass (transmission_factor): the smooth dielectric interface
+
+def np_fresnel(cos_i, eta):
+    """Unpolarized Fresnel reflectance from the Snell angle (float64): 1 beyond the critical angle."""
+    cos_i = np.asarray(cos_i, np.float64)
+    eta = np.asarray(eta, np.float64)
+    sin_t = np.sqrt(np.clip(1.0 - cos_i ** 2, 0.0, None)) / eta
+    tir = sin_t >= 1.0
+    ct = np.sqrt(np.clip(1.0 - sin_t ** 2, 0.0, None))
+    rs = (cos_i - eta * ct) / (cos_i + eta * ct)
+    rp = (eta * cos_i - ct) / (eta * cos_i + ct)
+    return np.where(tir, 1.0, 0.5 * (rs ** 2 + rp ** 2)), np.where(tir, 0.0, ct)
+
+
+def _fresnel(cos_i, eta):
+    from foveawarp.kernels.path import fresnel_dielectric_kernel
+
+    a = wp.array(np.asarray(cos_i, np.float32), dtype=float, device="cpu")
+    b = wp.array(np.asarray(eta, np.float32), dtype=float, device="cpu")
+    f = wp.zeros(len(a), dtype=float, device="cpu")
+    c = wp.zeros(len(a), dtype=float, device="cpu")
+    wp.launch(fresnel_dielectric_kernel, dim=len(a), inputs=[a, b], outputs=[f, c], device="cpu")
+    return f.numpy().astype(np.float64), c.numpy().astype(np.float64)
+
+
+def test_fresnel_dielectric_against_snell():
+    """Normal incidence ((eta - 1) / (eta + 1))^2 (0.04 for glass), Brewster's angle (r_p = 0: F = r_s^2 / 2),
+    total internal reflection from inside beyond the critical angle, and random angles against NumPy."""
+    f, ct = _fresnel([1.0, 1.0], [1.5, 1.0 / 1.5])
+    np.testing.assert_allclose(f, [0.04, 0.04], rtol=1e-5)
+    np.testing.assert_allclose(ct, [1.0, 1.0], rtol=1e-6)
+    tb = math.atan(1.5)
+    f, _ = _fresnel([math.cos(tb)], [1.5])
+    ct_b = math.cos(math.asin(math.sin(tb) / 1.5))
+    rs = (math.cos(tb) - 1.5 * ct_b) / (math.cos(tb) + 1.5 * ct_b)
+    assert f[0] == pytest.approx(0.5 * rs * rs, rel=1e-4)
+    crit = math.asin(1.0 / 1.5)
+    f, ct = _fresnel([math.cos(crit + 0.01), math.cos(crit - 0.01)], [1.0 / 1.5] * 2)
+    assert f[0] == 1.0 and ct[0] == 0.0 and f[1] < 1.0
+    rng = np.random.default_rng(4)
+    c = rng.uniform(0.01, 1.0, 200)
+    e = np.exp(rng.uniform(np.log(0.3), np.log(3.0), 200))
+    f, ct = _fresnel(c, e)
+    fr, cr = np_fresnel(c.astype(np.float32), e.astype(np.float32))
+    near = np.abs(np.sqrt(1 - c ** 2) / e - 1.0) < 1e-3  # at the critical angle float32 may fall either side
+    np.testing.assert_allclose(f[~near], fr[~near], rtol=2e-4, atol=2e-6)
+    np.testing.assert_allclose(ct[~near], cr[~near], rtol=2e-4, atol=2e-4)
+
+
+def glass_ball_scene(tint=(1.0, 1.0, 1.0), transmission=1.0):
+    """A closed glass sphere (icosphere, smooth normals) of index 1.5 under a constant white environment."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    glass = Material(base_color_factor=(*tint, 1.0), metallic_factor=0.0, roughness_factor=0.0, double_sided=True,
+                     transmission_factor=transmission, ior=1.5)
+    v = np.asarray(s.vertices, np.float32)
+    f = np.asarray(s.faces, np.int32)
+    return fw.Scene(v, f, None, uvs=np.zeros((len(v), 2), np.float32), face_material=np.zeros(len(f), np.int32),
+                    materials=[glass], images=[], vertex_normals=np.asarray(s.vertex_normals, np.float32),
+                    face_smooth=np.ones(len(f), np.uint8), lights=[],
+                    environment=np.ones((8, 16, 3), np.float32))
+
+
+GLASS_CAM = fw.Camera(eye=(0.0, 0.2, 2.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y_deg=35.0)
+
+
+def test_glass_furnace(device):
+    """A clear glass sphere in a uniform environment of radiance 1 is invisible: every pixel is 1 (Fresnel
+    reflection and refraction conserve energy, and the 1 / eta^2 radiance scaling cancels between entering and
+    leaving); a tinted sphere (transmission tinted 0.5) is darker where the rays cross it, never brighter."""
+    w, h = 16, 12
+    imgs = path_passes(glass_ball_scene(), device, k=16, spp=16, cam=GLASS_CAM, w=w, h=h, max_depth=64,
+                       rr_depth=64)
+    g, _, _ = render(glass_ball_scene(), device, PLAIN, cam=GLASS_CAM, w=w, h=h)
+    ball = g["hit"] != 0
+    assert ball.sum() > 40 and (~ball).sum() > 40
+    check_statistically(imgs, np.ones((h, w, 3)), np.ones((h, w), bool), 0.01)
+    tinted = path_passes(glass_ball_scene(tint=(0.5, 0.5, 0.5)), device, k=4, spp=16, cam=GLASS_CAM, w=w, h=h,
+                         max_depth=64, rr_depth=64).mean(axis=0)
+    assert tinted[ball].mean() < 0.6 and np.allclose(tinted[~ball], 1.0, atol=1e-6)
+    assert np.isfinite(tinted).all() and tinted.max() <= 1.0 + 1e-5

@@ -15,7 +15,8 @@ Supported:
     - nodes: TRS or matrix transforms composed down the tree; a mesh used by several nodes is placed by each.
     - primitives: mode 4 (triangles), 5 (strip) and 6 (fan), indexed or not; modes 0-3 (points, lines) are
       skipped with one warning. Attributes POSITION, NORMAL, TANGENT, TEXCOORD_0, TEXCOORD_1, COLOR_0.
-    - extensions: ``KHR_lights_punctual``, ``KHR_materials_emissive_strength``, ``KHR_texture_transform``
+    - extensions: ``KHR_lights_punctual``, ``KHR_materials_emissive_strength``, ``KHR_materials_transmission``
+      (its factor; ``transmissionTexture`` is not read), ``KHR_materials_ior``, ``KHR_texture_transform``
       (kept on each :class:`~foveawarp.materials.TextureRef`, not applied to the vertex UVs),
       ``KHR_mesh_quantization`` (integer attributes are read as floats), ``EXT_texture_webp`` (the image index).
       Other extensions named in ``extensionsUsed`` are listed in one warning and ignored; one named in
@@ -66,6 +67,8 @@ __all__ = ["GltfLight", "GltfCamera", "GltfScene", "read_gltf", "SUPPORTED_EXTEN
 SUPPORTED_EXTENSIONS = (
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
+    "KHR_materials_transmission",
+    "KHR_materials_ior",
     "KHR_texture_transform",
     "KHR_mesh_quantization",
     "EXT_texture_webp",
@@ -855,6 +858,14 @@ def _read_materials(r: _Reader, num_images: int) -> list:
         if isinstance(es, dict):
             strength = r.number(es, "emissiveStrength", f"{w}.extensions.KHR_materials_emissive_strength",
                                 default=1.0, lo=0.0)
+        transmission, ior = 0.0, 1.5
+        tr = ext.get("KHR_materials_transmission") if isinstance(ext, dict) else None
+        if isinstance(tr, dict):
+            transmission = r.number(tr, "transmissionFactor", f"{w}.extensions.KHR_materials_transmission",
+                                    default=0.0, lo=0.0, hi=1.0)
+        io_ = ext.get("KHR_materials_ior") if isinstance(ext, dict) else None
+        if isinstance(io_, dict):
+            ior = r.number(io_, "ior", f"{w}.extensions.KHR_materials_ior", default=1.5, lo=1.0, hi=5.0)
         alpha_mode = m.get("alphaMode", "OPAQUE")
         if alpha_mode not in ("OPAQUE", "MASK", "BLEND"):
             r.fail(f"{w}.alphaMode must be one of ['OPAQUE', 'MASK', 'BLEND'], got {show(alpha_mode)}")
@@ -882,6 +893,8 @@ def _read_materials(r: _Reader, num_images: int) -> list:
             alpha_mode=alpha_mode,
             alpha_cutoff=r.number(m, "alphaCutoff", w, default=0.5, lo=0.0),
             double_sided=double_sided,
+            transmission_factor=transmission,
+            ior=ior,
         ))
     return out
 

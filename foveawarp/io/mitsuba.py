@@ -41,8 +41,10 @@ BSDFs -> :class:`foveawarp.materials.Material` (glTF metallic-roughness; GGX rou
       times the normal-incidence Fresnel reflectance ``((eta - 1)^2 + k^2) / ((eta + 1)^2 + k^2)`` of ``eta``,
       ``k`` when given, else of the named ``material`` (:data:`CONDUCTOR_F0`; default "Cu" before version 2,
       "none", a perfect mirror, from version 2 on, as in Mitsuba).
-    - ``dielectric`` / ``roughdielectric``: its surface reflection only (base colour black, metallic 0,
-      roughness 0 / sqrt(alpha), double-sided): refraction and transmission are not modelled (warning).
+    - ``dielectric`` / ``roughdielectric``: smooth glass (``transmission_factor`` 1, ``ior`` = ``int_ior`` /
+      ``ext_ior``, numbers or Mitsuba's named media, default bk7 / air; base colour ``specular_transmittance``;
+      double-sided), refracted by the path integrator and shown by its surface reflection by the direct one
+      (a note); a roughdielectric's roughness is dropped (a note).
       ``thindielectric``: a fully transparent cut-out (alpha 0, mode MASK): a thin pane lets the light through
       unbent, and its 4-8 % reflection is lost (warning).
     - ``principled`` (version 3): ``base_color``, ``metallic`` (default 0), ``roughness`` (default 0.5, the same
@@ -94,6 +96,14 @@ __all__ = ["read_mitsuba", "mitsuba_transform", "fov_y_deg", "CONDUCTOR_F0", "SP
 SPHERE_SEGMENTS = (96, 48)  # (longitude, latitude) quads of a tessellated sphere: facets <= 0.054 % of r inside
 DISK_SEGMENTS = 128
 _MIME_BY_SUFFIX = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp"}
+
+# Mitsuba 3's dielectric defaults ("bk7" inside, "air" outside) and some of its named media
+MITSUBA_INT_IOR = 1.5046
+MITSUBA_EXT_IOR = 1.000277
+MITSUBA_NAMED_IOR = {"vacuum": 1.0, "air": 1.000277, "water": 1.3330, "water ice": 1.31, "acetone": 1.36,
+                     "ethanol": 1.361, "glycerol": 1.4729, "fused quartz": 1.458, "pyrex": 1.470,
+                     "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046, "sodium chloride": 1.544,
+                     "amber": 1.55, "pet": 1.575, "diamond": 2.419}
 
 # normal-incidence reflectance (linear RGB) of Mitsuba 3's named conductors, from its scalar_rgb eta and k
 CONDUCTOR_F0 = {
@@ -214,6 +224,19 @@ class _Reader:
             return float(np.mean(self.color_of(el, (default,) * 3)))
         self.note(f"{self.label(el)} where a number is expected (the default {default:g} is used)")
         return default
+
+    def ior_of(self, el: Optional[ET.Element], default: float) -> float:
+        """An index of refraction: a number, or one of Mitsuba's named media (:data:`MITSUBA_NAMED_IOR`)."""
+        if el is not None and self.resolve(el).tag == "string":
+            n = self.string_of(el, None)
+            if n not in MITSUBA_NAMED_IOR:
+                self.note(f"{self.label(el)}: index of refraction {n!r} (not a known medium: {default:g} is used)")
+                return default
+            return MITSUBA_NAMED_IOR[n]
+        v = self.float_of(el, default)
+        if not v > 0.0:
+            self.fail(f"{self.label(el)}: an index of refraction must be > 0, got {v!r}")
+        return v
 
     def bool_of(self, el: Optional[ET.Element], default: bool) -> bool:
         if el is None:
@@ -500,13 +523,21 @@ class _Reader:
             mat = Material(name=name, base_color_factor=_rgba(tuple(a * b for a, b in zip(spec, f0))),
                            base_color_texture=stex, metallic_factor=1.0, roughness_factor=rough)
         elif kind in ("dielectric", "roughdielectric"):
-            rough = self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what) \
-                if kind == "roughdielectric" else 0.0
-            used.update(("int_ior", "ext_ior", "distribution", "specular_reflectance", "specular_transmittance",
-                         "sample_visible"))
-            self.note(f"{kind} BSDFs (shown by their surface reflection only: no refraction or transmission)")
-            mat = Material(name=name, base_color_factor=(0.0, 0.0, 0.0, 1.0), metallic_factor=0.0,
-                           roughness_factor=rough, double_sided=True)
+            if kind == "roughdielectric":
+                self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what)
+                self.note("roughdielectric BSDFs (read as smooth glass)")
+            ior = self.ior_of(get("int_ior"), MITSUBA_INT_IOR) / self.ior_of(get("ext_ior"), MITSUBA_EXT_IOR)
+            if not 1.0 <= ior <= 5.0:
+                self.note(f"{what}: relative index of refraction {ior:g} (outside [1, 5], clamped)")
+                ior = min(max(ior, 1.0), 5.0)
+            tint, ttex = self.colour_param(get("specular_transmittance"), (1.0, 1.0, 1.0), "transmittance")
+            if ttex is not None:
+                self.note(f"{what}: a textured specular_transmittance (read as 1)")
+            used.update(("distribution", "specular_reflectance", "sample_visible"))
+            self.note(f"{kind} BSDFs (path integrator: refracting glass; direct integrator: its surface "
+                      f"reflection only)")
+            mat = Material(name=name, base_color_factor=_rgba(tint), metallic_factor=0.0, roughness_factor=0.0,
+                           double_sided=True, transmission_factor=1.0, ior=ior)
         elif kind == "thindielectric":
             used.update(("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"))
             self.note("thindielectric BSDFs (fully transparent cut-outs: their reflection is lost)")

@@ -70,6 +70,7 @@ __all__ = [
     "bsdf_eval",
     "bsdf_pdf",
     "bsdf_sample",
+    "fresnel_dielectric",
 ]
 
 # smallest GGX alpha: roughness 0 is a mirror with alpha raised to this, D(n) = 1 / (pi alpha^2) = 3.2e5
@@ -266,6 +267,25 @@ def fresnel_schlick(f0: wp.vec3, cos_theta: float) -> wp.vec3:
     c2 = c * c
     w = c2 * c2 * c
     return f0 + (wp.vec3(1.0, 1.0, 1.0) - f0) * w
+
+
+@wp.func
+def fresnel_dielectric(cos_i: float, eta: float):
+    """(F, cos_t): the unpolarized Fresnel reflectance of a smooth interface and the cosine of the refracted
+    direction, for light arriving at ``cos_i`` (in (0, 1], clamped) on the side of index n_i, ``eta = n_t / n_i``
+    (> 0): ``F = (r_s^2 + r_p^2) / 2`` with ``r_s = (cos_i - eta cos_t) / (cos_i + eta cos_t)`` and
+    ``r_p = (eta cos_i - cos_t) / (eta cos_i + cos_t)``; total internal reflection gives (1, 0)."""
+    c = wp.clamp(cos_i, 0.0, 1.0)
+    sin2_t = (1.0 - c * c) / (eta * eta)
+    if not (sin2_t < 1.0):
+        return 1.0, 0.0
+    ct = wp.sqrt(1.0 - sin2_t)
+    rs = (c - eta * ct) / (c + eta * ct)
+    rp = (eta * c - ct) / (eta * c + ct)
+    f = 0.5 * (rs * rs + rp * rp)
+    if not wp.isfinite(f):  # cos_i = 0 with eta = 1
+        f = 1.0
+    return wp.clamp(f, 0.0, 1.0), ct
 
 
 @wp.func

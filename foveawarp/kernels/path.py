@@ -38,8 +38,8 @@ to 0) before it is averaged; ``PathParams.clamp`` > 0 is the optional firefly cl
 
 import warp as wp
 
-from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_normal, make_material, to_local, \
-    to_world
+from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_normal, fresnel_dielectric, \
+    make_material, to_local, to_world
 from .camera import CameraParams, camera_ray_dir
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
 from .gbuffer import smooth_normal
@@ -373,6 +373,9 @@ def _make_path(textured: bool):
             ns = ng
             m = SurfaceMaterial()
             le = wp.vec3(0.0, 0.0, 0.0)
+            tr = float(0.0)  # the glass part, its index of refraction and tint (textured scenes)
+            ior = float(1.5)
+            tint = wp.vec3(1.0, 1.0, 1.0)
             cone_hit = cone_w
             if wp.static(textured):
                 cone_hit = cone_w + cone_width(t, cone_a)
@@ -382,6 +385,9 @@ def _make_path(textured: bool):
                     le = sp.emission
                 ns = sp.normal
                 m = make_material(sp.base_color, sp.metallic, sp.roughness, sp.specular)
+                tr = sp.transmission
+                ior = sp.ior
+                tint = sp.base_color
             else:
                 le = face_emission[f]
             if max3(le) > 0.0:
@@ -402,100 +408,133 @@ def _make_path(textured: bool):
                 wo = raised_wo(wo)  # as the textured direct integrator: a map normal turned from the viewer
             # every ray leaving this vertex starts here; light samples are placed and weighted from p itself
             po = p + ng * eps
-            # point and spot lights
-            for li in range(pp.num_lights):
-                lt = lights[li]
-                dl = lt.position - p
-                dist2 = wp.dot(dl, dl)
-                if dist2 > 1.0e-30:
-                    dist = wp.sqrt(dist2)
-                    wi = dl / dist
-                    if wp.dot(wi, ng) > 0.0:
-                        att = spot_factor(lt, -wi)
-                        wil = to_local(fr, wi)
-                        if att > 0.0 and wil[2] > 0.0:
-                            if clear_to(pp, sd, area_lights, po, lt.position, -1):
-                                fv = bsdf_eval(m, wo, wil)
-                                L += wp.cw_mul(thr, wp.cw_mul(fv, lt.intensity)) * (att * wil[2] / dist2)
-            # area lights, one sample each
-            for li in range(pp.num_area_lights):
-                a = area_lights[li]
-                u1 = wp.randf(rng)
-                u2 = wp.randf(rng)
-                an = wp.cross(a.edge_u, a.edge_v)
-                area = wp.length(an)
-                if area > AREA_MIN:
-                    ql = a.corner + a.edge_u * u1 + a.edge_v * u2
+            # a glass vertex (textured scenes: the material's transmission part, chosen with that probability) is a
+            # smooth dielectric interface, a delta lobe: no light samples; Fresnel reflection with probability F,
+            # else refraction
+            glass = False
+            if tr > 0.0:
+                glass = True
+                if tr < 1.0:
+                    glass = wp.randf(rng) < tr
+            wi = wp.vec3(0.0, 0.0, 0.0)
+            if glass:
+                eta = ior
+                if wp.dot(gn, d) > 0.0:
+                    eta = 1.0 / ior  # leaving through the back of the winding normal: glass to outside
+                nn = ns
+                cos_i = -wp.dot(d, nn)
+                if not (cos_i > 1.0e-6):  # a shading normal turned from the ray
+                    nn = ng
+                    cos_i = -wp.dot(d, ng)
+                fres, cos_t = fresnel_dielectric(cos_i, eta)
+                if wp.randf(rng) < fres:
+                    wi = wp.normalize(d + nn * (2.0 * cos_i))
+                    if not (wp.dot(wi, ng) > 0.0):
+                        break
+                else:
+                    inv = 1.0 / eta
+                    wi = wp.normalize(d * inv + nn * (inv * cos_i - cos_t))
+                    if not (wp.dot(wi, ng) < 0.0):
+                        break
+                    po = p - ng * eps
+                    # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
+                    thr = wp.cw_mul(thr, tint) * (inv * inv)
+                prev_pdf = PDF_MAX  # what the next hit's emission is weighted against: a delta, weight 1
+            else:
+                # point and spot lights
+                for li in range(pp.num_lights):
+                    lt = lights[li]
+                    dl = lt.position - p
+                    dist2 = wp.dot(dl, dl)
+                    if dist2 > 1.0e-30:
+                        dist = wp.sqrt(dist2)
+                        wi = dl / dist
+                        if wp.dot(wi, ng) > 0.0:
+                            att = spot_factor(lt, -wi)
+                            wil = to_local(fr, wi)
+                            if att > 0.0 and wil[2] > 0.0:
+                                if clear_to(pp, sd, area_lights, po, lt.position, -1):
+                                    fv = bsdf_eval(m, wo, wil)
+                                    L += wp.cw_mul(thr, wp.cw_mul(fv, lt.intensity)) * (att * wil[2] / dist2)
+                # area lights, one sample each
+                for li in range(pp.num_area_lights):
+                    a = area_lights[li]
+                    u1 = wp.randf(rng)
+                    u2 = wp.randf(rng)
+                    an = wp.cross(a.edge_u, a.edge_v)
+                    area = wp.length(an)
+                    if area > AREA_MIN:
+                        ql = a.corner + a.edge_u * u1 + a.edge_v * u2
+                        dl = ql - p
+                        dist2 = wp.dot(dl, dl)
+                        if dist2 > 1.0e-30:
+                            dist = wp.sqrt(dist2)
+                            wi = dl / dist
+                            cos_l = -wp.dot(an / area, wi)
+                            wil = to_local(fr, wi)
+                            if cos_l > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                                if clear_to(pp, sd, area_lights, po, ql, li):
+                                    pl = wp.min(dist2 / (cos_l * area), PDF_MAX)
+                                    L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], a.radiance, pl,
+                                                                   bsdf_pdf(m, wo, wil)))
+                # one emissive triangle
+                if pp.num_emitters > 0:
+                    ue = wp.randf(rng)
+                    u1 = wp.randf(rng)
+                    u2 = wp.randf(rng)
+                    fe = emit_face[cdf_search(emit_cdf, pp.num_emitters, ue)]
+                    p0, p1, p2 = triangle_corners(points, indices, fe)
+                    su = wp.sqrt(u1)
+                    ql = p0 * (1.0 - su) + p1 * (u2 * su) + p2 * (su * (1.0 - u2))
                     dl = ql - p
                     dist2 = wp.dot(dl, dl)
                     if dist2 > 1.0e-30:
                         dist = wp.sqrt(dist2)
                         wi = dl / dist
-                        cos_l = -wp.dot(an / area, wi)
                         wil = to_local(fr, wi)
-                        if cos_l > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                            if clear_to(pp, sd, area_lights, po, ql, li):
-                                pl = wp.min(dist2 / (cos_l * area), PDF_MAX)
-                                L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], a.radiance, pl,
-                                                               bsdf_pdf(m, wo, wil)))
-            # one emissive triangle
-            if pp.num_emitters > 0:
-                ue = wp.randf(rng)
-                u1 = wp.randf(rng)
-                u2 = wp.randf(rng)
-                fe = emit_face[cdf_search(emit_cdf, pp.num_emitters, ue)]
-                p0, p1, p2 = triangle_corners(points, indices, fe)
-                su = wp.sqrt(u1)
-                ql = p0 * (1.0 - su) + p1 * (u2 * su) + p2 * (su * (1.0 - u2))
-                dl = ql - p
-                dist2 = wp.dot(dl, dl)
-                if dist2 > 1.0e-30:
-                    dist = wp.sqrt(dist2)
-                    wi = dl / dist
+                        if wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                            pl = emitter_pdf(points, indices, face_emit_prob, fe, wi, dist)
+                            if pl > 0.0:
+                                lq = wp.vec3(0.0, 0.0, 0.0)
+                                if wp.static(textured):
+                                    # the point's barycentrics in Warp's convention: p0 u + p1 v + p2 (1 - u - v)
+                                    eu = 1.0 - su
+                                    ev = u2 * su
+                                    visible = front_emits(sd, fe, wp.cross(p1 - p0, p2 - p0), wi)
+                                    if visible and sd.has_cutouts != 0:
+                                        visible = not is_cut_out(sd, fe, eu, ev, -128.0)
+                                    if visible:
+                                        lq = surface_emission(sd, fe, eu, ev, -128.0)
+                                else:
+                                    lq = face_emission[fe]
+                                if max3(lq) > 0.0:
+                                    if clear_to(pp, sd, area_lights, po, ql, -1):
+                                        L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], lq, pl,
+                                                                       bsdf_pdf(m, wo, wil)))
+                # the environment
+                if pp.env_nee != 0:
+                    u1 = wp.randf(rng)
+                    u2 = wp.randf(rng)
+                    wi, le_env, pl = env_sample(env, u1, u2)
                     wil = to_local(fr, wi)
-                    if wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                        pl = emitter_pdf(points, indices, face_emit_prob, fe, wi, dist)
-                        if pl > 0.0:
-                            lq = wp.vec3(0.0, 0.0, 0.0)
-                            if wp.static(textured):
-                                # the point's barycentrics in Warp's convention: p0 u + p1 v + p2 (1 - u - v)
-                                eu = 1.0 - su
-                                ev = u2 * su
-                                visible = front_emits(sd, fe, wp.cross(p1 - p0, p2 - p0), wi)
-                                if visible and sd.has_cutouts != 0:
-                                    visible = not is_cut_out(sd, fe, eu, ev, -128.0)
-                                if visible:
-                                    lq = surface_emission(sd, fe, eu, ev, -128.0)
-                            else:
-                                lq = face_emission[fe]
-                            if max3(lq) > 0.0:
-                                if clear_to(pp, sd, area_lights, po, ql, -1):
-                                    L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], lq, pl,
-                                                                   bsdf_pdf(m, wo, wil)))
-            # the environment
-            if pp.env_nee != 0:
+                    if pl > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
+                        if not blocked(pp, sd, area_lights, po, wi, pp.far, -1):
+                            L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], le_env, pl,
+                                                           bsdf_pdf(m, wo, wil)))
+                # the next ray
                 u1 = wp.randf(rng)
                 u2 = wp.randf(rng)
-                wi, le_env, pl = env_sample(env, u1, u2)
-                wil = to_local(fr, wi)
-                if pl > 0.0 and wp.dot(wi, ng) > 0.0 and wil[2] > 0.0:
-                    if not blocked(pp, sd, area_lights, po, wi, pp.far, -1):
-                        L += wp.cw_mul(thr, nee_weight(bsdf_eval(m, wo, wil), wil[2], le_env, pl,
-                                                       bsdf_pdf(m, wo, wil)))
-            # the next ray
-            u1 = wp.randf(rng)
-            u2 = wp.randf(rng)
-            u3 = wp.randf(rng)
-            s = bsdf_sample(m, wo, u1, u2, u3)
-            if not (s.pdf > 0.0):
-                break
-            wi = to_world(fr, s.wi)
-            if not (wp.dot(wi, ng) > 0.0):
-                break
-            thr = wp.cw_mul(thr, s.f) * (s.wi[2] / s.pdf)
+                u3 = wp.randf(rng)
+                s = bsdf_sample(m, wo, u1, u2, u3)
+                if not (s.pdf > 0.0):
+                    break
+                wi = to_world(fr, s.wi)
+                if not (wp.dot(wi, ng) > 0.0):
+                    break
+                thr = wp.cw_mul(thr, s.f) * (s.wi[2] / s.pdf)
+                prev_pdf = s.pdf
             if not finite3(thr):
                 break
-            prev_pdf = s.pdf
             if depth + 1 >= pp.rr_depth:
                 qs = wp.min(max3(thr), RR_MAX)
                 if not (wp.randf(rng) < qs):
@@ -505,7 +544,7 @@ def _make_path(textured: bool):
                 break
             if wp.static(textured):
                 cone_w = cone_hit
-                cone_a = wp.min(cone_a + bounce_spread_angle(s.pdf), SPREAD_ANGLE_MAX)
+                cone_a = wp.min(cone_a + bounce_spread_angle(prev_pdf), SPREAD_ANGLE_MAX)
             o = po
             d = wi
         return L, rng
@@ -695,6 +734,16 @@ def sample_directions_kernel(
     wi_out[i] = to_world(fr, s.wi)
     pdf_out[i] = s.pdf
     pdf_eval[i] = bsdf_pdf(m, wo, s.wi)
+
+
+@wp.kernel(enable_backward=False)
+def fresnel_dielectric_kernel(cos_i: wp.array(dtype=float), eta: wp.array(dtype=float), f_out: wp.array(dtype=float),
+                              cos_t_out: wp.array(dtype=float)):
+    """Test hook: fresnel_dielectric(cos_i[i], eta[i])."""
+    i = wp.tid()
+    f, ct = fresnel_dielectric(cos_i[i], eta[i])
+    f_out[i] = f
+    cos_t_out[i] = ct
 
 
 @wp.kernel(enable_backward=False)

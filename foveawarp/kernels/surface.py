@@ -57,8 +57,9 @@ class SurfaceData:
         tangents: per vertex xyz tangent, w handedness; read only where ``has_tangents`` is 1.
         face_material: material index per face.
         base_color (vec4), metallic, roughness, normal_scale, occlusion_strength, alpha_cutoff, specular,
-            emission (vec3), alpha_mode, double_sided: per material; ``specular`` is the dielectric Fresnel scale
-            of kernels/bsdf.py (1 for glTF's core material).
+            emission (vec3), alpha_mode, double_sided, transmission, ior: per material; ``specular`` is the
+            dielectric Fresnel scale of kernels/bsdf.py (1 for glTF's core material); ``transmission`` the glass
+            part and ``ior`` its index of refraction (read by the path integrator only).
         texture: (M, 5) texture index per material and slot, -1 for none.
         tex_texcoord, tex_uv_linear, tex_uv_offset: per texture its UV set and UV transform.
         atlas: the textures (kernels/texture.py).
@@ -86,6 +87,8 @@ class SurfaceData:
     emission: wp.array(dtype=wp.vec3)
     alpha_mode: wp.array(dtype=wp.int32)
     double_sided: wp.array(dtype=wp.int32)
+    transmission: wp.array(dtype=float)
+    ior: wp.array(dtype=float)
     texture: wp.array2d(dtype=wp.int32)
     tex_texcoord: wp.array(dtype=wp.int32)
     tex_uv_linear: wp.array(dtype=wp.mat22)
@@ -99,7 +102,8 @@ class SurfaceData:
 @wp.struct
 class SurfacePoint:
     """The material at one hit: linear base colour and alpha, shading normal (unit, facing the viewer), glTF
-    roughness and metallic, occlusion, emitted radiance and the dielectric Fresnel scale."""
+    roughness and metallic, occlusion, emitted radiance, the dielectric Fresnel scale, and the glass part
+    (``transmission``) with its index of refraction."""
 
     base_color: wp.vec3
     alpha: float
@@ -109,6 +113,8 @@ class SurfacePoint:
     occlusion: float
     emission: wp.vec3
     specular: float
+    transmission: float
+    ior: float
 
 
 @wp.struct
@@ -396,6 +402,8 @@ def eval_surface_at(sd: SurfaceData, face: int, u: float, v: float, d: wp.vec3, 
     sp.occlusion = _unit(1.0 + sd.occlusion_strength[m] * (oc[0] - 1.0))
     sp.emission = emission_of(sd, m, i0, i1, i2, p0, p1, p2, u, v, fp)
     sp.specular = _unit(sd.specular[m])
+    sp.transmission = _unit(sd.transmission[m])
+    sp.ior = wp.clamp(sd.ior[m], 1.0, 5.0)
     # the normal on the front side of the face (the side its winding faces, where the tangent frame is defined),
     # mapped there and turned to the viewer at the end (glTF flips a double-sided back face's normal)
     fn = geom_n
