@@ -138,3 +138,40 @@ def test_mouse_over_canvas_steers_the_gaze_in_headless_chromium(browser, server)
         assert js_errors == []
     finally:
         page.close()
+
+
+HOLD_FRAMES = """
+(() => {
+  const decode = window.createImageBitmap.bind(window);
+  window.__holdFrames = true;
+  window.createImageBitmap = (blob) => new Promise((resolve, reject) => {
+    const go = () => window.__holdFrames ? setTimeout(go, 20) : decode(blob).then(resolve, reject);
+    go();
+  });
+})();
+"""
+
+
+def test_mouse_before_the_first_frame_maps_through_the_render_size(browser, server):
+    """Frames held back from the canvas (their decoding waits), so it keeps the page's 640 x 360 placeholder: a
+    mouse move is mapped through the render size the session announced, not through the placeholder."""
+    page = browser.new_page(viewport={"width": 900, "height": 500})
+    page.add_init_script(HOLD_FRAMES)
+    try:
+        page.goto(server.url, timeout=60_000)
+        page.wait_for_function("document.getElementById('conn').textContent === 'live'", timeout=60_000)
+        assert page.evaluate("document.getElementById('view').width") == 640
+        box = page.locator("#view").bounding_box()
+        page.mouse.move(box["x"] + 0.25 * box["width"], box["y"] + 0.3 * box["height"])
+        tol = 1.5 * W / box["width"] + 1e-6
+
+        def follows():
+            g = _stats(server)["gaze_px"]
+            return abs(g[0] - 0.25 * W) <= tol and abs(g[1] - 0.3 * H) <= tol
+
+        assert _wait(follows, timeout=30.0), f"stats gaze {_stats(server)['gaze_px']} is not {(0.25 * W, 0.3 * H)}"
+        assert page.evaluate("document.getElementById('view').width") == 640  # still no frame drawn
+        page.evaluate("window.__holdFrames = false")
+        page.wait_for_function("document.getElementById('view').width === %d" % W, timeout=30_000)
+    finally:
+        page.close()

@@ -9,6 +9,7 @@
   let state = null;          // last "state" message
   let renderW = 0;           // render size of the frames (side by side: the canvas is 2 x wide)
   let renderH = 0;
+  let framesShown = 0;       // frames drawn: until the first, the canvas keeps the page's placeholder size
   let seq = 0;               // gaze sequence number; frames echo the seq they were rendered with
   const sentAt = new Map();  // seq -> performance.now() when sent (client-side round trip)
   let pendingGaze = null;
@@ -76,6 +77,7 @@
       ctx.drawImage(bmp, 0, 0);
       bmp.close();
       renderW = header.render_width; renderH = header.render_height;
+      framesShown += 1;
       frameShown(header);
       decodeNext();
     }, () => decodeNext());
@@ -95,15 +97,20 @@
 
   // -- gaze, orbit, fly ------------------------------------------------------------------------
   function toRender(ev) {
+    // before the first frame the canvas is the page's placeholder size: map through the render size instead;
+    // with neither known (no state yet) there is no gaze to send
     const r = canvas.getBoundingClientRect();
-    let x = (ev.clientX - r.left) * canvas.width / r.width;
-    const y = (ev.clientY - r.top) * canvas.height / r.height;
+    const fw = framesShown ? canvas.width : renderW, fh = framesShown ? canvas.height : renderH;
+    if (!fw || !fh || !r.width || !r.height) return null;
+    let x = (ev.clientX - r.left) * fw / r.width;
+    const y = (ev.clientY - r.top) * fh / r.height;
     if (renderW && x >= renderW) x -= renderW;   // side by side: both halves show the same view
     return [x, y];
   }
 
   canvas.addEventListener("mousemove", (ev) => {
-    pendingGaze = toRender(ev);
+    const g = toRender(ev);
+    if (g) pendingGaze = g;
     if (dragging && lastDrag) {
       const dx = ev.clientX - lastDrag[0], dy = ev.clientY - lastDrag[1];
       if (dx || dy) send({ type: "orbit", dx: dx, dy: dy });
