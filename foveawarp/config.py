@@ -636,6 +636,10 @@ class TemporalConfig:
             cosine, in [-1, 1]; default 0.9 (about 26 degrees).
         clamp_gamma: half-width, in standard deviations, of the variance-clipping box that bounds the
             accumulated stochastic history of a traced pixel (5 x 5 neighbourhood of fresh values), in [0, 100].
+        still_clamp_gamma: the clip box's half-width while the camera and the scene stand still, in [0, 100]: the
+            history then reprojects exactly and needs no guard against ghosting, while clipping heavy-tailed Monte
+            Carlo estimates towards their neighbours biases the accumulation low (path traced cornell, depth 3,
+            64x36, CPU, 24 still frames: 0.917 of the converged mean at 1.25, 0.997 at 100, the default).
         motion_alpha_per_px: weight of a traced pixel's fresh stochastic value per pixel of screen motion
             (the history weight falls with motion), per pixel, in [0, 1]; 0.05 gives fresh-only at 20 px/frame.
         still_min_probability: with stochastic shading (AO rays, area-light samples), while the camera and scene
@@ -658,6 +662,7 @@ class TemporalConfig:
     refresh_fraction: float = 0.25
     normal_cos_min: float = 0.9
     clamp_gamma: float = 1.25
+    still_clamp_gamma: float = 100.0
     motion_alpha_per_px: float = 0.05
     still_min_probability: float = 0.25
     stochastic_min_samples: int = 4
@@ -669,6 +674,7 @@ class TemporalConfig:
         check_range("TemporalConfig.refresh_fraction", self.refresh_fraction, 0.0, 1.0)
         check_range("TemporalConfig.normal_cos_min", self.normal_cos_min, -1.0, 1.0)
         check_range("TemporalConfig.clamp_gamma", self.clamp_gamma, 0.0, 100.0)
+        check_range("TemporalConfig.still_clamp_gamma", self.still_clamp_gamma, 0.0, 100.0)
         check_range("TemporalConfig.motion_alpha_per_px", self.motion_alpha_per_px, 0.0, 1.0)
         check_range("TemporalConfig.still_min_probability", self.still_min_probability, 0.0, 1.0)
         check_int_range("TemporalConfig.stochastic_min_samples", self.stochastic_min_samples, 1, 4096)

@@ -531,6 +531,8 @@ class FrameLoop:
         frame = self._contexts.build(camera, prev_cam, gaze, self.frame_index, self._max_t(camera))
         camera_moved = prev_cam != camera
         moving = bool(geometry_moved or camera_moved)
+        # a still view: the history reprojects exactly, so the resolve clips it with the wider still box
+        still = history and not moving
         if not self._animated:
             skipped["bvh_refit"] = "static scene"
         foveated = cfg.foveation.enabled and mode == "foveated"
@@ -594,8 +596,8 @@ class FrameLoop:
             key = (strategy, "sparse", float(camera.fov_y_deg))
         else:
             key = (strategy, history, refresh, self.temporal._cur if foveated else 0, float(camera.fov_y_deg),
-                   self.shade.splits())  # the list's launches differ with the split (ShadeStage.split_direct)
-        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh))
+                   self.shade.splits(), still)  # the list's launches differ with the split (ShadeStage.split_direct)
+        graph_state = self._run_body(key, lambda: self._body(camera, strategy, history, refresh, still))
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's host-side state: the history ping-pong ...
             self.reconstruct.set_seed_mask(self.temporal.filled)  # ... and the seed mask run_interpolate reads
@@ -701,9 +703,9 @@ class FrameLoop:
         block = self.config.foveation.block
         return self._static_frames >= max(block * block, tc.max_history_frames)
 
-    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool) -> None:
+    def _body(self, camera: Camera, strategy: str, history: bool, refresh: bool, still: bool = False) -> None:
         """The launches of one frame after the head: no host reads, no allocation, the same arguments for the
-        same (strategy, history, refresh, temporal parity, field of view). Its one host-side effect, the
+        same (strategy, history, refresh, temporal parity, field of view, still view). Its one host-side effect, the
         temporal ping-pong swap, is repeated by ``render`` after a graph replay."""
         cfg = self.config
         foveated = strategy != "full"
@@ -746,7 +748,7 @@ class FrameLoop:
                 if sample_in_resolve:
                     srows = self.sampling.rows_pass_args(self.gbuffer, **pass_inputs)
                 self.temporal.run(smap, self.gbuffer, self.radiance, self._fresh_stoch, use_history=history,
-                                  background=cfg.shading.background, **self._resolve_kind(),
+                                  background=cfg.shading.background, **self._resolve_kind(), still=still,
                                   shade=self.shade if shade_in_resolve else None,
                                   work=self.reorder.work if listed else None,
                                   count=self.reorder.count if listed else None, sampling=srows)

@@ -197,11 +197,11 @@ ROOM_PATH = {"integrator": "path", "max_depth": 3, "spp": 2}
 
 def test_textured_scene_in_the_frame_loop(device):
     """The built-in textured room path traced by FrameLoop: the reference frame is the path stage's own frame,
-    and a still view's foveated frames (history clipping opened, clamp_gamma 100) converge towards the converged
+    and a still view's foveated frames (the still view's wide clip box) converge towards the converged
     image: the mean within 8 %, the error of frame 16 below that of frame 1, every frame finite."""
     w, h = 48, 27
     scene = fw.load_scene("room")
-    cfg = fw.Config().with_(shading=ROOM_PATH, temporal={"clamp_gamma": 100.0})
+    cfg = fw.Config().with_(shading=ROOM_PATH)
     loop = fw.FrameLoop(scene, w, h, config=cfg, device=device, policy="foveated")
     loop.render_reference(scene.camera)
     stage = PathStage(loop.dscene, loop.config.shading, w, h, device)

@@ -178,16 +178,17 @@ class TemporalStage:
         self._filled[c].assign(filled.reshape(self.height, self.width))
 
     def params(self, *, use_history: bool, stochastic: bool, background=(0.0, 0.0, 0.0),
-               samples: int = 1) -> TemporalParams:
+               samples: int = 1, still: bool = False) -> TemporalParams:
         """The resolve's constants; ``samples``: Monte Carlo samples per pixel per frame of the stochastic
-        shading (the minimum age of reused moving history, ``stochastic_min_age``)."""
+        shading (the minimum age of reused moving history, ``stochastic_min_age``); ``still``: a still view, whose
+        clip box is ``still_clamp_gamma`` wide."""
         c = self.config
         tp = TemporalParams()
         tp.max_frames = int(c.max_history_frames)
         tp.use_history = 1 if (use_history and c.enabled) else 0
         tp.depth_eps_rel = float(c.depth_eps_rel)
         tp.normal_cos_min = float(c.normal_cos_min)
-        tp.clamp_gamma = float(c.clamp_gamma)
+        tp.clamp_gamma = float(c.still_clamp_gamma if still else c.clamp_gamma)
         tp.box_radius = CLIP_BOX_RADIUS
         tp.motion_alpha_per_px = float(c.motion_alpha_per_px)
         tp.min_age_reuse = stochastic_min_age(c.stochastic_min_samples, samples) if stochastic else 1
@@ -201,7 +202,7 @@ class TemporalStage:
 
     def run(self, sample_map, gbuffer, fresh, fresh_stoch, *, use_history: bool = True, stochastic: bool = False,
             background=(0.0, 0.0, 0.0), shade=None, work=None, count=None, samples: int = 1,
-            sampling=None) -> None:
+            sampling=None, still: bool = False) -> None:
         """Resolve one frame (the rule in the class docstring) against the history of the previous ``run``.
 
         Args:
@@ -217,6 +218,8 @@ class TemporalStage:
                 ``stochastic``; the default 1 is the most cautious (``stochastic_min_samples`` frames), so a caller
                 with stochastic shading should pass its count (``ShadeStage.stochastic_samples``).
             background: radiance of rays that miss (linear RGB).
+            still: the camera and the scene stand still (the history reprojects exactly): the stochastic
+                history is clipped with ``TemporalConfig.still_clamp_gamma`` instead of ``clamp_gamma``.
             shade: a :class:`ShadeStage` (only where :meth:`can_shade`): the sampled pixels are shaded into
                 ``fresh`` / ``fresh_stoch`` in the same launch, each just before its resolve, with the values of
                 ``shade.masked`` (its parameters as last uploaded); one pass over the image instead of two.
@@ -268,7 +271,8 @@ class TemporalStage:
                                 min_band_items=max(1, -(-parallel.MIN_ITEMS_PER_BAND // self.width)))
             self.swap()
             return
-        tp = self.params(use_history=use_history, stochastic=stochastic, background=background, samples=samples)
+        tp = self.params(use_history=use_history, stochastic=stochastic, background=background, samples=samples,
+                         still=still)
         inputs = [tp, sample_map, g.hit, g.normal, g.depth, g.reproj_uv, g.prev_dist, g.moved, fresh,
                   fresh_stoch, self._depth[prev], self._normal[prev], self._meta[prev], self._color_flat[prev],
                   self._stoch[prev]]
