@@ -22,6 +22,7 @@ from foveawarp.kernels.shade import AreaLightParams
 from foveawarp.ops import render_converged
 from foveawarp.scene import DeviceScene
 from foveawarp.stages.path import PathStage, emitter_tables, material_from_blinn_phong
+from foveawarp.surface import set_material_specular
 
 # image-mean t statistic bound (K = 16 passes: df 15, two-sided p = 1.2e-3 at 4; less with more passes)
 T_MAX = 4.0
@@ -52,10 +53,14 @@ def centre_rays(cam, w, h):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def passes(scene, cam, w, h, k, spp, config=LAMBERT, pixel_filter="centre", device="cpu", **fields):
-    """(k, H, W, 3): k independent path-traced images (frame index = pass) of ``spp`` paths per pixel."""
+def passes(scene, cam, w, h, k, spp, config=LAMBERT, pixel_filter="centre", device="cpu", specular=None,
+           **fields):
+    """(k, H, W, 3): k independent path-traced images (frame index = pass) of ``spp`` paths per pixel;
+    ``specular``: the materials' specular scale of a scene with materials (``set_material_specular``)."""
     sc = dataclasses.replace(config, integrator="path", spp=spp, **fields)
     ds = DeviceScene(scene, device=device)
+    if specular is not None:
+        set_material_specular(ds, specular)
     stage = PathStage(ds, sc, w, h, device, pixel_filter=pixel_filter)
     out = wp.zeros((h, w), dtype=wp.vec3, device=device)
     imgs = []

@@ -10,7 +10,6 @@ statistics of tests/test_path.py.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -25,29 +24,17 @@ from foveawarp.kernels.path import bounce_spread_kernel
 from foveawarp.kernels.texture import SPREAD_ANGLE_MAX
 from foveawarp.materials import Material, TextureRef
 from foveawarp.ops import render_converged
-from foveawarp.scene import DeviceScene
 from foveawarp.stages.path import PathStage
-from foveawarp.surface import set_material_specular
 from test_gbuffer_textured import CAM, H, W, make_scene, quad
-from test_path import check_statistically
+from test_path import check_statistically, passes
 from test_shade_textured import NOLIGHT, ref_direct, render, textured_plate
 
 PLAIN = ShadingConfig(**NOLIGHT, texture_lod="none")
 
 
 def path_passes(scene, device, config=PLAIN, k=1, spp=1, cam=CAM, w=W, h=H, specular=None, **fields):
-    """(k, H, W, 3): k independent path-traced images (frame index = pass) through the pixel centres."""
-    sc = dataclasses.replace(config, integrator="path", spp=spp, **fields)
-    ds = DeviceScene(scene, device)
-    if specular is not None:
-        set_material_specular(ds, specular)
-    stage = PathStage(ds, sc, w, h, device, pixel_filter="centre")
-    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
-    imgs = []
-    for i in range(k):
-        stage.run(cam, i, out)
-        imgs.append(out.numpy().copy())
-    return np.stack(imgs).astype(np.float64)
+    """(k, H, W, 3): tests/test_path.py's passes through the pixel centres, with this module's defaults."""
+    return passes(scene, cam, w, h, k, spp, config=config, device=device, specular=specular, **fields)
 
 
 def test_depth2_textured_plate_matches_numpy(device):
