@@ -253,6 +253,8 @@ def main(argv=None):
     p.add_argument("--fov-spp", default="1,2,4,8", help="comma list of the foveated frame's spp")
     p.add_argument("--budgets", default="pixel,frame", help="comma list of ShadingConfig.path_budget items")
     p.add_argument("--max-spp", type=int, default=64, help="ShadingConfig.max_spp of the 'frame' budget")
+    p.add_argument("--path-filter", default="none", choices=("none", "atrous"),
+                   help="ShadingConfig.path_filter of the foveated frames (the full-resolution frames are unfiltered)")
     p.add_argument("--frames", type=int, default=16, help="timed and scored frames per item")
     p.add_argument("--warm", type=int, default=6, help="untimed frames before them")
     p.add_argument("--fovea-spp", type=int, default=1024, help="paths per pixel of the fovea's converged target")
@@ -298,7 +300,8 @@ def main(argv=None):
         scene = load(fw, name)
         fov_deg = scene.camera.fov_y_deg
         for (w, h) in sizes:
-            base = {"integrator": "path", "max_depth": args.max_depth, "rr_depth": 5, "max_spp": args.max_spp}
+            base = {"integrator": "path", "max_depth": args.max_depth, "rr_depth": 5, "max_spp": args.max_spp,
+                    "path_filter": args.path_filter}
             whole = w * h <= args.whole_max_pixels and args.converged_spp > 0
             t0 = time.perf_counter()
             tgt = Target(fw, scene, w, h, dev, base, args.fovea_spp, args.converged_spp if whole else 0)
@@ -322,6 +325,7 @@ def main(argv=None):
                 res[(policy, budget, spp)] = out
                 lasts[(policy, budget, spp)] = last
             rec = {"scene": name, "width": w, "height": h, "integrator": "path", "max_depth": args.max_depth,
+                   "path_filter": args.path_filter,
                    "frames": args.frames, "warm": args.warm, "fovea_deg": FOVEA_DEG, "fovea_spp": args.fovea_spp,
                    "converged_spp": args.converged_spp if whole else 0, "target_s": round(target_s, 1),
                    "commit": git_commit(), "items": []}

@@ -389,6 +389,12 @@ class ShadingConfig:
         radiance_clamp: None (default: unbiased) or the largest channel value, linear radiance in
             (0, float32 max], that one path of the "path" integrator may contribute: a path above it is scaled
             down to it (hue kept). It trades bias for fewer fireflies; leave it off for references.
+        path_filter: "none" (default) or "atrous": a foveated frame of the "path" integrator filters its
+            reconstructed periphery with edge-avoiding a-trous iterations guided by the G-buffer
+            (``foveawarp.stages.path_filter``), leaving the fovea as traced.
+        path_filter_iterations: a-trous iterations (steps 1, 2, 4, ... pixels), in [1, 5].
+        path_filter_fovea_deg: eccentricity in degrees within which the frame is not filtered, in [0, 90]; the
+            filter reaches full strength at twice it.
         background: linear RGB radiance of rays that miss, each channel >= 0.
         exposure: linear scale before tone mapping, in (0, float32 max].
         white_point: Uncharted 2 linear white point, in (0, float32 max]; radiance beyond ~1e18 after the exposure
@@ -416,6 +422,9 @@ class ShadingConfig:
     max_spp: int = 64
     rr_depth: int = 5
     radiance_clamp: Optional[float] = None
+    path_filter: str = "none"
+    path_filter_iterations: int = 3
+    path_filter_fovea_deg: float = 5.0
     background: tuple = (0.02, 0.02, 0.03)
     exposure: float = 2.0
     white_point: float = 11.2
@@ -443,6 +452,9 @@ class ShadingConfig:
         check_int_range("ShadingConfig.rr_depth", self.rr_depth, 1, 4096)
         if self.radiance_clamp is not None:
             check_range("ShadingConfig.radiance_clamp", self.radiance_clamp, 0.0, FLOAT32_MAX, lo_open=True)
+        check_choice("ShadingConfig.path_filter", self.path_filter, ("none", "atrous"))
+        check_int_range("ShadingConfig.path_filter_iterations", self.path_filter_iterations, 1, 5)
+        check_range("ShadingConfig.path_filter_fovea_deg", self.path_filter_fovea_deg, 0.0, 90.0)
         # at most float32's largest value: the kernels hold them in float32 (an exposure that became inf there made
         # every black pixel inf * 0 = NaN)
         check_range("ShadingConfig.exposure", self.exposure, 0.0, FLOAT32_MAX, lo_open=True)

@@ -206,6 +206,14 @@ class FrameLoop:
         self.path = self._path_stage() if cfg.shading.integrator == "path" else None
         # the fresh stochastic part the temporal resolve accumulates: the whole path radiance, else the shading's
         self._fresh_stoch = self.radiance if self.path is not None else self.radiance_stoch
+        # the foveated path-traced frame's periphery filter (ShadingConfig.path_filter)
+        self.path_filter = self.filtered = None
+        if self.path is not None and cfg.shading.path_filter == "atrous" and cfg.foveation.enabled:
+            from .stages.path_filter import PathFilterStage
+
+            self.path_filter = PathFilterStage(w, h, dev, cfg.shading.path_filter_iterations,
+                                               cfg.shading.path_filter_fovea_deg)
+            self.filtered = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
@@ -765,6 +773,10 @@ class FrameLoop:
                 hdr = self.recon
             else:
                 hdr = self.radiance
+        with self._stage("path_filter", foveated and self.path_filter is not None):
+            if foveated and self.path_filter is not None:
+                self.path_filter.run(hdr, self.gbuffer, self.sampling.frame_params, self.filtered)
+                hdr = self.filtered
         with self._stage("dof", cfg.dof.enabled):
             if cfg.dof.enabled:
                 self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, cfg.dof.focus_depth_m, self.dof_out,
@@ -789,6 +801,8 @@ class FrameLoop:
             return False
         if strategy == "full":
             return self.indirect is None and self.path is None
+        if self.path_filter is not None:
+            return False  # the filter follows the reconstruction
         rc = self.reconstruct
         return bool(rc.config.sibson and not rc.exact_sibson)
 

@@ -1,0 +1,108 @@
+"""Edge-avoiding a-trous filtering of a path-traced frame's periphery (Dammertz et al. 2010; the spatial filter of
+SVGF, Schied et al. 2017, without its variance estimate).
+
+One iteration ``k`` (step ``s = 2^k`` pixels) replaces each pixel's radiance by the normalized weighted sum over the
+5 x 5 taps ``q = p + s (i, j)``, ``i, j`` in -2..2, inside the image:
+
+    w(p, q) = h(i) h(j) * w_z * w_n * w_l,    h = (1/16, 1/4, 3/8, 1/4, 1/16)  (the B3 spline)
+    w_z = exp(-|z_p - z_q| / (SIGMA_Z z_p s))           (relative depth, looser at wider steps)
+    w_n = max(0, n_p . n_q)^SIGMA_N                     (normals)
+    w_l = exp(-|l_p - l_q| / (SIGMA_L (l_p + l_q) / 2 + L_EPS))  (relative luminance: keeps strong edges of light)
+
+and a tap whose hit flag differs from the pixel's (a surface next to the background) has weight 0. Background
+pixels are left as they are. After the last iteration each pixel is blended with its unfiltered value by its
+eccentricity ``e`` from the gaze: the filtered value's weight is 0 within ``fovea_deg`` and grows linearly to 1 at
+``2 fovea_deg`` (``filter_ramp``), so the exact fovea stays as traced.
+"""
+
+import warp as wp
+
+from .sampling import FrameParams, eccentricity_at
+
+# the edge-stopping constants: depth relative to the pixel's depth per pixel of step, the normals' exponent and
+# the relative luminance difference
+SIGMA_Z = wp.constant(0.01)
+SIGMA_N = wp.constant(32.0)
+SIGMA_L = wp.constant(1.0)
+L_EPS = wp.constant(1.0e-4)
+
+
+@wp.func
+def b3(i: int) -> float:
+    """The B3-spline tap weight of offset i in -2..2."""
+    a = wp.abs(i)
+    if a == 0:
+        return 0.375
+    if a == 1:
+        return 0.25
+    return 0.0625
+
+
+@wp.func
+def luminance(c: wp.vec3) -> float:
+    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+
+
+@wp.func
+def filter_ramp(e_deg: float, fovea_deg: float) -> float:
+    """The filtered value's weight at eccentricity ``e_deg``: 0 up to ``fovea_deg``, 1 from ``2 fovea_deg``, linear
+    between (a step at 0 for ``fovea_deg`` 0)."""
+    if not (fovea_deg > 0.0):
+        return 1.0
+    return wp.clamp(e_deg / fovea_deg - 1.0, 0.0, 1.0)
+
+
+@wp.kernel(enable_backward=False)
+def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
+                  hit: wp.array2d(dtype=wp.uint8), step: int, dst: wp.array2d(dtype=wp.vec3), row0: int):
+    """One a-trous iteration of step ``step`` from ``src`` into ``dst`` (the module docstring)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    h = src.shape[0]
+    w = src.shape[1]
+    c = src[y, x]
+    hp = hit[y, x]
+    if hp == wp.uint8(0):
+        dst[y, x] = c
+        return
+    zp = depth[y, x]
+    np_ = normal[y, x]
+    lp = luminance(c)
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    wsum = float(0.0)
+    for j in range(-2, 3):
+        qy = y + j * step
+        if qy >= 0 and qy < h:
+            for i in range(-2, 3):
+                qx = x + i * step
+                if qx >= 0 and qx < w:
+                    if hit[qy, qx] == hp:
+                        cq = src[qy, qx]
+                        wz = wp.exp(-wp.abs(zp - depth[qy, qx]) / wp.max(SIGMA_Z * wp.abs(zp) * float(step), 1.0e-20))
+                        wn = wp.pow(wp.max(wp.dot(np_, normal[qy, qx]), 0.0), SIGMA_N)
+                        lq = luminance(cq)
+                        wl = wp.exp(-wp.abs(lp - lq) / (SIGMA_L * 0.5 * wp.abs(lp + lq) + L_EPS))
+                        wt = b3(i) * b3(j) * wz * wn * wl
+                        if wp.isfinite(wt) and wt > 0.0:
+                            acc += cq * wt
+                            wsum += wt
+    if wsum > 0.0:
+        out = acc / wsum
+        if wp.isfinite(out[0]) and wp.isfinite(out[1]) and wp.isfinite(out[2]):
+            c = out
+    dst[y, x] = c
+
+
+@wp.kernel(enable_backward=False)
+def blend_by_eccentricity_kernel(frame: wp.array(dtype=FrameParams), unfiltered: wp.array2d(dtype=wp.vec3),
+                                 filtered: wp.array2d(dtype=wp.vec3), fovea_deg: float,
+                                 out: wp.array2d(dtype=wp.vec3), row0: int):
+    """out = lerp(unfiltered, filtered, filter_ramp(eccentricity, fovea_deg)) per pixel."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    fp = frame[0]
+    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(out.shape[1]), float(out.shape[0]),
+                        fp.tan_half_fov_y)
+    a = filter_ramp(e, fovea_deg)
+    u = unfiltered[y, x]
+    out[y, x] = u + (filtered[y, x] - u) * a
