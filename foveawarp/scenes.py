@@ -35,7 +35,8 @@ from .meshio import (TEXTURED_SCENES, find_named_mesh, find_textured_scene, load
 from .scene import AreaLight, Light, Scene, SceneObject, check_bvh, face_material_colors, register_builtin_scenes
 
 __all__ = ["SceneBuilder", "cornell", "city", "eyechart", "earth", "bunny_in_box", "room", "mesh_on_ground",
-           "file_scene", "scene_from_data", "lights_from_file", "default_lights", "vertex_tangents", "BUILTIN"]
+           "file_scene", "scene_from_data", "lights_from_file", "default_lights", "vertex_tangents", "with_materials",
+           "BUILTIN"]
 
 
 def rot_y(angle_rad: float) -> np.ndarray:
@@ -1266,5 +1267,45 @@ BUILTIN = {
     "milk-truck": milk_truck,
     "grey-white-room": grey_white_room,
 }
+
+def with_materials(scene: Scene, roughness: Optional[float] = None) -> Scene:
+    """``scene`` (an untextured scene: per-face albedo and emission) expressed in the glTF metallic-roughness
+    model: one double-sided material per distinct (albedo, emission) pair, base colour the albedo, metallic 0,
+    roughness ``roughness`` (None: the stand-in for the direct integrator's default Blinn-Phong lobe,
+    ``foveawarp.stages.path.material_from_blinn_phong``, 0.447), the emission as ``emissive_factor`` x
+    ``emissive_strength``. Geometry, normals, lights, camera, camera path and objects are shared; ``face_albedo``
+    and ``face_emission`` are kept, so what reads per-face colours reads the same. The scene is then shaded by the
+    textured kernels (GGX instead of Blinn-Phong; docs/pipeline.md states the difference). A scene that already
+    has materials is returned as it is."""
+    from .config import ShadingConfig
+    from .stages.path import material_from_blinn_phong
+
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a foveawarp.Scene, got {type(scene).__name__}")
+    if scene.materials is not None:
+        return scene
+    if roughness is None:
+        d = ShadingConfig()
+        roughness = material_from_blinn_phong(d.specular, d.shininess)[0]
+    roughness = check_range("roughness", roughness, 0.0, 1.0)
+    alb = np.asarray(scene.face_albedo, np.float32)
+    emi = np.asarray(scene.face_emission, np.float32)
+    keys, face_material = np.unique(np.concatenate([alb, emi], axis=1), axis=0, return_inverse=True)
+    mats = []
+    for k, row in enumerate(keys):
+        e = np.asarray(row[3:], np.float64)
+        strength = float(e.max())
+        factor = tuple(float(x) for x in (e / strength if strength > 0 else np.zeros(3)))
+        mats.append(Material(name=f"{scene.name}-{k}", base_color_factor=(*(float(x) for x in row[:3]), 1.0),
+                             metallic_factor=0.0, roughness_factor=roughness, emissive_factor=factor,
+                             emissive_strength=strength, double_sided=True))
+    return Scene(vertices=scene.vertices, faces=scene.faces, face_albedo=alb, face_emission=emi,
+                 vertex_normals=scene.vertex_normals, face_smooth=scene.face_smooth, lights=list(scene.lights),
+                 area_lights=list(scene.area_lights), camera=scene.camera, camera_path=scene.camera_path,
+                 objects=list(scene.objects), name=f"{scene.name}-materials", bvh_constructor=scene.bvh_constructor,
+                 bvh_leaf_size=scene.bvh_leaf_size, uvs=np.zeros((len(scene.vertices), 2), np.float32),
+                 face_material=face_material.reshape(-1).astype(np.int32), materials=mats,
+                 environment=scene.environment)
+
 
 register_builtin_scenes(BUILTIN, mesh_on_ground, file_scene)

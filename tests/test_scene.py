@@ -320,3 +320,34 @@ def test_cornell_area_light_faces_into_the_box():
     albedo = np.asarray(loop.gbuffer.albedo.numpy()[h // 2, w // 2], np.float64)
     # the stochastic part is albedo / pi times the light's irradiance (its 64-sample estimate: 10% here)
     np.testing.assert_allclose(st, albedo / np.pi * e * np.asarray(a.radiance), rtol=0.1)
+
+
+def test_with_materials_expresses_per_face_colours():
+    """scenes.with_materials: one material per distinct (albedo, emission), each face's base colour and emission
+    exactly its albedo and emission; rendered by the textured kernels, the look is kept up to the change of
+    model (Blinn-Phong to GGX): display PSNR 40.7 dB on cornell at 160 x 90 measured, bound 37 dB."""
+    from foveawarp.metrics import psnr
+    from foveawarp.scenes import with_materials
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    f = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
+    sc = fw.Scene(v, f, np.array([[0.5, 0.2, 0.1], [0.5, 0.2, 0.1]], np.float32),
+                  face_emission=np.array([[0, 0, 0], [2.0, 1.0, 0.0]], np.float32))
+    m = with_materials(sc)
+    assert len(m.materials) == 2
+    t = m.materials
+    np.testing.assert_allclose(t.base_color_factor[m.face_material][:, :3], sc.face_albedo)
+    np.testing.assert_allclose(t.emission[m.face_material], sc.face_emission)
+    assert np.all(t.metallic_factor == 0.0) and np.all(t.double_sided == 1)
+    np.testing.assert_allclose(t.roughness_factor, (2.0 / 50.0) ** 0.25, rtol=1e-6)
+    assert with_materials(m) is m
+    with pytest.raises(ValueError, match="scene must be a foveawarp.Scene"):
+        with_materials("cornell")
+    with pytest.raises(ValueError, match=r"roughness must be in \[0\.0, 1\.0\]"):
+        with_materials(sc, roughness=2.0)
+    c = fw.load_scene("cornell")
+    cm = with_materials(c)
+    assert len(cm.materials) == len(np.unique(c.face_albedo, axis=0))
+    a = fw.FrameLoop(c, 160, 90, device="cpu").render_reference().image.numpy()
+    b = fw.FrameLoop(cm, 160, 90, device="cpu").render_reference().image.numpy()
+    assert np.isfinite(b).all() and psnr(a, b) >= 37.0, psnr(a, b)
