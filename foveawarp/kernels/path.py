@@ -5,7 +5,8 @@ uniformly over the pixel: a box filter), not at the G-buffer's stored hit: the G
 the pixel centre, and tracing it again costs one ray per path while keeping the integrator free of the G-buffer's
 layout. At each surface vertex:
 
-- emission seen along the ray is added: face emission (two-sided, as the direct integrator adds it) and area
+- emission seen along the ray is added: face emission (untextured scenes: two-sided, as the direct integrator
+  adds it; a material's: two-sided when the material is double-sided, else from its front, ``front_emits``) and area
   lights (one-sided: the side ``cross(edge_u, edge_v)`` faces), weighted by the power heuristic against the light
   sampling of the previous vertex (weight 1 for a camera ray);
 - next-event estimation: every point/spot light (one shadow ray each, no MIS: delta lights), one sample per area
@@ -13,7 +14,10 @@ layout. At each surface vertex:
   RGB emission, then uniform over it) and, where the scene has a non-black environment, one environment sample
   (its importance distribution, kernels/envmap.py); each but the delta lights weighted by the power heuristic
   against the BSDF's pdf (Veach 1997, eq. 9.13 with beta = 2);
-- the BSDF is sampled (kernels/bsdf.py: cosine-weighted Lambert and GGX visible normals) for the next ray.
+- the BSDF is sampled (kernels/bsdf.py: cosine-weighted Lambert and GGX visible normals) for the next ray;
+- a glass vertex (a material's ``transmission`` part) instead samples no light: a smooth dielectric interface
+  reflects with the Fresnel probability of its index (``fresnel_dielectric``) or refracts, and the emission the next
+  hit sees is weighted 1 (the previous pdf is PDF_MAX).
 
 The material at a vertex is the per-face albedo as glTF base colour (``path_material``) in untextured scenes, or in
 scenes with materials the hit's textured material (kernels/surface.py: ``eval_surface_at``), whose texture LOD
