@@ -153,6 +153,9 @@ def test_session_config_follows_the_knobs():
     assert not off.dof.enabled and off.shading.indirect == "none" and off.shading.integrator == "direct"
     path = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "max_depth": 3, "spp": 2})
     assert (path.shading.integrator, path.shading.max_depth, path.shading.spp) == ("path", 3, 2)
+    assert path.shading.path_filter == "none"
+    filt = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_filter": True})
+    assert filt.shading.path_filter == "atrous"
     with pytest.raises(ValueError, match="computes indirect light itself"):
         ViewerSession.config_for({**knobs, "path": True})
 

@@ -289,3 +289,19 @@ def test_path_knob_renders_path_traced_frames():
     n = int(s._loop.reorder.count.numpy()[0]) if st.get("sampling_rate", 1.0) < 1.0 else W * H
     assert st["paths_traced"] == 2 * n and "rays_traced" not in st
     assert np.isfinite(s._loop.recon.numpy()).all()
+
+
+def test_path_filter_knob_filters_the_foveated_frame():
+    """The page's periphery-filter knob builds the loop's a-trous filter; the frames stay finite."""
+    s = ViewerSession(["cornell"], W, H, device="cpu")
+    s.apply({"type": "set", "knob": "indirect", "value": False})
+    for knob, value in (("path", True), ("path_filter", True)):
+        s.apply({"type": "set", "knob": knob, "value": value})
+    with s._cond:
+        snap = s._snapshot()
+    s._ensure_loops(snap)
+    assert s._loop.path_filter is not None and s._loop.config.shading.path_filter == "atrous"
+    for _ in range(2):
+        s._render(snap)
+    out = s._loop.filtered.numpy()
+    assert np.isfinite(out).all() and out.max() > 0.0  # the filter wrote the frame

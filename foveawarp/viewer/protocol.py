@@ -97,6 +97,8 @@ KNOBS = {
         Knob("timing", "bool", doc="FrameLoop(timing=...): per-stage milliseconds (synchronizes each stage)"),
         Knob("path", "bool", doc='ShadingConfig.integrator: "path" (path tracing; indirect off) or '
                                   '"direct"'),
+        Knob("path_filter", "bool", doc='ShadingConfig.path_filter: "atrous" (the foveated path-traced frame\'s '
+                                         'periphery filtered) or "none"'),
         Knob("max_depth", "int", 1, 4096, doc="ShadingConfig.max_depth of the path integrator, [1, 4096]"),
         Knob("spp", "int", 1, 65536, doc="ShadingConfig.spp: paths per traced pixel, [1, 65536]"),
     )

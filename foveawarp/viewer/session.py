@@ -93,6 +93,7 @@ class ViewerSession:
             "indirect": base.shading.indirect == "lighttree",
             "timing": bool(timing),
             "path": base.shading.integrator == "path",
+            "path_filter": base.shading.path_filter == "atrous",
             "max_depth": int(base.shading.max_depth),
             "spp": int(base.shading.spp),
         }
@@ -151,7 +152,7 @@ class ViewerSession:
             temporal={"enabled": knobs["temporal"]},
             shading={"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none",
                      "integrator": "path" if knobs["path"] else "direct", "max_depth": knobs["max_depth"],
-                     "spp": knobs["spp"]},
+                     "spp": knobs["spp"], "path_filter": "atrous" if knobs.get("path_filter") else "none"},
             dof={"aperture_m": aperture},
         )
 
