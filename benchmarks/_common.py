@@ -176,6 +176,17 @@ def pyplot():
     return plt
 
 
+def save_grid(plt, fig, axes, used: int, title: str, path) -> None:
+    """Finish a grid of plots: the axes after the first ``used`` hidden, the title, the layout, the PNG at 110 dpi
+    written to ``path`` and the figure closed."""
+    for ax in list(axes.flat)[used:]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def md_table(rows: list, cols=None) -> str:
     if not rows:
         return "(no rows)\n"

@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 from benchmarks._common import (REPO, base_parser, git_commit, kept_records, md_table, parse_sizes,  # noqa: E402
-                                plot_path, progress, pyplot, scenes_present, write_results)
+                                plot_path, progress, pyplot, save_grid, scenes_present, write_results)
 
 ALL_SCENES = "cornell,city,eyechart,earth,bunny,spot,teapot,nefertiti,ogre"
 CANONICAL = ("python benchmarks/frame.py --device cuda:0 --out benchmarks/results --tag h200 "
@@ -595,13 +595,8 @@ def plot(records, path, dev):
         ax.set_ylabel("PSNR dB (mean over the path)", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=5)
-    for ax in list(axes.flat)[len(keys):]:
-        ax.axis("off")
     title = f"frame time vs PSNR, foveated and full-resolution reference ({wp.get_device(dev).alias})"
-    fig.suptitle(textwrap.fill(title, width=max(40, int(15 * fig.get_figwidth()))), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_grid(plt, fig, axes, len(keys), textwrap.fill(title, width=max(40, int(15 * fig.get_figwidth()))), path)
 
 
 if __name__ == "__main__":

@@ -52,7 +52,7 @@ import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 from benchmarks._common import (base_parser, git_commit, kept_records, md_table, parse_sizes, plot_path,  # noqa: E402
-                                progress, pyplot, write_results)
+                                progress, pyplot, save_grid, write_results)
 from benchmarks.frame import gaze_path  # noqa: E402
 
 CANONICAL = ("python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 "
@@ -422,12 +422,8 @@ def plot(records, path, dev):
         ax.set_ylabel("fovea PSNR dB vs converged (all frames)", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=6)
-    for ax in list(axes.flat)[len(records):]:
-        ax.axis("off")
-    fig.suptitle(f"path tracing: fovea error against frame time ({wp.get_device(dev).alias})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_grid(plt, fig, axes, len(records), f"path tracing: fovea error against frame time "
+                                             f"({wp.get_device(dev).alias})", path)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 from benchmarks._common import (base_parser, md_table, parse_sizes, plot_path, progress, pyplot,  # noqa: E402
-                                time_ms, write_results)
+                                save_grid, time_ms, write_results)
 from benchmarks._kernel_timing import graph_time, kernel_times  # noqa: E402
 from benchmarks._masks import bench_masks  # noqa: E402
 
@@ -201,10 +201,8 @@ def plot(rows, path, dev):
         ax.set_ylabel("ms / full-resolution ms", fontsize=7)
         ax.tick_params(labelsize=6)
     axes.flat[0].legend(fontsize=5)
-    fig.suptitle(f"reordered vs unreordered tracing, compaction counted ({wp.get_device(dev).alias})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_grid(plt, fig, axes, axes.size, f"reordered vs unreordered tracing, compaction counted "
+                                         f"({wp.get_device(dev).alias})", path)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
 
 import numpy as np
 import warp as wp
@@ -200,6 +200,18 @@ class Environment:
         if c is None or c.shape != (3,):
             raise ValueError(f"constant environment rgb must be 3 numbers, got {show(rgb)}")
         return cls(c.reshape(1, 1, 3), scale=scale, name=f"constant {tuple(float(x) for x in c)}")
+
+    @classmethod
+    def of(cls, value) -> Optional["Environment"]:
+        """The :class:`Environment` of a ``Scene.environment`` value: None for None, an Environment as it is, an
+        (H, W, 3) array (``from_array``), a path (``from_file``) or a scene file's record (``from_data``)."""
+        if value is None or isinstance(value, Environment):
+            return value
+        if isinstance(value, np.ndarray):
+            return cls.from_array(value)
+        if isinstance(value, (str, Path)):
+            return cls.from_file(value)
+        return cls.from_data(value)
 
     @classmethod
     def from_data(cls, data) -> "Environment":

@@ -110,17 +110,10 @@ def environment_map(dscene) -> tuple:
     c = _cache(dscene)
     if "env" in c:
         return c["env"]
-    e = dscene.scene.environment
-    if e is None:
-        env, has = Environment(np.zeros((1, 1, 3), dtype=np.float32), name="black"), False
-    elif isinstance(e, Environment):
-        env, has = e, True
-    elif isinstance(e, np.ndarray):
-        env, has = Environment(e), True
-    elif hasattr(e, "image"):
-        env, has = Environment.from_data(e), True
-    else:
-        env, has = Environment.from_file(e), True
+    env = Environment.of(dscene.scene.environment)
+    has = env is not None
+    if env is None:
+        env = Environment(np.zeros((1, 1, 3), dtype=np.float32), name="black")
     if has and env.is_black:
         has = False
     c["env"] = (env.to_device(dscene.device), has)

@@ -30,7 +30,6 @@ the indirect light itself.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -86,19 +85,6 @@ def emitter_tables(vertices: np.ndarray, faces: np.ndarray, face_emission: np.nd
     return idx.astype(np.int32), cdf, prob
 
 
-def _environment(env):
-    """The scene's environment as a ``foveawarp.envmap.Environment`` (None without one)."""
-    from ..envmap import Environment
-
-    if env is None or isinstance(env, Environment):
-        return env
-    if isinstance(env, np.ndarray):
-        return Environment.from_array(env)
-    if isinstance(env, (str, Path)):
-        return Environment.from_file(env)
-    return Environment.from_data(env)
-
-
 class PathStage:
     """The path integrator of one :class:`DeviceScene` with a :class:`ShadingConfig` at ``width`` x ``height``.
 
@@ -126,8 +112,9 @@ class PathStage:
         self.pixel_filter = pixel_filter
         dev = self.device
         sc = dscene.scene
-        self.environment = _environment(sc.environment)
         from ..envmap import Environment
+
+        self.environment = Environment.of(sc.environment)
 
         env = self.environment if self.environment is not None else Environment.constant((0.0, 0.0, 0.0))
         self.env = env.to_device(dev)
