@@ -388,19 +388,22 @@ def main(argv=None):
             for r in records]
     write_results("path", dev, records, md_table(rows), args.out, args.tag,
                   extra={"flip": flip_on, "fovvdp": fvvdp_on})
-    plot(records, plot_path("path", dev, args.out, args.tag), dev)
+    plot(records, plot_path("path", dev, args.out, args.tag), wp.get_device(dev).alias)
 
 
 def _pair(a, b, fmt):
     return f"{'-' if a is None else fmt.format(a)} / {'-' if b is None else fmt.format(b)}"
 
 
-def plot(records, path, dev):
-    """Fovea PSNR (of the fovea's squared error over all frames) against frame ms: the full-resolution curve and one foveated curve per
-    budget, per scene and size."""
+def plot(records, path, device_alias: str):
+    """Fovea PSNR (of the fovea's squared error over all frames) against frame ms: the full-resolution curve and one
+    foveated curve per budget, per scene and size (``device_alias`` in the title: a JSON's ``device_alias``
+    re-plots its records)."""
     plt = pyplot()
     if plt is None or not records:
         return
+    from matplotlib import ticker
+
     cols = min(len(records), 3)
     nrows = -(-len(records) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.4 * nrows), squeeze=False)
@@ -417,13 +420,17 @@ def plot(records, path, dev):
                 ax.annotate(str(it["spp"]), (it["ms"], it["fovea_psnr"]), fontsize=6, xytext=(3, 3),
                             textcoords="offset points")
         ax.set_xscale("log")
+        # labels at 1, 2, 5 x 10^k in plain numbers: the default minor labels of an axis shorter than a decade
+        # overlap
+        ax.xaxis.set_major_locator(ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
         ax.set_title(f"{r['scene']} {r['width']}x{r['height']}, max_depth {r['max_depth']}", fontsize=8)
         ax.set_xlabel("frame ms (labels: spp)", fontsize=7)
         ax.set_ylabel("fovea PSNR dB vs converged (all frames)", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=6)
-    save_grid(plt, fig, axes, len(records), f"path tracing: fovea error against frame time "
-                                             f"({wp.get_device(dev).alias})", path)
+    save_grid(plt, fig, axes, len(records), f"path tracing: fovea error against frame time ({device_alias})", path)
 
 
 if __name__ == "__main__":
