@@ -58,6 +58,9 @@ from benchmarks.frame import gaze_path  # noqa: E402
 CANONICAL = ("python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 "
              "--scenes cornell,bunny,city --sizes 1920x1080 --images benchmarks/out/path-images")
 FOVEA_DEG = 5.0
+# --variants: (ReconstructionConfig.demodulate, ShadingConfig.path_filter) of the foveated frames
+VARIANTS = {"plain": (False, "none"), "demod": (True, "none"), "filter": (False, "atrous"),
+            "demod+filter": (True, "atrous")}
 FLIP_MARGIN = 8  # pixels of context around the fovea's box for FLIP's spatial filters
 
 
@@ -253,8 +256,11 @@ def main(argv=None):
     p.add_argument("--fov-spp", default="1,2,4,8", help="comma list of the foveated frame's spp")
     p.add_argument("--budgets", default="pixel,frame", help="comma list of ShadingConfig.path_budget items")
     p.add_argument("--max-spp", type=int, default=64, help="ShadingConfig.max_spp of the 'frame' budget")
-    p.add_argument("--path-filter", default="none", choices=("none", "atrous"),
-                   help="ShadingConfig.path_filter of the foveated frames (the full-resolution frames are unfiltered)")
+    p.add_argument("--variants", default="demod",
+                   help="comma list of the foveated frames' reconstruction: plain (ReconstructionConfig.demodulate "
+                        "off, no filter), demod (on: the path integrator's default), filter (off, ShadingConfig."
+                        "path_filter 'atrous'), demod+filter; the first is the read-offs' (the full-resolution "
+                        "frames have neither)")
     p.add_argument("--frames", type=int, default=16, help="timed and scored frames per item")
     p.add_argument("--warm", type=int, default=6, help="untimed frames before them")
     p.add_argument("--fovea-spp", type=int, default=1024, help="paths per pixel of the fovea's converged target")
@@ -294,14 +300,16 @@ def main(argv=None):
     kept = kept_records(p, args.keep, "path", lambda r: (r["scene"], int(r["width"]), int(r["height"])))
     dev = wp.get_device(args.device)
     flip_on, fvvdp_on = flip_available(), fovvdp_available()
+    variants = [v for v in args.variants.split(",") if v]
+    if not variants or any(v not in VARIANTS for v in variants) or len(set(variants)) < len(variants):
+        p.error(f"--variants must be a comma list of distinct {', '.join(VARIANTS)}; got {args.variants!r}")
     records = []
     names = [s for s in args.scenes.split(",") if s]
     for name in names:
         scene = load(fw, name)
         fov_deg = scene.camera.fov_y_deg
         for (w, h) in sizes:
-            base = {"integrator": "path", "max_depth": args.max_depth, "rr_depth": 5, "max_spp": args.max_spp,
-                    "path_filter": args.path_filter}
+            base = {"integrator": "path", "max_depth": args.max_depth, "rr_depth": 5, "max_spp": args.max_spp}
             whole = w * h <= args.whole_max_pixels and args.converged_spp > 0
             t0 = time.perf_counter()
             tgt = Target(fw, scene, w, h, dev, base, args.fovea_spp, args.converged_spp if whole else 0)
@@ -315,22 +323,24 @@ def main(argv=None):
                 disc = None if box is None else ecc[box[0]:box[1], box[2]:box[3]] <= FOVEA_DEG
                 targets.append({"box": box, "fovea": fv, "whole": full, "disc": disc})
             target_s = time.perf_counter() - t0
-            items = [("full", "pixel", s) for s in full_spp] + [("foveated", b, s) for b in budgets for s in fov_spp]
+            items = [("full", "pixel", s, "-") for s in full_spp] + [
+                ("foveated", b, s, v) for v in variants for b in budgets for s in fov_spp]
             res = {}
             lasts = {}
-            for policy, budget, spp in progress(items, f"{name} {w}x{h} items"):
-                cfg = fw.Config().with_(shading={**base, "spp": spp, "path_budget": budget})
+            for policy, budget, spp, variant in progress(items, f"{name} {w}x{h} items"):
+                demod, filt = VARIANTS.get(variant, (False, "none"))
+                cfg = fw.Config().with_(shading={**base, "spp": spp, "path_budget": budget, "path_filter": filt},
+                                        reconstruction={"demodulate": demod})
                 out, last = run_item(fw, scene, w, h, dev, cfg, policy, args.frames, args.warm, targets, fov_deg,
                                      flip_on, whole and fvvdp_on, bool(args.images))
-                res[(policy, budget, spp)] = out
-                lasts[(policy, budget, spp)] = last
+                res[(policy, budget, spp, variant)] = out
+                lasts[(policy, budget, spp, variant)] = last
             rec = {"scene": name, "width": w, "height": h, "integrator": "path", "max_depth": args.max_depth,
-                   "path_filter": args.path_filter,
-                   "frames": args.frames, "warm": args.warm, "fovea_deg": FOVEA_DEG, "fovea_spp": args.fovea_spp,
+                   "variants": variants, "frames": args.frames, "warm": args.warm, "fovea_deg": FOVEA_DEG, "fovea_spp": args.fovea_spp,
                    "converged_spp": args.converged_spp if whole else 0, "target_s": round(target_s, 1),
                    "commit": git_commit(), "items": []}
-            for (policy, budget, spp), o in res.items():
-                it = {"policy": policy, "path_budget": budget, "spp": spp, "ms": o["ms"],
+            for (policy, budget, spp, variant), o in res.items():
+                it = {"policy": policy, "path_budget": budget, "spp": spp, "variant": variant, "ms": o["ms"],
                       "fovea_psnr": o["fovea_psnr_pooled"], "fovea_psnr_mean": _mean(o["fovea_psnr"]),
                       "fovea_psnr_min": float(np.min(o["fovea_psnr"])) if o["fovea_psnr"] else None,
                       "fovea_flip_mean": float(np.mean(o["fovea_flip"])) if o["fovea_flip"] else None,
@@ -350,8 +360,17 @@ def main(argv=None):
                     t_eq, bound = equal_quality(full_pts, it["fovea_psnr"])
                     it["equal_quality_full_ms"], it["equal_quality_speedup"] = t_eq, t_eq / it["ms"]
                     it["equal_quality_lower_bound"] = bound
-            fovs = [it for it in rec["items"] if it["policy"] == "foveated"]
             ref = rec["items"][0]
+            by_variant = {}
+            for v in variants:
+                fovs = [it for it in rec["items"] if it["policy"] == "foveated" and it["variant"] == v]
+                within = [it for it in fovs if it["ms"] <= ref["ms"]]
+                e = max(within, key=lambda it: it["ms"]) if within else min(fovs, key=lambda it: it["ms"])
+                by_variant[v] = {"item": f"{e['path_budget']} {e['spp']} spp", "within": bool(within),
+                                 "ms": e["ms"], "fovea_psnr": e["fovea_psnr"], "fovea_flip": e["fovea_flip_mean"],
+                                 "fvvdp_jod": e["fvvdp_jod"], "psnr": e["psnr_mean"]}
+            # the read-offs: the first variant's
+            fovs = [it for it in rec["items"] if it["policy"] == "foveated" and it["variant"] == variants[0]]
             rec["equal_quality_speedup"] = fovs[0]["equal_quality_speedup"]
             rec["equal_quality_lower_bound"] = fovs[0]["equal_quality_lower_bound"]
             rec["equal_quality_item"] = f"{fovs[0]['path_budget']} {fovs[0]['spp']} spp"
@@ -359,6 +378,7 @@ def main(argv=None):
             eq = max(within, key=lambda it: it["ms"]) if within else min(fovs, key=lambda it: it["ms"])
             rec["equal_time_item"] = f"{eq['path_budget']} {eq['spp']} spp"
             rec["equal_time_within"] = bool(within)
+            rec["equal_time_by_variant"] = by_variant
             rec.update(ref_ms=ref["ms"], ref_spp=ref["spp"], fov_ms=eq["ms"],
                        fovea_psnr_fov=eq["fovea_psnr"], fovea_psnr_ref=ref["fovea_psnr"],
                        fovea_flip_fov=eq["fovea_flip_mean"], fovea_flip_ref=ref["fovea_flip_mean"],
@@ -369,8 +389,8 @@ def main(argv=None):
                   f"foveated {rec['equal_time_item']} {eq['ms']:.2f} ms fovea {eq['fovea_psnr']:.2f} dB; "
                   f"equal quality {rec['equal_quality_speedup']:.2f}x", file=sys.stderr, flush=True)
             if args.images:
-                key_eq = ("foveated", eq["path_budget"], eq["spp"])
-                key_ref = ("full", "pixel", ref["spp"])
+                key_eq = ("foveated", eq["path_budget"], eq["spp"], variants[0])
+                key_ref = ("full", "pixel", ref["spp"], "-")
                 save_pair(Path(args.images), name, w, h, lasts[key_eq], lasts[key_ref],
                           gaze_path(n - 1, n, w, h), fov_deg,
                           [f"foveated, {rec['equal_time_item']}, {eq['ms']:.1f} ms",
@@ -411,6 +431,8 @@ def plot(records, path, device_alias: str):
         groups = {}
         for it in r["items"]:
             label = "full resolution" if it["policy"] == "full" else f"foveated, {it['path_budget']} budget"
+            if it["policy"] != "full" and len(r.get("variants", [])) > 1:
+                label += f", {it['variant']}"
             groups.setdefault(label, []).append(it)
         for k, (label, its) in enumerate(groups.items()):
             its = sorted(its, key=lambda it: it["ms"])

@@ -501,12 +501,17 @@ class ReconstructionConfig:
         sibson_window: half window J in pixels of the bounded gather, in [1, 256]; None derives it from the
             foveation block size so that it covers the largest nearest-seed radius the block guarantee allows.
         bounded_jfa_start: start JFA at the step implied by the block guarantee instead of half the image.
+        demodulate: reconstruct the light each sample reflects, ``(L - E) / albedo``, and multiply it back by
+            every pixel's own G-buffer albedo (plus its emission): the texture and the colour edges stay at full
+            resolution wherever the samples are sparse (kernels/demodulate.py). None (the default): on with the
+            path integrator, off with the direct one. Not with the sparse G-buffer, which has no per-pixel albedo.
     """
 
     jfa_variant: str = "auto"
     sibson: bool = True
     sibson_window: Optional[int] = None
     bounded_jfa_start: bool = True
+    demodulate: Optional[bool] = None
 
     def __post_init__(self):
         check_choice("ReconstructionConfig.jfa_variant", self.jfa_variant, VORONOI_VARIANTS)
@@ -514,6 +519,9 @@ class ReconstructionConfig:
             check_int_range("ReconstructionConfig.sibson_window", self.sibson_window, 1, 256)
         check_bool("ReconstructionConfig.sibson", self.sibson)
         check_bool("ReconstructionConfig.bounded_jfa_start", self.bounded_jfa_start)
+        if self.demodulate is not None and not isinstance(self.demodulate, (bool, np.bool_)):
+            raise ValueError(f"ReconstructionConfig.demodulate must be True, False or None (on with the path "
+                             f"integrator), got {show(self.demodulate)}")
 
 
 @dataclass(frozen=True)

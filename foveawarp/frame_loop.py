@@ -214,6 +214,17 @@ class FrameLoop:
             self.path_filter = PathFilterStage(w, h, dev, cfg.shading.path_filter_iterations,
                                                cfg.shading.path_filter_fovea_deg)
             self.filtered = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        # albedo demodulation around the reconstruction (ReconstructionConfig.demodulate; None: with the path
+        # integrator)
+        self.demodulation = self._hdr_out = None
+        demod = cfg.reconstruction.demodulate
+        if demod is None:
+            demod = self.path is not None
+        if demod and cfg.foveation.enabled and not self.sparse_gbuffer:
+            from .stages.demodulate import DemodulateStage
+
+            self.demodulation = DemodulateStage(self.dscene, w, h, dev)
+            self.remod = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         self.tonemap = TonemapStage(cfg.shading, w, h, dev)
         self._sp_dev = self.shade.params_dev
         if graph is not None and not isinstance(graph, bool):
@@ -234,6 +245,14 @@ class FrameLoop:
         self._pol_ev_i = 0
         self._pol_ev_pending = None
         self._last_full = False
+
+    @property
+    def hdr(self) -> wp.array:
+        """The last frame's HDR radiance ((H, W) vec3) before depth of field and the tone map: the full-resolution
+        shading, or the foveated frame's reconstruction after its periphery filter and remodulation (``recon`` holds
+        the reconstruction itself, demodulated where ``ReconstructionConfig.demodulate`` is on; ``filtered`` the
+        filter's output, in the same terms)."""
+        return self._hdr_out if self._hdr_out is not None else self.radiance
 
     @property
     def policy(self) -> str:
@@ -459,6 +478,7 @@ class FrameLoop:
                 self.indirect.update()
                 self.indirect.run_full(self.gbuffer, self.radiance)
         hdr = self.radiance
+        self._hdr_out = None
         with self._stage("dof", self.config.dof.enabled and dof):
             if self.config.dof.enabled and dof:
                 cfgd = self.config.dof
@@ -609,6 +629,11 @@ class FrameLoop:
         if graph_state == "replayed" and foveated and not sparse:
             self.temporal.swap()  # the body's host-side state: the history ping-pong ...
             self.reconstruct.set_seed_mask(self.temporal.filled)  # ... and the seed mask run_interpolate reads
+        # what the body's last pass before depth of field wrote (the same buffers on a replay)
+        self._hdr_out = None
+        if foveated:
+            self._hdr_out = (self.recon if sparse else self.remod if self.demodulation is not None else
+                             self.filtered if self.path_filter is not None else self.recon)
         if ev is not None:
             self.device.stream.record_event(ev[1])
         # the policy's host work that this frame's launches do not depend on, after them: the last watched frame's
@@ -767,7 +792,10 @@ class FrameLoop:
         with self._stage("reconstruct", foveated):
             if foveated:
                 sc = cfg.shading
-                self.reconstruct.run(self.temporal.color, self.temporal.filled, self.recon,
+                seeds = self.temporal.color
+                if self.demodulation is not None:
+                    seeds = self.demodulation.demodulate(seeds, self.gbuffer)
+                self.reconstruct.run(seeds, self.temporal.filled, self.recon,
                                      display=self.image if fused else None, exposure=float(sc.exposure),
                                      white_point=float(sc.white_point))
                 hdr = self.recon
@@ -777,6 +805,10 @@ class FrameLoop:
             if foveated and self.path_filter is not None:
                 self.path_filter.run(hdr, self.gbuffer, self.sampling.frame_params, self.filtered)
                 hdr = self.filtered
+        with self._stage("remodulate", foveated and self.demodulation is not None):
+            if foveated and self.demodulation is not None:
+                self.demodulation.remodulate(hdr, self.gbuffer, self.remod)
+                hdr = self.remod
         with self._stage("dof", cfg.dof.enabled):
             if cfg.dof.enabled:
                 self.dof.run(hdr, self.gbuffer.depth, self.gbuffer.hit, cfg.dof.focus_depth_m, self.dof_out,
@@ -801,8 +833,8 @@ class FrameLoop:
             return False
         if strategy == "full":
             return self.indirect is None and self.path is None
-        if self.path_filter is not None:
-            return False  # the filter follows the reconstruction
+        if self.path_filter is not None or self.demodulation is not None:
+            return False  # the filter or the remodulation follows the reconstruction
         rc = self.reconstruct
         return bool(rc.config.sibson and not rc.exact_sibson)
 

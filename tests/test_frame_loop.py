@@ -707,7 +707,7 @@ def test_tone_map_fused_into_the_last_pass(device, policy):
         for i in range(3):
             f = loop.render(scene.camera_at(i / 30), gaze_px=(40.0 + 2 * i, 30.0))
         assert ("tonemap" in f.stats["skipped"]) == (not dof)
-        hdr = loop.dof_out if dof else (loop.recon if policy == "foveated" else loop.radiance)
+        hdr = loop.dof_out if dof else loop.hdr
         sc = loop.config.shading
         again = wp.zeros((H, W), dtype=wp.vec3, device=device)
         wp.launch(tonemap_kernel, dim=(H, W), inputs=[hdr, float(sc.exposure), float(sc.white_point)],

@@ -40,7 +40,7 @@ def _still_series(scene, cfg, device, conv, frames=24):
     errs = []
     for i in range(frames):
         f = loop.render(scene.camera, gaze_px=(0.4 * W, 0.5 * H))
-        hdr = loop.recon.numpy()
+        hdr = loop.hdr.numpy()
         assert np.isfinite(hdr).all(), i
         errs.append(float(np.sqrt(np.mean((hdr[lit] - conv[lit]) ** 2))))
         assert f.stats["paths_traced"] == int(loop.reorder.count.numpy()[0]) * PATH["spp"]

@@ -200,7 +200,7 @@ def test_textured_scene_in_the_frame_loop(device):
     errs = []
     for i in range(16):
         f = loop.render(scene.camera, gaze_px=(0.45 * w, 0.5 * h))
-        hdr = loop.recon.numpy()
+        hdr = loop.hdr.numpy()
         assert np.isfinite(hdr).all(), i
         assert f.stats["paths_traced"] == int(loop.reorder.count.numpy()[0]) * ROOM_PATH["spp"]
         errs.append(float(np.sqrt(np.mean((hdr - conv) ** 2))))

@@ -288,7 +288,7 @@ def test_path_knob_renders_path_traced_frames():
     st = s.stats_snapshot()
     n = int(s._loop.reorder.count.numpy()[0]) if st.get("sampling_rate", 1.0) < 1.0 else W * H
     assert st["paths_traced"] == 2 * n and "rays_traced" not in st
-    assert np.isfinite(s._loop.recon.numpy()).all()
+    assert np.isfinite(s._loop.hdr.numpy()).all()
 
 
 def test_path_filter_knob_filters_the_foveated_frame():
