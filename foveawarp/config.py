@@ -389,7 +389,7 @@ class ShadingConfig:
         radiance_clamp: None (default: unbiased) or the largest channel value, linear radiance in
             (0, float32 max], that one path of the "path" integrator may contribute: a path above it is scaled
             down to it (hue kept). It trades bias for fewer fireflies; leave it off for references.
-        path_filter: "none" (default) or "atrous": a foveated frame of the "path" integrator filters its
+        path_filter: "atrous" (default) or "none": a foveated frame of the "path" integrator filters its
             reconstructed periphery with edge-avoiding a-trous iterations guided by the G-buffer
             (``foveawarp.stages.path_filter``), leaving the fovea as traced.
         path_filter_iterations: a-trous iterations (steps 1, 2, 4, ... pixels), in [1, 5].
@@ -422,7 +422,7 @@ class ShadingConfig:
     max_spp: int = 64
     rr_depth: int = 5
     radiance_clamp: Optional[float] = None
-    path_filter: str = "none"
+    path_filter: str = "atrous"
     path_filter_iterations: int = 3
     path_filter_fovea_deg: float = 5.0
     background: tuple = (0.02, 0.02, 0.03)
