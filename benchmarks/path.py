@@ -7,7 +7,8 @@ history), the others are each synchronized and timed (median ms) and scored:
 
 * the full-resolution frame (``FrameLoop(policy="full")``: every pixel traced, no reuse) at each ``--full-spp``;
 * the foveated frame (``policy="foveated"``: the sampled pixels traced, the temporal resolve accumulating the
-  paths with history clipping, Sibson reconstruction) at each ``--fov-spp`` under each ``--budgets`` item
+  paths with history clipping, Sibson reconstruction; with demodulation and the periphery filter per
+  ``--variants`` item, by default the path integrator's defaults) at each ``--fov-spp`` under each ``--budgets`` item
   (``ShadingConfig.path_budget``: "pixel", spp paths at every traced pixel; "frame", a full-resolution frame's
   spp x W x H paths shared by sampling probability, at most ``--max-spp`` per pixel).
 
@@ -30,7 +31,8 @@ Read off per scene and size:
   only a lower bound (the best item's time), flagged. ``equal_quality_speedup`` is that of the default
   foveated item (the first ``--fov-spp`` of the first budget);
 * equal time: the full-resolution frame at the first ``--full-spp`` (``ref_ms``) against the slowest foveated item
-  that is not slower than it (``fov_ms``; with none, the fastest foveated item, flagged).
+  that is not slower than it (``fov_ms``; with none, the fastest foveated item, flagged); the read-offs are the
+  first ``--variants`` item's, ``equal_time_by_variant`` gives each variant's.
 
 Writes path-<tag>.json / .md and path-<tag>.png (fovea PSNR against frame ms, both curves, per scene and size);
 ``--images DIR``: the equal-time pair's last frame per scene and size, the gaze and the 5-degree fovea marked.
@@ -256,11 +258,13 @@ def main(argv=None):
     p.add_argument("--fov-spp", default="1,2,4,8", help="comma list of the foveated frame's spp")
     p.add_argument("--budgets", default="pixel,frame", help="comma list of ShadingConfig.path_budget items")
     p.add_argument("--max-spp", type=int, default=64, help="ShadingConfig.max_spp of the 'frame' budget")
-    p.add_argument("--variants", default="demod",
+    p.add_argument("--variants", default="demod+filter",
                    help="comma list of the foveated frames' reconstruction: plain (ReconstructionConfig.demodulate "
-                        "off, no filter), demod (on: the path integrator's default), filter (off, ShadingConfig."
-                        "path_filter 'atrous'), demod+filter; the first is the read-offs' (the full-resolution "
-                        "frames have neither)")
+                        "off, ShadingConfig.path_filter 'none'), demod (demodulated, no filter), filter (the filter "
+                        "alone), demod+filter (both: the path integrator's defaults); the first is the read-offs' "
+                        "(the full-resolution frames have neither)")
+    p.add_argument("--summarize", default=None, metavar="FILE.json",
+                   help="render nothing: write FILE's markdown tables and plot again next to it from its records")
     p.add_argument("--frames", type=int, default=16, help="timed and scored frames per item")
     p.add_argument("--warm", type=int, default=6, help="untimed frames before them")
     p.add_argument("--fovea-spp", type=int, default=1024, help="paths per pixel of the fovea's converged target")
@@ -273,6 +277,9 @@ def main(argv=None):
                         "each with its own commit")
     p.add_argument("--images", default=None, metavar="DIR", help="write the equal-time pair's last frame here")
     args = p.parse_args(argv)
+    if args.summarize:
+        summarize(args.summarize)
+        return
     import foveawarp as fw
     from foveawarp.metrics import eccentricity_np, flip_available, fovvdp_available
 
@@ -397,6 +404,14 @@ def main(argv=None):
                            f"full resolution, {ref['spp']} spp, {ref['ms']:.1f} ms"])
     done = {(r["scene"], r["width"], r["height"]) for r in records}
     records = [r for r in kept if (r["scene"], r["width"], r["height"]) not in done] + records
+    write_results("path", dev, records, tables(records), args.out, args.tag,
+                  extra={"flip": flip_on, "fovvdp": fvvdp_on})
+    plot(records, plot_path("path", dev, args.out, args.tag), wp.get_device(dev).alias)
+
+
+def tables(records) -> str:
+    """The markdown of a path JSON's records: the read-offs per scene and size, and, where a record measured more
+    than one ``--variants`` item, each variant's equal-time item."""
     rows = [{"scene": r["scene"], "size": f"{r['width']}x{r['height']}",
              "ref (spp, ms)": f"{r['ref_spp']}, {r['ref_ms']:.2f}",
              "fov (item, ms)": f"{r['equal_time_item']}, {r['fov_ms']:.2f}",
@@ -406,9 +421,34 @@ def main(argv=None):
              "equal-quality speed-up": f"{'>=' if r['equal_quality_lower_bound'] else ''}"
                                        f"{r['equal_quality_speedup']:.2f}x ({r['equal_quality_item']})"}
             for r in records]
-    write_results("path", dev, records, md_table(rows), args.out, args.tag,
-                  extra={"flip": flip_on, "fovvdp": fvvdp_on})
-    plot(records, plot_path("path", dev, args.out, args.tag), wp.get_device(dev).alias)
+    out = md_table(rows)
+    vrows = []
+    for r in records:
+        by = r.get("equal_time_by_variant") or {}
+        if len(by) < 2:
+            continue
+        for v, e in by.items():
+            vrows.append({"scene": r["scene"], "size": f"{r['width']}x{r['height']}",
+                          "full res (spp, ms)": f"{r['ref_spp']}, {r['ref_ms']:.2f}", "variant": v,
+                          "fov (item, ms)": f"{e['item']}, {e['ms']:.2f}" + ("" if e["within"] else " (slower)"),
+                          "fovea PSNR fov/ref": f"{e['fovea_psnr']:.2f} / {r['fovea_psnr_ref']:.2f}",
+                          "fovea FLIP fov/ref": _pair(e["fovea_flip"], r["fovea_flip_ref"], "{:.3f}"),
+                          "PSNR fov/ref": _pair(e["psnr"], r["psnr_ref"], "{:.2f}"),
+                          "JOD fov/ref": _pair(e["fvvdp_jod"], r["fvvdp_jod_ref"], "{:.2f}")})
+    if vrows:
+        out += "\n\n## Equal time by variant of the foveated reconstruction\n\n" + md_table(vrows)
+    return out
+
+
+def summarize(json_path) -> None:
+    """``--summarize``: the .md and .png of a path JSON written again from its records (its device and commit)."""
+    import json
+
+    p = Path(json_path)
+    d = json.loads(p.read_text())
+    p.with_suffix(".md").write_text(f"# path on {d['device']} ({d['device_alias']}), commit {d['commit'][:12]}\n\n"
+                                    f"{tables(d['records'])}\n")
+    plot(d["records"], p.with_suffix(".png"), d["device_alias"])
 
 
 def _pair(a, b, fmt):

@@ -391,7 +391,9 @@ class ShadingConfig:
             down to it (hue kept). It trades bias for fewer fireflies; leave it off for references.
         path_filter: "atrous" (default) or "none": a foveated frame of the "path" integrator filters its
             reconstructed periphery with edge-avoiding a-trous iterations guided by the G-buffer
-            (``foveawarp.stages.path_filter``), leaving the fovea as traced.
+            (``foveawarp.stages.path_filter``), leaving the fovea as traced. On by default: at 1920x1080 on an
+            H200 it raised the foveated frame's FovVideoVDP at equal time from 6.83 to 7.60 JOD on cornell and,
+            with the demodulated reconstruction, from 6.83 to 7.42 on the textured room, for 1.2-1.9 ms a frame.
         path_filter_iterations: a-trous iterations (steps 1, 2, 4, ... pixels), in [1, 5].
         path_filter_fovea_deg: eccentricity in degrees within which the frame is not filtered, in [0, 90]; the
             filter reaches full strength at twice it.

@@ -215,7 +215,8 @@ class FrameLoop:
                                                cfg.shading.path_filter_fovea_deg)
             self.filtered = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         # albedo demodulation around the reconstruction (ReconstructionConfig.demodulate; None: with the path
-        # integrator)
+        # integrator, whose periphery filter it keeps off the texture: the room's equal-time FovVideoVDP at 1080p on
+        # an H200, 6.83 JOD with the filter alone, 7.42 with both)
         self.demodulation = self._hdr_out = None
         demod = cfg.reconstruction.demodulate
         if demod is None:

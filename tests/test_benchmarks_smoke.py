@@ -198,6 +198,34 @@ def test_path(tmp_path):
     assert [x["scene"] for x in _result("path", tmp_path)["records"]] == ["elsewhere", "cornell"]
 
 
+def test_path_variants_and_summarize(tmp_path):
+    """path.py --variants: each foveated item once per variant, with its own configuration (the filtered ones
+    differ from the plain ones outside the fovea), the equal-time read-off per variant and its table; a bad
+    list refused; --summarize writes the markdown and the plot again from the JSON alone."""
+    _run("path", ["--device", "cpu", "--quick", "--scenes", "cornell", "--budgets", "pixel",
+                  "--variants", "demod+filter,plain"], tmp_path)
+    res = _result("path", tmp_path)
+    (r,) = res["records"]
+    assert r["variants"] == ["demod+filter", "plain"]
+    fov = {it["variant"]: it for it in r["items"] if it["policy"] == "foveated"}
+    assert set(fov) == {"demod+filter", "plain"} and {it["variant"] for it in r["items"]
+                                                        if it["policy"] == "full"} == {"-"}
+    # the fovea as traced in both, the rest of the frame filtered in one
+    assert fov["demod+filter"]["fovea_psnr"] == pytest.approx(fov["plain"]["fovea_psnr"], abs=0.01)
+    assert fov["demod+filter"]["psnr_mean"] != fov["plain"]["psnr_mean"]
+    by = r["equal_time_by_variant"]
+    assert set(by) == {"demod+filter", "plain"} and r["equal_time_item"] == by["demod+filter"]["item"]
+    md = (tmp_path / "path-cpu.md").read_text()
+    assert "Equal time by variant" in md and "| demod+filter |" in md and "| plain |" in md
+    (tmp_path / "path-cpu.md").unlink()
+    (tmp_path / "path-cpu.png").unlink(missing_ok=True)
+    _run("path", ["--summarize", str(tmp_path / "path-cpu.json")], tmp_path)
+    assert (tmp_path / "path-cpu.md").read_text() == md
+    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "path.py"), "--variants", "plain,svgf"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "--variants must be a comma list of distinct plain, demod" in r.stderr
+
+
 def test_reorder(tmp_path):
     """reorder.py: per scene, shading, mask and rate the full, masked ("none") and reordered times, each strategy's
     total the sum of its compaction and tracing, the best the fastest, the achieved rate near the asked one."""
@@ -394,8 +422,8 @@ def test_help_shows_the_common_options_and_the_canonical_run(capsys):
 
 def test_canonical_sh_parts(tmp_path):
     """tools/canonical.sh with a stand-in python that logs its arguments: part1 and part2 together run every
-    entry point but path once, each part its own, part3 the textured frame and stages runs, part4 path at two
-    sizes; a list runs the names given; an unknown name is refused; without
+    entry point but path once, each part its own, part3 the textured frame and stages runs, part4 the five path
+    runs; a list runs the names given; an unknown name is refused; without
     frame-h200.json the README step fails and the exit status says so."""
     fake = tmp_path / "bin"
     fake.mkdir()
@@ -423,7 +451,7 @@ def test_canonical_sh_parts(tmp_path):
     r5, s5 = run("part3")
     assert r5.returncode == 0 and s5 == ["benchmarks/frame.py", "benchmarks/stages.py"], r5.stderr
     r6, s6 = run("part4")
-    assert r6.returncode == 0 and s6 == ["benchmarks/path.py", "benchmarks/path.py"], r6.stderr
+    assert r6.returncode == 0 and s6 == ["benchmarks/path.py"] * 5, r6.stderr
     assert set(s1[:2]) | set(s2) | set(s5) | set(s6) == entries
     r3, s3 = run("dof", "cpu")
     assert r3.returncode == 0 and s3 == ["benchmarks/dof.py", "benchmarks/cpu.py"]

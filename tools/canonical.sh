@@ -9,12 +9,14 @@
 #   part2   stages, dof, indirect, viewer, robustness, cpu (estimated 7 minutes)
 #   part3   textured (frame-textured: the textured scenes), textures (stages-textures: their G-buffer and shading
 #           with and without textures) (estimated 10 minutes)
-#   part4   path (path: foveated against full-resolution path tracing at 1920x1080, then path4k: at 3840x2160,
-#           kept in the same JSON) (estimated 2 x 8 minutes)
+#   part4   path (path: foveated against full-resolution path tracing on cornell, bunny, city at 1920x1080, then
+#           path4k: at 3840x2160; pathrooms: the textured room and the Grey & White Room at 1920x1080,
+#           pathrooms4k: the room at 3840x2160, all kept in the same JSON), pathvariants (path-variants: the
+#           foveated reconstruction with and without demodulation and filter) (estimated 5 x 6 minutes)
 #   all     part1 to part4 (the default)
 #   readme  only the README's results table, from benchmarks/results/frame-h200.json
 #   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu,
-#           textured, textures, path, path4k)
+#           textured, textures, path, path4k, pathrooms, pathrooms4k, pathvariants)
 #
 # The GPU machine has a copy of the working tree without .git: set FOVEAWARP_COMMIT to the commit it came from
 # (every JSON records it). Meshes that assets/ does not ship (nefertiti) are read from $FOVEAWARP_SCENES or a
@@ -71,6 +73,24 @@ canonical_path4k() {
     run path4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
         --scenes cornell,bunny,city --sizes 3840x2160 --images benchmarks/out/path-images "${keep[@]}"
 }
+canonical_pathrooms() {
+    local keep=()
+    [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
+    run pathrooms python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes room,grey-white-room --sizes 1920x1080 --converged-spp 48 --warm 4 \
+        --images benchmarks/out/path-images "${keep[@]}"
+}
+canonical_pathrooms4k() {
+    local keep=()
+    [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
+    run pathrooms4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes room --sizes 3840x2160 --converged-spp 48 --warm 4 "${keep[@]}"
+}
+canonical_pathvariants() {
+    run pathvariants python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag variants-h200 \
+        --scenes cornell,room --sizes 1920x1080 --full-spp 1,2,4 --fov-spp 1,2,4 --budgets pixel \
+        --variants plain,demod,filter,demod+filter --converged-spp 48 --warm 4 --fovea-spp 512
+}
 canonical_reorder() {
     run reorder python benchmarks/reorder.py --device cuda:0 --out benchmarks/results --tag h200 \
         --scenes cornell,city,bunny --sizes 1920x1080,3840x2160
@@ -118,8 +138,9 @@ canonical_readme() {
 PART1=(frame reorder readme)
 PART2=(stages dof indirect viewer robustness cpu)
 PART3=(textured textures)
-PART4=(path path4k)
-ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures path path4k readme)
+PART4=(path path4k pathrooms pathrooms4k pathvariants)
+ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures path path4k pathrooms pathrooms4k
+         pathvariants readme)
 
 todo=()
 [ $# -eq 0 ] && set -- all
