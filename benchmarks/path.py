@@ -343,7 +343,8 @@ def main(argv=None):
                 res[(policy, budget, spp, variant)] = out
                 lasts[(policy, budget, spp, variant)] = last
             rec = {"scene": name, "width": w, "height": h, "integrator": "path", "max_depth": args.max_depth,
-                   "variants": variants, "frames": args.frames, "warm": args.warm, "fovea_deg": FOVEA_DEG, "fovea_spp": args.fovea_spp,
+                   "variants": variants, "frames": args.frames, "warm": args.warm, "fovea_deg": FOVEA_DEG,
+                   "fovea_spp": args.fovea_spp,
                    "converged_spp": args.converged_spp if whole else 0, "target_s": round(target_s, 1),
                    "commit": git_commit(), "items": []}
             for (policy, budget, spp, variant), o in res.items():

@@ -1,8 +1,8 @@
-"""Albedo demodulation around the reconstruction (kernels/demodulate.py, stages/demodulate.py): both kernels
-against a NumPy transcription of the module's formulas (1e-6 relative), the round trip at traced pixels, finite
-output for any input (hypothesis), and inside FrameLoop: the traced pixels as without it, the texture kept where
-the samples are sparse (a textured scene's periphery closer to the full-resolution frame), the auto rule, and the
-configuration's validation."""
+"""Albedo demodulation around the reconstruction (kernels/demodulate.py, stages/demodulate.py): the kernel's two
+modes against a NumPy transcription of the module's formulas (1e-6 relative), the round trip at traced pixels,
+finite output for any input (hypothesis), and inside FrameLoop: the traced pixels as without it, the texture kept
+where the samples are sparse (a textured scene's periphery closer to the full-resolution frame), the auto rule,
+the path defaults finite on degenerate scenes (hypothesis), and the configuration's validation."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import foveawarp as fw
-from foveawarp.kernels.demodulate import ALBEDO_FLOOR, demodulate_kernel, remodulate_kernel
+from foveawarp.kernels.demodulate import ALBEDO_FLOOR, modulate_kernel
 from foveawarp.metrics import eccentricity_np
 
 FLOOR = float(ALBEDO_FLOOR)
@@ -29,9 +29,12 @@ def np_remod(d, hit, a, e):
     return np.where(hit[..., None], r, d)
 
 
-def _launch(kernel, src, hit, a, e, face=None, textured=True, dev="cpu"):
-    """One kernel over (H, W, 3) inputs: per pixel albedo and emission (``textured``), else by ``face`` into the
-    (F, 3) tables ``a`` and ``e``."""
+DEMOD, REMOD = 0, 1
+
+
+def _launch(mode, src, hit, a, e, face=None, textured=True, dev="cpu"):
+    """The kernel in ``mode`` (DEMOD, REMOD) over (H, W, 3) inputs: per pixel albedo and emission
+    (``textured``), else by ``face`` into the (F, 3) tables ``a`` and ``e``."""
     h, w = hit.shape
     v3 = lambda x: wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec3, device=dev)  # noqa: E731
     one = wp.zeros((1, 1), dtype=wp.vec3, device=dev)
@@ -41,8 +44,8 @@ def _launch(kernel, src, hit, a, e, face=None, textured=True, dev="cpu"):
     else:
         args = [0, one, one, wp.array(face.astype(np.int32), dtype=wp.int32, device=dev), v3(a), v3(e)]
     out = wp.zeros((h, w), dtype=wp.vec3, device=dev)
-    wp.launch(kernel, dim=(h, w), inputs=[v3(src), wp.array(hit.astype(np.uint8), dtype=wp.uint8, device=dev),
-                                          *args, out, 0], device=dev)
+    wp.launch(modulate_kernel, dim=(h, w), inputs=[v3(src), wp.array(hit.astype(np.uint8), dtype=wp.uint8,
+                                                                     device=dev), *args, mode, out, 0], device=dev)
     return out.numpy().astype(np.float64)
 
 
@@ -60,9 +63,9 @@ def _inputs(seed, h=7, w=9):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_kernels_match_numpy(seed):
     (c, a, e), hit = _inputs(seed)
-    np.testing.assert_allclose(_launch(demodulate_kernel, c, hit, a, e), np_demod(c, hit, a, e), rtol=1e-6,
+    np.testing.assert_allclose(_launch(DEMOD, c, hit, a, e), np_demod(c, hit, a, e), rtol=1e-6,
                                atol=1e-7)
-    np.testing.assert_allclose(_launch(remodulate_kernel, c, hit, a, e), np_remod(c, hit, a, e), rtol=1e-6,
+    np.testing.assert_allclose(_launch(REMOD, c, hit, a, e), np_remod(c, hit, a, e), rtol=1e-6,
                                atol=1e-7)
 
 
@@ -77,16 +80,16 @@ def test_face_tables_match_numpy():
     face = rng.integers(0, nf, (h, w))
     hit = rng.uniform(size=(h, w)) > 0.2
     c = rng.uniform(0.0, 6.0, (h, w, 3)).astype(np.float32).astype(np.float64)
-    got = _launch(demodulate_kernel, c, hit, fa, fe, face=face, textured=False)
+    got = _launch(DEMOD, c, hit, fa, fe, face=face, textured=False)
     np.testing.assert_allclose(got, np_demod(c, hit, fa[face], fe[face]), rtol=1e-6, atol=1e-7)
-    got = _launch(remodulate_kernel, c, hit, fa, fe, face=face, textured=False)
+    got = _launch(REMOD, c, hit, fa, fe, face=face, textured=False)
     np.testing.assert_allclose(got, np_remod(c, hit, fa[face], fe[face]), rtol=1e-6, atol=1e-7)
 
 
 def test_round_trip_where_radiance_holds_the_emission():
     (c, a, e), hit = _inputs(3)
     c = c + e  # L >= E, as at every traced pixel
-    back = _launch(remodulate_kernel, _launch(demodulate_kernel, c, hit, a, e), hit, a, e)
+    back = _launch(REMOD, _launch(DEMOD, c, hit, a, e), hit, a, e)
     np.testing.assert_allclose(back, c, rtol=2e-6, atol=1e-6)
 
 
@@ -105,7 +108,7 @@ def test_finite_for_any_input(c, a, e, bad):
     ee = np.broadcast_to(np.array(e), (1, 2, 3))
     hit = np.ones((1, 2), bool)
     with np.errstate(all="ignore"):
-        for k in (demodulate_kernel, remodulate_kernel):
+        for k in (DEMOD, REMOD):
             assert np.isfinite(_launch(k, cc, hit, aa, ee)).all()
 
 
@@ -155,3 +158,28 @@ def test_auto_rule_and_validation(device):
     for bad in ("yes", 1, 0.5):
         with pytest.raises(ValueError, match="ReconstructionConfig.demodulate must be True, False or None"):
             fw.ReconstructionConfig(demodulate=bad)
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.integers(1, 24), st.integers(1, 16), st.floats(-2.0, 2.0), st.floats(-2.0, 2.0), st.integers(0, 3),
+       st.booleans())
+def test_path_defaults_finite_on_degenerate_scenes(w, h, gx, gy, kind, black):
+    """The path integrator's defaults (demodulated reconstruction, periphery filter) on tiny frames, the gaze
+    anywhere (off screen too), faces of albedo 0 and emitting faces: every frame finite and >= 0."""
+    import dataclasses
+
+    base = fw.load_scene("cornell", area_light=True)
+    rng = np.random.default_rng(w * 31 + h)
+    alb = np.asarray(base.face_albedo, np.float64).copy()
+    emi = np.zeros_like(alb)
+    pick = rng.uniform(size=len(alb))
+    if black:
+        alb[pick < 0.5] = 0.0
+    emi[pick > 0.8] = rng.uniform(0.0, 50.0, (int((pick > 0.8).sum()), 3))
+    scene = dataclasses.replace(base, face_albedo=alb, face_emission=emi)
+    cfg = fw.Config().with_(shading={"integrator": "path", "max_depth": 1 + kind, "spp": 1})
+    loop = fw.FrameLoop(scene, w, h, config=cfg, device="cpu", policy="foveated")
+    for i in range(3):
+        f = loop.render(scene.camera_at(i / 30.0), gaze_px=(gx * w, gy * h))
+        for a in (loop.hdr.numpy(), f.numpy()):
+            assert np.isfinite(a).all() and (a >= 0).all()

@@ -44,33 +44,22 @@ def pixel_albedo_emission(y: int, x: int, textured: int, albedo: wp.array2d(dtyp
 
 
 @wp.kernel(enable_backward=False)
-def demodulate_kernel(color: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8), textured: int,
-                      albedo: wp.array2d(dtype=wp.vec3), emission: wp.array2d(dtype=wp.vec3),
-                      face: wp.array2d(dtype=wp.int32), face_albedo: wp.array(dtype=wp.vec3),
-                      face_emission: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3), row0: int):
-    """out = max(color - E, 0) / max(a, ALBEDO_FLOOR) at hits, color at misses (the module docstring)."""
+def modulate_kernel(src: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8), textured: int,
+                    albedo: wp.array2d(dtype=wp.vec3), emission: wp.array2d(dtype=wp.vec3),
+                    face: wp.array2d(dtype=wp.int32), face_albedo: wp.array(dtype=wp.vec3),
+                    face_emission: wp.array(dtype=wp.vec3), remodulate: int, out: wp.array2d(dtype=wp.vec3),
+                    row0: int):
+    """At hits, ``remodulate`` 0: out = max(src - E, 0) / max(a, ALBEDO_FLOOR); 1: out = max(src, 0) *
+    max(a, ALBEDO_FLOOR) + E (the module docstring). Misses keep ``src``."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    c = color[y, x]
+    c = src[y, x]
     if hit[y, x] == wp.uint8(0):
         out[y, x] = c
         return
     a, e = pixel_albedo_emission(y, x, textured, albedo, emission, face, face_albedo, face_emission)
-    r = wp.max(c - e, wp.vec3(0.0, 0.0, 0.0))
-    out[y, x] = finite_or_zero(wp.cw_div(r, a))
-
-
-@wp.kernel(enable_backward=False)
-def remodulate_kernel(demod: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8), textured: int,
-                      albedo: wp.array2d(dtype=wp.vec3), emission: wp.array2d(dtype=wp.vec3),
-                      face: wp.array2d(dtype=wp.int32), face_albedo: wp.array(dtype=wp.vec3),
-                      face_emission: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec3), row0: int):
-    """out = max(demod, 0) * max(a, ALBEDO_FLOOR) + E at hits, demod at misses (the module docstring)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    d = demod[y, x]
-    if hit[y, x] == wp.uint8(0):
-        out[y, x] = d
-        return
-    a, e = pixel_albedo_emission(y, x, textured, albedo, emission, face, face_albedo, face_emission)
-    out[y, x] = finite_or_zero(wp.cw_mul(wp.max(d, wp.vec3(0.0, 0.0, 0.0)), a) + e)
+    z = wp.vec3(0.0, 0.0, 0.0)
+    if remodulate != 0:
+        out[y, x] = finite_or_zero(wp.cw_mul(wp.max(c, z), a) + e)
+    else:
+        out[y, x] = finite_or_zero(wp.cw_div(wp.max(c - e, z), a))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import warp as wp
 
 from .. import parallel
-from ..kernels.demodulate import demodulate_kernel, remodulate_kernel
+from ..kernels.demodulate import modulate_kernel
 
 __all__ = ["DemodulateStage"]
 
@@ -35,14 +35,14 @@ class DemodulateStage:
 
     def demodulate(self, color, gbuffer) -> wp.array:
         """``color`` ((H, W) vec3 radiance) demodulated into ``self.demod``, which is returned."""
-        parallel.launch(demodulate_kernel, dim=(self.height, self.width),
-                        inputs=[color, gbuffer.hit, *self._surface_args(gbuffer)], outputs=[self.demod],
+        parallel.launch(modulate_kernel, dim=(self.height, self.width),
+                        inputs=[color, gbuffer.hit, *self._surface_args(gbuffer), 0], outputs=[self.demod],
                         device=self.device)
         return self.demod
 
     def remodulate(self, demod, gbuffer, out) -> None:
         """``demod`` ((H, W) vec3, a reconstruction of demodulated values) times each pixel's albedo plus its
         emission into ``out`` (another (H, W) vec3 array)."""
-        parallel.launch(remodulate_kernel, dim=(self.height, self.width),
-                        inputs=[demod, gbuffer.hit, *self._surface_args(gbuffer)], outputs=[out],
+        parallel.launch(modulate_kernel, dim=(self.height, self.width),
+                        inputs=[demod, gbuffer.hit, *self._surface_args(gbuffer), 1], outputs=[out],
                         device=self.device)
