@@ -725,6 +725,16 @@ def indirect_points_kernel(
     out[i] = indirect_radiance(ip, pos[i], normal[i], albedo[i])
 
 
+@wp.func
+def receiver_albedo(textured: int, albedo: wp.array2d(dtype=wp.vec3), face_albedo: wp.array(dtype=wp.vec3),
+                    face: wp.array2d(dtype=wp.int32), y: int, x: int) -> wp.vec3:
+    """The receiving pixel's albedo: a textured G-buffer's per-pixel base colour (texture x factor), else its
+    face's colour."""
+    if textured != 0:
+        return albedo[y, x]
+    return surface_albedo(face_albedo, face[y, x])
+
+
 @wp.kernel(enable_backward=False)
 def indirect_full_kernel(
     ip: IndirectParams,
@@ -733,16 +743,18 @@ def indirect_full_kernel(
     face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
+    textured: int,
+    albedo: wp.array2d(dtype=wp.vec3),
     radiance: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """radiance[y, x] += indirect radiance at every hit pixel (albedo: the scene's per-face table by ``face``)."""
+    """radiance[y, x] += indirect radiance at every hit pixel (:func:`receiver_albedo`)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
-                                                        surface_albedo(face_albedo, face[y, x]))
+                                                        receiver_albedo(textured, albedo, face_albedo, face, y, x))
 
 
 @wp.kernel(enable_backward=False)
@@ -756,6 +768,8 @@ def indirect_list_kernel(
     face_albedo: wp.array(dtype=wp.vec3),
     face: wp.array2d(dtype=wp.int32),
     hit: wp.array2d(dtype=wp.uint8),
+    textured: int,
+    albedo: wp.array2d(dtype=wp.vec3),
     radiance: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
@@ -768,4 +782,4 @@ def indirect_list_kernel(
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
-                                                        surface_albedo(face_albedo, face[y, x]))
+                                                        receiver_albedo(textured, albedo, face_albedo, face, y, x))

@@ -168,6 +168,7 @@ class IndirectStage:
         self.config = config
         self.dscene = dscene
         self.device = get_device(device if device is not None else dscene.device)
+        self._no_albedo = wp.zeros((1, 1), dtype=wp.vec3, device=self.device)  # the gathers' untextured placeholder
         if self.device != dscene.device:
             raise ValueError(f"device must be the scene's device {dscene.device.alias!r}, got {self.device.alias!r}")
         self.method = check_choice("method", method, METHODS)
@@ -438,15 +439,21 @@ class IndirectStage:
             raise ValueError(f"gbuffer must be on {self.device}, got {gbuffer.position.device}")
         return gbuffer
 
+    def _receiver_args(self, g) -> list:
+        """(textured, per-pixel albedo) of the gather kernels: a textured G-buffer's stored base colour, else a
+        placeholder (the face table is read)."""
+        return [1, g.albedo] if g.textured else [0, self._no_albedo]
+
     def run_full(self, gbuffer, radiance) -> None:
         """``radiance[y, x] += indirect`` at every hit pixel of ``gbuffer`` (reads position, normal, face, hit;
-        the albedo is the scene's per face)."""
+        the receiver's albedo is a textured G-buffer's per-pixel base colour, else the scene's per face)."""
         g = self._check_gbuffer(gbuffer)
         self._check("radiance", radiance, wp.vec3, shape=tuple(g.position.shape))
         if not self.enabled:
             return
         parallel.launch(indirect_full_kernel, dim=(g.position.shape[0], g.position.shape[1]),
-                        inputs=[self.params, g.position, g.normal, self.dscene.face_albedo, g.face, g.hit],
+                        inputs=[self.params, g.position, g.normal, self.dscene.face_albedo, g.face, g.hit,
+                                *self._receiver_args(g)],
                         outputs=[radiance], device=self.device)
 
     def run_list(self, gbuffer, work, count, radiance, width: int) -> None:
@@ -463,7 +470,7 @@ class IndirectStage:
             return
         parallel.launch(indirect_list_kernel, dim=work.shape[0],
                         inputs=[self.params, work, count, int(width), g.position, g.normal, self.dscene.face_albedo,
-                                g.face, g.hit],
+                                g.face, g.hit, *self._receiver_args(g)],
                         outputs=[radiance], device=self.device, count=count)
 
     def run_points(self, pos=None, normal=None, albedo=None, out=None) -> None:
