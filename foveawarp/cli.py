@@ -175,6 +175,10 @@ def _write_dof(scene, width, height, device, out_dir: Path) -> None:
     except ImportError:
         print("depth of field comparison not available in this build", file=sys.stderr)
         return
+    if scene.materials is not None:
+        print(f"depth of field comparison skipped: its thin-lens reference shades per-face colours, and scene "
+              f"{scene.name!r} has materials", file=sys.stderr)
+        return
     imgs = render_dof_comparison(scene, scene.camera, width, height, device=device)
     _write_png(out_dir / "dof_comparison.png", np.concatenate(list(imgs.values()), axis=1))
     (out_dir / "dof_comparison.txt").write_text("left to right: " + ", ".join(imgs.keys()) + "\n")

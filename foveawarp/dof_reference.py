@@ -132,6 +132,11 @@ def render_thin_lens(loop_or_scene, camera: Camera, width: int, height: int,
         raise ValueError(f"dof_config must be a foveawarp.DofConfig, got {type(dof_config).__name__}")
     samples = check_int_range("samples", samples, 1, 4096)
     loop = _as_loop(loop_or_scene, width, height, device)
+    from .surface import is_textured
+
+    if is_textured(loop.dscene):
+        raise ValueError(f"render_thin_lens shades with per-face colours and point / area lights only: scene "
+                         f"{loop.dscene.scene.name!r} has materials (textures, glTF BSDF); use an untextured scene")
     w, h = loop.width, loop.height
     if samples * w * h >= 2**31:
         raise ValueError(f"samples * width * height must be below 2^31, got {samples} * {w} * {h}")

@@ -12,6 +12,7 @@ import warp as wp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import foveawarp as fw
 from foveawarp import parallel
 from foveawarp.config import DofConfig
 from foveawarp.kernels.dof import FOCUS_FAR_M, DofParams, coc_kernel, dof_normalize_kernel
@@ -174,6 +175,16 @@ def test_invalid_arguments_name_the_parameter():
     st_ = DofStage(4, 4, DofConfig(aperture_m=0.01), "cpu")
     with pytest.raises(ValueError, match="focus_depth_m"):
         st_.set_focus(0.01)
+
+
+def test_thin_lens_reference_refuses_a_textured_scene():
+    """The thin-lens reference shades per-face colours: a scene with materials is refused by name, not rendered
+    with its textures silently dropped."""
+    from foveawarp.dof_reference import render_thin_lens
+
+    room = fw.load_scene("room")
+    with pytest.raises(ValueError, match="render_thin_lens shades with per-face colours.*'room' has materials"):
+        render_thin_lens(room, room.camera, 16, 9, device="cpu")
 
 
 # ---------------------------------------------------------------------------------------------------------
