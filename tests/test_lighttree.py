@@ -1032,3 +1032,35 @@ def test_textured_receivers_take_the_texture(device):
     rad2 = wp.zeros(g.position.shape, dtype=wp.vec3, device=device)
     stage.run_list(g, work, count, rad2, g.position.shape[1])
     np.testing.assert_allclose(rad2.numpy()[m], ind[m], rtol=1e-5, atol=1e-7)
+
+
+def test_textured_vpls_take_the_texture(device):
+    """On a scene with materials each VPL's flux is the light's times the base colour of the texture where its
+    ray hits (not the face's mean): a quad textured in four pure quadrants (red, green, blue, white; nearest
+    filtering) under a point light gives VPLs whose flux has only their quadrant's channels."""
+    from foveawarp.materials import Material, TextureRef
+    from foveawarp.scene import Light, Scene
+
+    img = np.zeros((2, 2, 3), np.float32)
+    img[0, 0], img[0, 1], img[1, 0], img[1, 1] = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float32)  # glTF UVs: (0, 0) at the image's top-left
+    f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    m = Material(base_color_texture=TextureRef(0, filter="nearest", color_space="srgb"), metallic_factor=0.0)
+    scene = Scene(v, f, None, uvs=uv, face_material=np.zeros(2, np.int32), materials=[m], images=[img],
+                  lights=[Light(position=(0.0, 0.0, 2.0), intensity=(3.0, 3.0, 3.0))])
+    ds = DeviceScene(scene, device)
+    stage = IndirectStage(ds, IndirectConfig(rsm_size=64, start_level=2, limit_level=4), device)
+    stage.update()
+    leaf = stage._levels[stage.leaf_level]
+    flux, pos, depth = leaf[0].numpy(), leaf[1].numpy(), leaf[3].numpy()
+    on = (depth > 0) & (np.abs(pos[:, 0]) > 0.05) & (np.abs(pos[:, 1]) > 0.05)
+    assert on.sum() > 100 and np.isfinite(flux).all()
+    want = {(-1, 1): (1, 0, 0), (1, 1): (0, 1, 0), (-1, -1): (0, 0, 1), (1, -1): (1, 1, 1)}
+    for (sx, sy), col in want.items():
+        q = on & (np.sign(pos[:, 0]) == sx) & (np.sign(pos[:, 1]) == sy)
+        assert q.sum() > 20, (sx, sy)
+        col = np.asarray(col, bool)
+        assert (flux[q][:, col] > 0).all() and np.all(flux[q][:, ~col] == 0), (sx, sy)
+        if col.all():  # white: the channels equal
+            np.testing.assert_allclose(flux[q][:, 0], flux[q][:, 1], rtol=1e-6)

@@ -56,6 +56,7 @@ import warp as wp
 from .gbuffer import shading_normal, surface_albedo
 from .rng import onb_from
 from .shade import LightParams, list_pixel, spot_factor
+from .surface import SurfaceData, eval_surface_at
 
 
 @wp.struct
@@ -165,64 +166,80 @@ def cone_direction(axis: wp.vec3, cos_outer: float, u: float, v: float) -> wp.ve
     return wp.normalize(onb_from(axis, a, b, cos_t))
 
 
-@wp.kernel(enable_backward=False)
-def rsm_kernel(
-    mesh: wp.uint64,
-    indices: wp.array(dtype=wp.int32),
-    vnormals: wp.array(dtype=wp.vec3),
-    smooth: wp.array(dtype=wp.uint8),
-    face_albedo: wp.array(dtype=wp.vec3),
-    l: LightParams,
-    size: int,
-    max_t: float,
-    out_flux: wp.array(dtype=wp.vec3),
-    out_pos: wp.array(dtype=wp.vec3),
-    out_normal: wp.array(dtype=wp.vec3),
-    out_depth: wp.array(dtype=float),
-    out_valid: wp.array(dtype=wp.uint8),
-    out_spread2: wp.array(dtype=float),
-    out_radius: wp.array(dtype=float),
-    row0: int,
-):
-    """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
-    i, j = wp.tid()
-    i += row0  # band offset (foveawarp.parallel)
-    cos_outer = float(-1.0)  # point light: the whole sphere
-    if l.kind == 1:
-        cos_outer = wp.clamp(l.cos_outer, -1.0, 1.0)
-    solid_angle = 2.0 * wp.pi * (1.0 - cos_outer) / float(size * size)
-    inv = 2.0 / float(size)
-    u = (float(j) + 0.5) * inv - 1.0
-    v = (float(i) + 0.5) * inv - 1.0
-    axis = l.direction
-    la = wp.length(axis)
-    if la > 1.0e-20:
-        axis = axis / la
-    else:
-        axis = wp.vec3(0.0, -1.0, 0.0)
-    d = cone_direction(axis, cos_outer, u, v)
-    k = morton2(i, j)
-    flux = wp.vec3(0.0, 0.0, 0.0)
-    p = l.position
-    n = wp.vec3(0.0, 0.0, 0.0)
-    depth = float(0.0)
-    q = wp.mesh_query_ray(mesh, l.position, d, max_t)
-    if q.result:
-        fn = q.normal
-        if wp.dot(fn, d) > 0.0:
-            fn = -fn  # face the light
-        n = shading_normal(mesh, q.face, q.u, q.v, fn, vnormals, smooth, indices)
-        p = l.position + d * q.t
-        depth = q.t
-        e = l.intensity * (spot_factor(l, d) * solid_angle)
-        flux = wp.cw_mul(e, face_albedo[q.face])
-    out_flux[k] = flux
-    out_pos[k] = p
-    out_normal[k] = n
-    out_depth[k] = depth
-    out_valid[k] = wp.uint8(1)  # single VPLs are always valid
-    out_spread2[k] = 0.0  # a single VPL is a point
-    out_radius[k] = 0.0
+def _make_rsm(textured: bool):
+    """The RSM trace for untextured scenes (each VPL's albedo its face's colour) or, with ``textured``, for scenes
+    with materials (the base colour of the hit's material and texture at the finest level): one body, the
+    textured part selected at code generation."""
+    suffix = "_textured" if textured else ""
+
+    @wp.kernel(enable_backward=False, name=f"rsm{suffix}_kernel")
+    def rsm_kernel(
+        mesh: wp.uint64,
+        indices: wp.array(dtype=wp.int32),
+        vnormals: wp.array(dtype=wp.vec3),
+        smooth: wp.array(dtype=wp.uint8),
+        face_albedo: wp.array(dtype=wp.vec3),
+        sd: SurfaceData,
+        l: LightParams,
+        size: int,
+        max_t: float,
+        out_flux: wp.array(dtype=wp.vec3),
+        out_pos: wp.array(dtype=wp.vec3),
+        out_normal: wp.array(dtype=wp.vec3),
+        out_depth: wp.array(dtype=float),
+        out_valid: wp.array(dtype=wp.uint8),
+        out_spread2: wp.array(dtype=float),
+        out_radius: wp.array(dtype=float),
+        row0: int,
+    ):
+        """Trace one VPL per texel (row i, column j) into the leaf level (Morton order)."""
+        i, j = wp.tid()
+        i += row0  # band offset (foveawarp.parallel)
+        cos_outer = float(-1.0)  # point light: the whole sphere
+        if l.kind == 1:
+            cos_outer = wp.clamp(l.cos_outer, -1.0, 1.0)
+        solid_angle = 2.0 * wp.pi * (1.0 - cos_outer) / float(size * size)
+        inv = 2.0 / float(size)
+        u = (float(j) + 0.5) * inv - 1.0
+        v = (float(i) + 0.5) * inv - 1.0
+        axis = l.direction
+        la = wp.length(axis)
+        if la > 1.0e-20:
+            axis = axis / la
+        else:
+            axis = wp.vec3(0.0, -1.0, 0.0)
+        d = cone_direction(axis, cos_outer, u, v)
+        k = morton2(i, j)
+        flux = wp.vec3(0.0, 0.0, 0.0)
+        p = l.position
+        n = wp.vec3(0.0, 0.0, 0.0)
+        depth = float(0.0)
+        q = wp.mesh_query_ray(mesh, l.position, d, max_t)
+        if q.result:
+            fn = q.normal
+            if wp.dot(fn, d) > 0.0:
+                fn = -fn  # face the light
+            n = shading_normal(mesh, q.face, q.u, q.v, fn, vnormals, smooth, indices)
+            p = l.position + d * q.t
+            depth = q.t
+            e = l.intensity * (spot_factor(l, d) * solid_angle)
+            alb = face_albedo[q.face]
+            if wp.static(textured):
+                alb = eval_surface_at(sd, q.face, q.u, q.v, d, q.normal, -128.0).base_color
+            flux = wp.cw_mul(e, alb)
+        out_flux[k] = flux
+        out_pos[k] = p
+        out_normal[k] = n
+        out_depth[k] = depth
+        out_valid[k] = wp.uint8(1)  # single VPLs are always valid
+        out_spread2[k] = 0.0  # a single VPL is a point
+        out_radius[k] = 0.0
+
+    return rsm_kernel
+
+
+rsm_kernel = _make_rsm(False)
+rsm_textured_kernel = _make_rsm(True)
 
 
 # ---------------------------------------------------------------------------------------------------

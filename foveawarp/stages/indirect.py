@@ -49,6 +49,7 @@ from ..kernels.lighttree import (
     pyramid_level_kernel,
     tight_radius_kernel,
     rsm_kernel,
+    rsm_textured_kernel,
 )
 from ..kernels.shade import LightParams
 
@@ -169,6 +170,12 @@ class IndirectStage:
         self.dscene = dscene
         self.device = get_device(device if device is not None else dscene.device)
         self._no_albedo = wp.zeros((1, 1), dtype=wp.vec3, device=self.device)  # the gathers' untextured placeholder
+        # a scene with materials: the RSM's VPLs take the hit's textured base colour (kernels/surface.py)
+        from ..kernels.surface import SurfaceData
+        from ..surface import is_textured, surface_data
+
+        self._surface = surface_data(dscene) if is_textured(dscene) else None
+        self._no_sd = SurfaceData()  # not read by the untextured trace
         if self.device != dscene.device:
             raise ValueError(f"device must be the scene's device {dscene.device.alias!r}, got {self.device.alias!r}")
         self.method = check_choice("method", method, METHODS)
@@ -358,8 +365,9 @@ class IndirectStage:
     def trace_rsm(self) -> None:
         """Trace the RSM of the light into the leaf level."""
         ds, n = self.dscene, self.rsm_size
-        parallel.launch(rsm_kernel, dim=(n, n),
-                        inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo,
+        kernel, sd = (rsm_textured_kernel, self._surface) if self._surface is not None else (rsm_kernel, self._no_sd)
+        parallel.launch(kernel, dim=(n, n),
+                        inputs=[ds.mesh.id, ds.indices, ds.vertex_normals, ds.face_smooth, ds.face_albedo, sd,
                                 self._light_params(), n, self._max_t],
                         outputs=list(self._levels[self.leaf_level]), device=self.device)
 
