@@ -17,6 +17,8 @@ pixels' albedos, which the remodulation applies to a reflected value, to ``1 / A
 
 import warp as wp
 
+from .gbuffer import pixel_albedo
+
 ALBEDO_FLOOR = wp.constant(0.05)
 
 
@@ -37,10 +39,10 @@ def pixel_albedo_emission(y: int, x: int, textured: int, albedo: wp.array2d(dtyp
                           emission: wp.array2d(dtype=wp.vec3), face: wp.array2d(dtype=wp.int32),
                           face_albedo: wp.array(dtype=wp.vec3), face_emission: wp.array(dtype=wp.vec3)):
     """A hit pixel's floored albedo and its emission: the textured G-buffer's stored fields, else its face's."""
+    a = floored(pixel_albedo(textured, albedo, face_albedo, face, y, x))
     if textured != 0:
-        return floored(albedo[y, x]), emission[y, x]
-    f = face[y, x]
-    return floored(face_albedo[f]), face_emission[f]
+        return a, emission[y, x]
+    return a, face_emission[face[y, x]]
 
 
 @wp.kernel(enable_backward=False)

@@ -70,6 +70,16 @@ def surface_albedo(face_albedo: wp.array(dtype=wp.vec3), f: int) -> wp.vec3:
 
 
 @wp.func
+def pixel_albedo(textured: int, albedo: wp.array2d(dtype=wp.vec3), face_albedo: wp.array(dtype=wp.vec3),
+                 face: wp.array2d(dtype=wp.int32), y: int, x: int) -> wp.vec3:
+    """Pixel (y, x)'s albedo: a textured G-buffer's stored base colour (texture x factor; ``albedo``), else
+    :func:`surface_albedo` of its face."""
+    if textured != 0:
+        return albedo[y, x]
+    return surface_albedo(face_albedo, face[y, x])
+
+
+@wp.func
 def primary_normal(face_normal: wp.vec3, d: wp.vec3, face: int, u: float, v: float, i0: int, i1: int, i2: int,
                    vnormals: wp.array(dtype=wp.vec3), smooth: wp.array(dtype=wp.uint8)) -> wp.vec3:
     """The G-buffer normal of a primary hit along ``d`` at barycentrics (u, v) of ``face`` (vertices i0, i1, i2):

@@ -53,7 +53,7 @@ splits is spent (``wants_split``).
 
 import warp as wp
 
-from .gbuffer import shading_normal, surface_albedo
+from .gbuffer import pixel_albedo, shading_normal
 from .rng import onb_from
 from .shade import LightParams, list_pixel, spot_factor
 from .surface import SurfaceData, eval_surface_at
@@ -742,16 +742,6 @@ def indirect_points_kernel(
     out[i] = indirect_radiance(ip, pos[i], normal[i], albedo[i])
 
 
-@wp.func
-def receiver_albedo(textured: int, albedo: wp.array2d(dtype=wp.vec3), face_albedo: wp.array(dtype=wp.vec3),
-                    face: wp.array2d(dtype=wp.int32), y: int, x: int) -> wp.vec3:
-    """The receiving pixel's albedo: a textured G-buffer's per-pixel base colour (texture x factor), else its
-    face's colour."""
-    if textured != 0:
-        return albedo[y, x]
-    return surface_albedo(face_albedo, face[y, x])
-
-
 @wp.kernel(enable_backward=False)
 def indirect_full_kernel(
     ip: IndirectParams,
@@ -765,13 +755,13 @@ def indirect_full_kernel(
     radiance: wp.array2d(dtype=wp.vec3),
     row0: int,
 ):
-    """radiance[y, x] += indirect radiance at every hit pixel (:func:`receiver_albedo`)."""
+    """radiance[y, x] += indirect radiance at every hit pixel (its albedo: :func:`pixel_albedo`)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
-                                                        receiver_albedo(textured, albedo, face_albedo, face, y, x))
+                                                        pixel_albedo(textured, albedo, face_albedo, face, y, x))
 
 
 @wp.kernel(enable_backward=False)
@@ -799,4 +789,4 @@ def indirect_list_kernel(
     if hit[y, x] == wp.uint8(0):
         return
     radiance[y, x] = radiance[y, x] + indirect_radiance(ip, pos[y, x], normal[y, x],
-                                                        receiver_albedo(textured, albedo, face_albedo, face, y, x))
+                                                        pixel_albedo(textured, albedo, face_albedo, face, y, x))

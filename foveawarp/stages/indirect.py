@@ -52,6 +52,8 @@ from ..kernels.lighttree import (
     rsm_textured_kernel,
 )
 from ..kernels.shade import LightParams
+from ..kernels.surface import SurfaceData
+from ..surface import is_textured, surface_data
 
 __all__ = ["IndirectStage", "poisson_disk", "morton_index", "level_offset", "METHODS"]
 
@@ -169,15 +171,12 @@ class IndirectStage:
         self.config = config
         self.dscene = dscene
         self.device = get_device(device if device is not None else dscene.device)
-        self._no_albedo = wp.zeros((1, 1), dtype=wp.vec3, device=self.device)  # the gathers' untextured placeholder
-        # a scene with materials: the RSM's VPLs take the hit's textured base colour (kernels/surface.py)
-        from ..kernels.surface import SurfaceData
-        from ..surface import is_textured, surface_data
-
-        self._surface = surface_data(dscene) if is_textured(dscene) else None
-        self._no_sd = SurfaceData()  # not read by the untextured trace
         if self.device != dscene.device:
             raise ValueError(f"device must be the scene's device {dscene.device.alias!r}, got {self.device.alias!r}")
+        self._no_albedo = wp.zeros((1, 1), dtype=wp.vec3, device=self.device)  # the gathers' untextured placeholder
+        # a scene with materials: the RSM's VPLs take the hit's textured base colour (kernels/surface.py)
+        self._surface = surface_data(dscene) if is_textured(dscene) else None
+        self._no_sd = SurfaceData()  # not read by the untextured trace
         self.method = check_choice("method", method, METHODS)
         lights = list(dscene.scene.lights)
         if light_index is None:
