@@ -287,6 +287,25 @@ def test_uv_origin_is_top_left(device, tmp_path):
     np.testing.assert_allclose(lin[:, :3], [[1, 0, 0], [0, 1, 0], [0, 0, 1]], atol=1e-6)
 
 
+@wp.kernel(enable_backward=False)
+def _wrap_kernel(i: wp.array(dtype=wp.int32), n: int, mode: int, out: wp.array(dtype=wp.int32)):
+    k = wp.tid()
+    out[k] = tk.wrap_texel(i[k], n, mode)
+
+
+@pytest.mark.parametrize("mode", WRAPS)
+@pytest.mark.parametrize("n", [1, 2, 7, 16])
+def test_wrap_texel_every_index(device, mode, n):
+    """Every index within five periods either side (the fast path within one period, the remainder beyond),
+    and indices near the int32 limits, against OpenGL's formulas."""
+    i = np.concatenate([np.arange(-10 * n - 3, 10 * n + 4), [-(2 ** 31), -(2 ** 31) + 1, 2 ** 31 - 1, 2 ** 31 - 2]])
+    i = i.astype(np.int32)
+    out = wp.zeros(len(i), dtype=wp.int32, device=device)
+    wp.launch(_wrap_kernel, dim=len(i), inputs=[wp.array(i, dtype=wp.int32, device=device), n,
+                                                WRAPS.index(mode), out], device=device)
+    np.testing.assert_array_equal(out.numpy(), ref_wrap(i, n, mode))
+
+
 @pytest.mark.parametrize("ws", WRAPS)
 @pytest.mark.parametrize("wt", WRAPS)
 def test_nearest_with_wrap_far_outside(device, rng, ws, wt):

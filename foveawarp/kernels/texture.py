@@ -124,16 +124,31 @@ class TextureAtlas:
 
 @wp.func
 def wrap_texel(i: int, n: int, mode: int) -> int:
-    """Texel index ``i`` (any integer) of an axis of ``n`` texels wrapped into ``[0, n - 1]``."""
+    """Texel index ``i`` (any integer) of an axis of ``n`` texels wrapped into ``[0, n - 1]``. Indices within one
+    period of the range (all a sampler makes, its coordinate reduced by ``_reduce_coord``) take a compare and an
+    add; the integer remainder, ~20 instructions on CUDA and 16 per trilinear lookup otherwise, only the rest."""
     if mode == WRAP_CLAMP:
         return wp.clamp(i, 0, n - 1)
     if mode == WRAP_MIRROR:
         p = 2 * n
-        m = ((i % p) + p) % p
+        m = i
+        if m < 0:
+            m += p
+        elif m >= p:
+            m -= p
+        if m < 0 or m >= p:
+            m = ((i % p) + p) % p
         if m >= n:
             m = p - 1 - m
         return m
-    return ((i % n) + n) % n
+    m = i
+    if m < 0:
+        m += n
+    elif m >= n:
+        m -= n
+    if m < 0 or m >= n:
+        m = ((i % n) + n) % n
+    return m
 
 
 @wp.func
@@ -201,10 +216,11 @@ def sample_bilinear(atlas: TextureAtlas, tex: int, level: int, uv: wp.vec2) -> w
     y0 = int(fy)
     i0 = wrap_texel(x0, w, ws)
     i1 = wrap_texel(x0 + 1, w, ws)
-    j0 = wrap_texel(y0, h, wt)
-    j1 = wrap_texel(y0 + 1, h, wt)
-    top = (1.0 - ax) * _fetch(atlas, g, i0, j0) + ax * _fetch(atlas, g, i1, j0)
-    bottom = (1.0 - ax) * _fetch(atlas, g, i0, j1) + ax * _fetch(atlas, g, i1, j1)
+    base = atlas.level_offset[g]
+    r0 = base + wrap_texel(y0, h, wt) * w
+    r1 = base + wrap_texel(y0 + 1, h, wt) * w
+    top = (1.0 - ax) * atlas.texels[r0 + i0] + ax * atlas.texels[r0 + i1]
+    bottom = (1.0 - ax) * atlas.texels[r1 + i0] + ax * atlas.texels[r1 + i1]
     return (1.0 - ay) * top + ay * bottom
 
 
