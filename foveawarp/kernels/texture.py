@@ -124,31 +124,16 @@ class TextureAtlas:
 
 @wp.func
 def wrap_texel(i: int, n: int, mode: int) -> int:
-    """Texel index ``i`` (any integer) of an axis of ``n`` texels wrapped into ``[0, n - 1]``. Indices within one
-    period of the range (all a sampler makes, its coordinate reduced by ``_reduce_coord``) take a compare and an
-    add; the integer remainder, ~20 instructions on CUDA and 16 per trilinear lookup otherwise, only the rest."""
+    """Texel index ``i`` (any integer) of an axis of ``n`` texels wrapped into ``[0, n - 1]``."""
     if mode == WRAP_CLAMP:
         return wp.clamp(i, 0, n - 1)
     if mode == WRAP_MIRROR:
         p = 2 * n
-        m = i
-        if m < 0:
-            m += p
-        elif m >= p:
-            m -= p
-        if m < 0 or m >= p:
-            m = ((i % p) + p) % p
+        m = ((i % p) + p) % p
         if m >= n:
             m = p - 1 - m
         return m
-    m = i
-    if m < 0:
-        m += n
-    elif m >= n:
-        m -= n
-    if m < 0 or m >= n:
-        m = ((i % n) + n) % n
-    return m
+    return ((i % n) + n) % n
 
 
 @wp.func
