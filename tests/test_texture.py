@@ -296,8 +296,7 @@ def _wrap_kernel(i: wp.array(dtype=wp.int32), n: int, mode: int, out: wp.array(d
 @pytest.mark.parametrize("mode", WRAPS)
 @pytest.mark.parametrize("n", [1, 2, 7, 16])
 def test_wrap_texel_every_index(device, mode, n):
-    """Every index within ten periods either side
-    and indices near the int32 limits, against OpenGL's formulas."""
+    """Every index within ten periods either side and indices near the int32 limits, against OpenGL's formulas."""
     i = np.concatenate([np.arange(-10 * n - 3, 10 * n + 4), [-(2 ** 31), -(2 ** 31) + 1, 2 ** 31 - 1, 2 ** 31 - 2]])
     i = i.astype(np.int32)
     out = wp.zeros(len(i), dtype=wp.int32, device=device)
