@@ -367,7 +367,11 @@ class ShadingConfig:
             value (the same rays, counted in another order). Default 4: with 8 AO rays on the H100 it beat 8 and 1
             on 13 of 18 scene-size pairs (b44a619); 1 was faster only on the cheap 4K scenes (cornell, eyechart:
             0.09 ms).
-        area_light_samples: shadow rays per area light, in [1, 256].
+        area_light_samples: shadow rays per area light, in [1, 256]; also the direct integrator's environment
+            samples per pixel on scenes with an environment.
+        env_mis: the direct integrator's environment: True (default) draws each of its samples once from the map's
+            luminance and once from the BSDF, weighted by the power heuristic (two shadow rays: a glossy lobe
+            sees the map's detail); False draws from the map only (one shadow ray).
         indirect: "none" or "lighttree" (one-bounce indirect from the light quad-tree, see IndirectConfig).
         integrator: "direct" (default: the fields above: lights with shadow rays, ambient or AO, optional
             light-tree indirect) or "path" (unidirectional path tracing with next-event estimation and multiple
@@ -416,6 +420,7 @@ class ShadingConfig:
     ao_radius_rel: float = 0.1
     ao_lanes: int = 4
     area_light_samples: int = 4
+    env_mis: bool = True
     indirect: str = "none"
     integrator: str = "direct"
     max_depth: int = 5
@@ -463,6 +468,7 @@ class ShadingConfig:
         check_range("ShadingConfig.white_point", self.white_point, 0.0, FLOAT32_MAX, lo_open=True)
         check_int_range("ShadingConfig.seed", self.seed, 0, 2**31 - 1)
         check_bool("ShadingConfig.shadows", self.shadows)
+        check_bool("ShadingConfig.env_mis", self.env_mis)
         check_choice("ShadingConfig.texture_lod", self.texture_lod, ("ray_cone", "none"))
 
 

@@ -47,6 +47,7 @@ from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_
 from .camera import CameraParams, camera_ray_dir
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
 from .gbuffer import smooth_normal
+from .mis import PDF_MAX, nee_weight, power_heuristic
 from .gbuffer_textured import primary_spread_angle, sample_footprint_px
 from .rng import pixel_rng
 from .shade import AreaLightParams, LightParams, spot_factor
@@ -54,9 +55,6 @@ from .shade_textured import raised_wo
 from .surface import SurfaceData, eval_surface_at, is_cut_out, segment_clear, surface_emission, trace_surface_cone
 from .texture import SPREAD_ANGLE_MAX, cone_footprint_log2, cone_width
 
-# pdfs are raised to at most this before the power heuristic squares their ratio (a pdf of a light of area 1e-35
-# would otherwise overflow float32)
-PDF_MAX = wp.constant(1.0e30)
 # lights and triangles of smaller area (world units squared) are never sampled
 AREA_MIN = wp.constant(1.0e-30)
 # the largest radiance a path may carry per channel: float32 max rounded down
@@ -91,25 +89,6 @@ class PathParams:
     seed: int
     frame: int
     width: int
-
-
-@wp.func
-def power_heuristic(pa: float, pb: float) -> float:
-    """Veach's power heuristic (beta = 2) of strategy a against strategy b: pa^2 / (pa^2 + pb^2), from the ratio
-    of the smaller to the larger pdf so that no square overflows; 0 when pa is 0 (or NaN), 1 when pb is 0, and
-    ``power_heuristic(a, b) + power_heuristic(b, a) == 1`` whenever either pdf is positive."""
-    if not (pa > 0.0):
-        return 0.0
-    if not (pb > 0.0):
-        return 1.0
-    a = wp.min(pa, PDF_MAX)
-    b = wp.min(pb, PDF_MAX)
-    if a >= b:
-        r = b / a
-        return 1.0 / (1.0 + r * r)
-    r = a / b
-    r2 = r * r
-    return r2 / (1.0 + r2)
 
 
 @wp.func
@@ -232,15 +211,6 @@ def cdf_search(cdf: wp.array(dtype=float), n: int, x: float) -> int:
         else:
             hi = mid - 1
     return lo
-
-
-@wp.func
-def nee_weight(f: wp.vec3, cos_s: float, le: wp.vec3, pdf_light: float, pdf_bsdf: float) -> wp.vec3:
-    """A light sample's MIS-weighted contribution f cos Le w / pdf_light (0 for a zero pdf)."""
-    if not (pdf_light > 0.0):
-        return wp.vec3(0.0, 0.0, 0.0)
-    w = power_heuristic(pdf_light, pdf_bsdf)
-    return wp.cw_mul(f, le) * (cos_s * w / pdf_light)
 
 
 @wp.func

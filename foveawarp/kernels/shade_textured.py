@@ -8,7 +8,10 @@ holds each hit's base colour, shading normal, packed (roughness, metallic, occlu
   kind 2: ``direction`` the way the light travels, ``intensity`` the irradiance facing it): ``f E cos_i``;
 - area lights: ``area_light_samples`` uniform points per light, ``f L cos_i cos_l A / (N r^2)``;
 - the environment: ``env_samples`` directions drawn from its luminance distribution (kernels/envmap.py),
-  ``f L cos_i / (N pdf)`` with a shadow ray to ``far``;
+  ``f L cos_i w / (N pdf)`` with a shadow ray to ``far``; with ``env_mis`` each also draws one direction from the
+  BSDF (kernels/bsdf.py ``bsdf_sample``), ``f L cos_i w / (N pdf_bsdf)`` where its shadow ray escapes, the two
+  weighted by the power heuristic (kernels/mis.py), as Mitsuba 3's ``direct`` integrator does; without it
+  ``w = 1`` and only the map is sampled (a glossy lobe narrower than the map's bright cells is then noisy);
 - ambient: ``base_colour x ambient x occlusion`` (the occlusion map), times the AO rays' unoccluded fraction with
   ``ao_samples``; then the emission.
 
@@ -22,8 +25,9 @@ The stochastic part (area lights, environment, AO) goes to ``out_stoch`` as in k
 
 import warp as wp
 
-from .bsdf import bsdf_eval, frame_from_normal, make_material, to_local
-from .envmap import EnvironmentMap, env_sample
+from .bsdf import bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_normal, make_material, to_local, to_world
+from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
+from .mis import nee_weight, power_heuristic
 from .rng import cosine_hemisphere, pixel_rng
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, spot_factor
 from .surface import SurfaceData, surface_visible
@@ -38,12 +42,14 @@ WO_Z_MIN = wp.constant(1.0e-4)
 @wp.struct
 class TexturedShadeParams:
     """The textured shading's per-scene constants: the surfaces (for cut-outs in shadow rays), the environment
-    (``has_env`` 0: none), its samples per pixel and the shadow rays' length towards it and directional lights."""
+    (``has_env`` 0: none), its samples per pixel, whether each also draws a BSDF direction (``env_mis`` 1) and
+    the shadow rays' length towards it and directional lights."""
 
     sd: SurfaceData
     env: EnvironmentMap
     has_env: int
     env_samples: int
+    env_mis: int
     far: float
 
 
@@ -122,16 +128,35 @@ def shade_textured_parts(sp: ShadeParams, tp: TexturedShadeParams, pixel: int, p
     if tp.has_env != 0 and tp.env_samples > 0:
         acc = wp.vec3(0.0, 0.0, 0.0)
         for s in range(tp.env_samples):
+            # a direction from the map's luminance distribution
             u1 = wp.randf(rng)
             u2 = wp.randf(rng)
             wi, radiance, pdf = env_sample(tp.env, u1, u2)
             cos_i = wp.dot(n, wi)
             if cos_i > 0.0 and pdf > 0.0:
-                vis = 1.0
-                if sp.shadows != 0:
-                    vis = surface_visible(sp.mesh, tp.sd, p, n, sp.ray_eps, wi, tp.far)
-                if vis > 0.0:
-                    acc += wp.cw_mul(radiance * (cos_i / pdf), bsdf_eval(m, wo, to_local(fr, wi)))
+                wil = to_local(fr, wi)
+                f = bsdf_eval(m, wo, wil)
+                if wp.max(f) > 0.0:
+                    vis = 1.0
+                    if sp.shadows != 0:
+                        vis = surface_visible(sp.mesh, tp.sd, p, n, sp.ray_eps, wi, tp.far)
+                    if vis > 0.0:
+                        pb = float(0.0)
+                        if tp.env_mis != 0:
+                            pb = bsdf_pdf(m, wo, wil)
+                        acc += nee_weight(f, cos_i, radiance, pdf, pb)
+            if tp.env_mis != 0:
+                # a direction from the BSDF, seeing the map where it leaves the scene
+                bs = bsdf_sample(m, wo, wp.randf(rng), wp.randf(rng), wp.randf(rng))
+                if bs.pdf > 0.0 and bs.wi[2] > 0.0:
+                    wb = to_world(fr, bs.wi)
+                    vis = 1.0
+                    if sp.shadows != 0:
+                        vis = surface_visible(sp.mesh, tp.sd, p, n, sp.ray_eps, wb, tp.far)
+                    if vis > 0.0:
+                        le = env_eval(tp.env, wb)
+                        w = power_heuristic(bs.pdf, env_pdf(tp.env, wb))
+                        acc += wp.cw_mul(bs.f, le) * (bs.wi[2] * w / bs.pdf)
         stoch += acc / float(tp.env_samples)
     return col, stoch, rng
 

@@ -103,7 +103,7 @@ class ShadeStage:
 
     def _textured_params(self) -> TexturedShadeParams:
         """The textured shading's per-scene constants: surfaces at ``texture_lod``, the environment with
-        ``area_light_samples`` samples per pixel, shadow rays to infinity as twice the scene's extent (every
+        ``area_light_samples`` samples per pixel (each a map and a BSDF direction with ``env_mis``), shadow rays to infinity as twice the scene's extent (every
         point lies inside its bounding box)."""
         ds = self.dscene
         tp = TexturedShadeParams()
@@ -111,6 +111,7 @@ class ShadeStage:
         tp.env, has_env = environment_map(ds)
         tp.has_env = int(has_env)
         tp.env_samples = int(self.config.area_light_samples) if has_env else 0
+        tp.env_mis = int(bool(self.config.env_mis))
         tp.far = float(2.0 * ds.extent)
         return tp
 
@@ -120,11 +121,13 @@ class ShadeStage:
         return self.stochastic_samples(ao_samples) > 0
 
     def stochastic_samples(self, ao_samples: Optional[int] = None) -> int:
-        """Monte Carlo samples per pixel per frame: the AO rays plus ``area_light_samples`` per area light (0:
-        deterministic shading)."""
+        """Monte Carlo samples per pixel per frame: the AO rays, ``area_light_samples`` per area light and the
+        environment's draws (0: deterministic shading)."""
         sc = self.config
         ao = sc.ao_samples if ao_samples is None else ao_samples
-        env = self.textured_params.env_samples if self.textured else 0
+        env = 0
+        if self.textured:
+            env = self.textured_params.env_samples * (2 if self.textured_params.env_mis else 1)
         return int(ao) + int(self.dscene.num_area_lights) * int(sc.area_light_samples) + int(env)
 
     def params(self, camera: Camera, frame_index: int, ao_samples: Optional[int] = None) -> ShadeParams:
