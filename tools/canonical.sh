@@ -7,12 +7,14 @@
 #
 #   part1   frame, reorder, then readme (estimated 8 minutes of H200 time: one call of under 10 minutes)
 #   part2   stages, dof, indirect, viewer, robustness, cpu (estimated 7 minutes)
-#   part3   textured (frame-textured: the textured scenes), textures (stages-textures: their G-buffer and shading
-#           with and without textures) (estimated 10 minutes)
+#   part3   textured (frame-textured: the textured scenes, over 10 minutes: on a 10-minute call, a few scenes at
+#           a time with --keep), textures (stages-textures: their G-buffer and shading with and without textures,
+#           2.5 minutes) (estimated 14 minutes)
 #   part4   path (path: foveated against full-resolution path tracing on cornell, bunny, city at 1920x1080, then
-#           path4k: at 3840x2160; pathrooms: the textured room and the Grey & White Room at 1920x1080,
+#           path4k: at 3840x2160, FovVideoVDP on cornell and bunny against 64-path whole-frame targets, one scene
+#           per run; pathrooms: the textured room and the Grey & White Room at 1920x1080,
 #           pathrooms4k: the room at 3840x2160, all kept in the same JSON), pathvariants (path-variants: the
-#           foveated reconstruction with and without demodulation and filter) (estimated 5 x 6 minutes)
+#           foveated reconstruction with and without demodulation and filter) (estimated 7 x 6 minutes)
 #   all     part1 to part4 (the default)
 #   readme  only the README's results table, from benchmarks/results/frame-h200.json
 #   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu,
@@ -67,11 +69,15 @@ canonical_path() {
     run path python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
         --scenes cornell,bunny,city --sizes 1920x1080 --images benchmarks/out/path-images
 }
-canonical_path4k() {
-    local keep=()
-    [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
-    run path4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
-        --scenes cornell,bunny,city --sizes 3840x2160 --images benchmarks/out/path-images "${keep[@]}"
+canonical_path4k() {  # cornell and bunny with a whole-frame target for FovVideoVDP (6 minutes each), city without
+    local s
+    for s in cornell bunny city; do
+        local keep=() whole=()
+        [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
+        [ "$s" != city ] && whole=(--whole-max-pixels 8294400 --converged-spp 64)
+        run "path4k $s" python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+            --scenes "$s" --sizes 3840x2160 --images benchmarks/out/path-images "${whole[@]}" "${keep[@]}"
+    done
 }
 canonical_pathrooms() {
     local keep=()
