@@ -190,8 +190,9 @@ class Material:
         alpha_cutoff: >= 0; with "MASK", texels with alpha below it are not there.
         double_sided: False = back faces are culled and lit as seen from the front.
         transmission_factor: ``KHR_materials_transmission``, in [0, 1]: the fraction of the dielectric that is a
-            smooth glass interface (Fresnel reflection and refraction; the transmitted light tinted by the base
-            colour). Only the path integrator refracts; the direct integrator shows the opaque material.
+            glass interface (Fresnel reflection and refraction, smooth at roughness 0, GGX microfacets of the
+            material's roughness above; the transmitted light tinted by the base colour). Only the path
+            integrator refracts; the direct integrator shows the opaque material.
         ior: ``KHR_materials_ior``, the index of refraction of the glass, in [1, 5] (default 1.5).
     """
 

@@ -395,7 +395,8 @@ def test_conductors_against_mitsuba(tmp_path):
 def test_dielectrics_become_glass_with_a_note(tmp_path):
     """dielectric: smooth glass (transmission 1) with the relative index of refraction int_ior / ext_ior (numbers,
     named media, Mitsuba's defaults bk7 / air), tinted by specular_transmittance, double-sided; the note says the
-    direct integrator shows its reflection only. thindielectric: a cut-out. roughdielectric: smooth glass."""
+    direct integrator shows its reflection only. thindielectric: a cut-out. roughdielectric: glass of roughness
+    sqrt(alpha) (default alpha 0.1)."""
     m, d, msgs = _material(tmp_path, '<bsdf type="dielectric" id="m"><float name="int_ior" value="1.5"/></bsdf>')
     assert m.transmission_factor == 1.0 and m.ior == pytest.approx(1.5 / 1.000277) and m.double_sided
     assert m.base_color_factor == (1.0, 1.0, 1.0, 1.0) and m.roughness_factor == 0.0
@@ -414,7 +415,10 @@ def test_dielectrics_become_glass_with_a_note(tmp_path):
     assert m.transmission_factor == 0.0
     m, _, msgs = _material(tmp_path, '<bsdf type="roughdielectric" id="m"><float name="alpha" value="0.36"/>'
                                      '</bsdf>')
-    assert m.roughness_factor == 0.0 and m.transmission_factor == 1.0 and "smooth glass" in msgs[0]
+    assert m.roughness_factor == pytest.approx(0.6) and m.transmission_factor == 1.0 and m.double_sided
+    assert len(msgs) == 1 and "reflection only" in msgs[0]
+    m, _, _ = _material(tmp_path, '<bsdf type="roughdielectric" id="m"/>')
+    assert m.roughness_factor == pytest.approx(math.sqrt(0.1))
     with pytest.raises(ValueError, match="index of refraction must be > 0"):
         _material(tmp_path, '<bsdf type="dielectric" id="m"><float name="int_ior" value="-1"/></bsdf>')
 

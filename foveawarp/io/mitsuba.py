@@ -41,10 +41,11 @@ BSDFs -> :class:`foveawarp.materials.Material` (glTF metallic-roughness; GGX rou
       times the normal-incidence Fresnel reflectance ``((eta - 1)^2 + k^2) / ((eta + 1)^2 + k^2)`` of ``eta``,
       ``k`` when given, else of the named ``material`` (:data:`CONDUCTOR_F0`; default "Cu" before version 2,
       "none", a perfect mirror, from version 2 on, as in Mitsuba).
-    - ``dielectric`` / ``roughdielectric``: smooth glass (``transmission_factor`` 1, ``ior`` = ``int_ior`` /
+    - ``dielectric`` / ``roughdielectric``: glass (``transmission_factor`` 1, ``ior`` = ``int_ior`` /
       ``ext_ior``, numbers or Mitsuba's named media, default bk7 / air; base colour ``specular_transmittance``;
-      double-sided), refracted by the path integrator and shown by its surface reflection by the direct one
-      (a note); a roughdielectric's roughness is dropped (a note).
+      double-sided; roughness 0 / sqrt(``alpha``), default alpha 0.1, Beckmann read as GGX as for the
+      conductors), refracted by the path integrator (a GGX interface where rough) and shown by its surface
+      reflection by the direct one (a note).
       ``thindielectric``: a fully transparent cut-out (alpha 0, mode MASK): a thin pane lets the light through
       unbent, and its 4-8 % reflection is lost (warning).
     - ``principled`` (version 3): ``base_color``, ``metallic`` (default 0), ``roughness`` (default 0.5, the same
@@ -523,9 +524,8 @@ class _Reader:
             mat = Material(name=name, base_color_factor=_rgba(tuple(a * b for a, b in zip(spec, f0))),
                            base_color_texture=stex, metallic_factor=1.0, roughness_factor=rough)
         elif kind in ("dielectric", "roughdielectric"):
-            if kind == "roughdielectric":
-                self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what)
-                self.note("roughdielectric BSDFs (read as smooth glass)")
+            rough = self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what) \
+                if kind == "roughdielectric" else 0.0
             ior = self.ior_of(get("int_ior"), MITSUBA_INT_IOR) / self.ior_of(get("ext_ior"), MITSUBA_EXT_IOR)
             if not 1.0 <= ior <= 5.0:
                 self.note(f"{what}: relative index of refraction {ior:g} (outside [1, 5], clamped)")
@@ -536,7 +536,7 @@ class _Reader:
             used.update(("distribution", "specular_reflectance", "sample_visible"))
             self.note(f"{kind} BSDFs (path integrator: refracting glass; direct integrator: its surface "
                       f"reflection only)")
-            mat = Material(name=name, base_color_factor=_rgba(tint), metallic_factor=0.0, roughness_factor=0.0,
+            mat = Material(name=name, base_color_factor=_rgba(tint), metallic_factor=0.0, roughness_factor=rough,
                            double_sided=True, transmission_factor=1.0, ior=ior)
         elif kind == "thindielectric":
             used.update(("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"))

@@ -71,6 +71,8 @@ __all__ = [
     "bsdf_pdf",
     "bsdf_sample",
     "fresnel_dielectric",
+    "DielectricSample",
+    "rough_dielectric_sample",
 ]
 
 # smallest GGX alpha: roughness 0 is a mirror with alpha raised to this, D(n) = 1 / (pi alpha^2) = 3.2e5
@@ -417,3 +419,67 @@ def bsdf_sample(m: SurfaceMaterial, wo: wp.vec3, u1: float, u2: float, u3: float
     out.f = _eval_lobes(m, uo, wi)
     out.pdf = _pdf_lobes(m, uo, wi)
     return out
+
+
+@wp.struct
+class DielectricSample:
+    """A direction drawn from a rough dielectric interface: ``wi`` (local frame, unit; ``wi.z > 0`` reflected,
+    ``< 0`` transmitted), ``weight`` = f |wi.z| / pdf (without the transmitted light's 1 / eta^2 radiance scale
+    and tint), ``transmitted`` 1 for a refraction; ``weight == 0`` marks a failed sample."""
+
+    wi: wp.vec3
+    weight: float
+    transmitted: int
+
+
+@wp.func
+def rough_dielectric_sample(wo: wp.vec3, alpha: float, eta: float, u1: float, u2: float,
+                            u3: float) -> DielectricSample:
+    """Draw ``wi`` from a GGX rough dielectric interface (Walter et al. 2007) seen from ``wo`` (local, ``wo.z > 0``
+    on the side the ray arrives from; ``eta`` = the index across the interface over the index on wo's side, > 0):
+    a microfacet normal ``m`` from the distribution of normals visible from ``wo`` (Heitz 2018), then reflection
+    about ``m`` with the Fresnel probability ``F(wo.m)`` of :func:`fresnel_dielectric`, else refraction through it.
+    With the height-correlated Smith term ``G2 = 1 / (1 + Lambda(wo) + Lambda(wi))`` for both (as pbrt-v4) the
+    sample's weight ``f |wi.z| / pdf`` is ``G2 / G1(wo) = (1 + Lambda(wo)) / (1 + Lambda(wo) + Lambda(wi))`` in
+    (0, 1]: the Fresnel factor and D cancel against the sampling. A reflection that leaves below the surface or a
+    refraction above it fails (``weight`` 0): the light the microfacet model loses to multiple scattering."""
+    out = DielectricSample()
+    out.wi = wp.vec3(0.0, 0.0, 1.0)
+    out.weight = 0.0
+    out.transmitted = 0
+    uo = _safe_unit(wo)
+    if uo[2] <= 0.0 or not (eta > 0.0):
+        return out
+    m = ggx_sample_visible_normal(uo, alpha, u1, u2)
+    c = wp.dot(uo, m)
+    if not (c > 0.0):
+        return out
+    fres, ct = fresnel_dielectric(c, eta)
+    wi = wp.vec3(0.0, 0.0, 1.0)
+    if u3 < fres:
+        wi = _safe_unit(2.0 * c * m - uo)
+        if not (wi[2] > 0.0):
+            return out
+    else:
+        inv = 1.0 / eta
+        wi = _safe_unit(-uo * inv + m * (inv * c - ct))
+        if not (wi[2] < 0.0):
+            return out
+        out.transmitted = 1
+    lo = ggx_lambda(alpha, uo[2])
+    out.wi = wi
+    out.weight = (1.0 + lo) / (1.0 + lo + ggx_lambda(alpha, wp.abs(wi[2])))
+    return out
+
+
+@wp.kernel(enable_backward=False)
+def rough_dielectric_sample_kernel(wo: wp.array(dtype=wp.vec3), alpha: wp.array(dtype=float),
+                                   eta: wp.array(dtype=float), u: wp.array(dtype=wp.vec3),
+                                   wi: wp.array(dtype=wp.vec3), weight: wp.array(dtype=float),
+                                   transmitted: wp.array(dtype=int)):
+    """Test hook: :func:`rough_dielectric_sample` per entry."""
+    i = wp.tid()
+    s = rough_dielectric_sample(wo[i], alpha[i], eta[i], u[i][0], u[i][1], u[i][2])
+    wi[i] = s.wi
+    weight[i] = s.weight
+    transmitted[i] = s.transmitted

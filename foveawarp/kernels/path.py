@@ -16,8 +16,9 @@ layout. At each surface vertex:
   against the BSDF's pdf (Veach 1997, eq. 9.13 with beta = 2);
 - the BSDF is sampled (kernels/bsdf.py: cosine-weighted Lambert and GGX visible normals) for the next ray;
 - a glass vertex (a material's ``transmission`` part) instead samples no light: a smooth dielectric interface
-  reflects with the Fresnel probability of its index (``fresnel_dielectric``) or refracts, and the emission the next
-  hit sees is weighted 1 (the previous pdf is PDF_MAX).
+  (roughness 0) reflects with the Fresnel probability of its index (``fresnel_dielectric``) or refracts; a rough
+  one does so about a GGX microfacet normal (``rough_dielectric_sample``); the emission the next hit sees is
+  weighted 1 (the previous pdf is PDF_MAX).
 
 The material at a vertex is the per-face albedo as glTF base colour (``path_material``) in untextured scenes, or in
 scenes with materials the hit's textured material (kernels/surface.py: ``eval_surface_at``), whose texture LOD
@@ -43,7 +44,7 @@ to 0) before it is averaged; ``PathParams.clamp`` > 0 is the optional firefly cl
 import warp as wp
 
 from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_normal, fresnel_dielectric, \
-    make_material, to_local, to_world
+    ggx_alpha, make_material, rough_dielectric_sample, to_local, to_world
 from .camera import CameraParams, camera_ray_dir
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
 from .gbuffer import smooth_normal
@@ -400,19 +401,38 @@ def _make_path(textured: bool):
                 if not (cos_i > 1.0e-6):  # a shading normal turned from the ray
                     nn = ng
                     cos_i = -wp.dot(d, ng)
-                fres, cos_t = fresnel_dielectric(cos_i, eta)
-                if wp.randf(rng) < fres:
-                    wi = wp.normalize(d + nn * (2.0 * cos_i))
-                    if not (wp.dot(wi, ng) > 0.0):
+                inv = 1.0 / eta
+                if m.roughness > 0.0:
+                    # a rough interface (GGX microfacets): still no light samples, so the emission the next hit
+                    # sees keeps weight 1, as behind a smooth one
+                    gf = frame_from_normal(nn)
+                    ds = rough_dielectric_sample(to_local(gf, -d), ggx_alpha(m.roughness), eta, wp.randf(rng),
+                                                 wp.randf(rng), wp.randf(rng))
+                    if not (ds.weight > 0.0):
                         break
+                    wi = to_world(gf, ds.wi)
+                    if ds.transmitted != 0:
+                        if not (wp.dot(wi, ng) < 0.0):
+                            break
+                        po = p - ng * eps
+                        thr = wp.cw_mul(thr, tint) * (inv * inv * ds.weight)
+                    else:
+                        if not (wp.dot(wi, ng) > 0.0):
+                            break
+                        thr = thr * ds.weight
                 else:
-                    inv = 1.0 / eta
-                    wi = wp.normalize(d * inv + nn * (inv * cos_i - cos_t))
-                    if not (wp.dot(wi, ng) < 0.0):
-                        break
-                    po = p - ng * eps
-                    # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
-                    thr = wp.cw_mul(thr, tint) * (inv * inv)
+                    fres, cos_t = fresnel_dielectric(cos_i, eta)
+                    if wp.randf(rng) < fres:
+                        wi = wp.normalize(d + nn * (2.0 * cos_i))
+                        if not (wp.dot(wi, ng) > 0.0):
+                            break
+                    else:
+                        wi = wp.normalize(d * inv + nn * (inv * cos_i - cos_t))
+                        if not (wp.dot(wi, ng) < 0.0):
+                            break
+                        po = p - ng * eps
+                        # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
+                        thr = wp.cw_mul(thr, tint) * (inv * inv)
                 prev_pdf = PDF_MAX  # what the next hit's emission is weighted against: a delta, weight 1
             else:
                 # point and spot lights
