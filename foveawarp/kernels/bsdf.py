@@ -425,10 +425,12 @@ def bsdf_sample(m: SurfaceMaterial, wo: wp.vec3, u1: float, u2: float, u3: float
 class DielectricSample:
     """A direction drawn from a rough dielectric interface: ``wi`` (local frame, unit; ``wi.z > 0`` reflected,
     ``< 0`` transmitted), ``weight`` = f |wi.z| / pdf (without the transmitted light's 1 / eta^2 radiance scale
-    and tint), ``transmitted`` 1 for a refraction; ``weight == 0`` marks a failed sample."""
+    and tint), ``pdf`` its solid-angle density, ``transmitted`` 1 for a refraction; ``weight == 0`` marks a failed
+    sample."""
 
     wi: wp.vec3
     weight: float
+    pdf: float
     transmitted: int
 
 
@@ -441,11 +443,15 @@ def rough_dielectric_sample(wo: wp.vec3, alpha: float, eta: float, u1: float, u2
     about ``m`` with the Fresnel probability ``F(wo.m)`` of :func:`fresnel_dielectric`, else refraction through it.
     With the height-correlated Smith term ``G2 = 1 / (1 + Lambda(wo) + Lambda(wi))`` for both (as pbrt-v4) the
     sample's weight ``f |wi.z| / pdf`` is ``G2 / G1(wo) = (1 + Lambda(wo)) / (1 + Lambda(wo) + Lambda(wi))`` in
-    (0, 1]: the Fresnel factor and D cancel against the sampling. A reflection that leaves below the surface or a
-    refraction above it fails (``weight`` 0): the light the microfacet model loses to multiple scattering."""
+    (0, 1]: the Fresnel factor and D cancel against the sampling. The pdf is the visible-normal density
+    ``D_o(m) = G1(wo) (wo.m) D(m) / wo.z`` times ``F / (4 wo.m)`` for a reflection and
+    ``(1 - F) eta^2 |wi.m| / (wo.m + eta wi.m)^2`` for a refraction (the Jacobians of the two half-vector maps).
+    A reflection that leaves below the surface or a refraction above it fails (``weight`` 0): the light the
+    microfacet model loses to multiple scattering."""
     out = DielectricSample()
     out.wi = wp.vec3(0.0, 0.0, 1.0)
     out.weight = 0.0
+    out.pdf = 0.0
     out.transmitted = 0
     uo = _safe_unit(wo)
     if uo[2] <= 0.0 or not (eta > 0.0):
@@ -455,20 +461,27 @@ def rough_dielectric_sample(wo: wp.vec3, alpha: float, eta: float, u1: float, u2
     if not (c > 0.0):
         return out
     fres, ct = fresnel_dielectric(c, eta)
+    lo = ggx_lambda(alpha, uo[2])
+    d_vis = ggx_d(alpha, m) * c / ((1.0 + lo) * wp.max(uo[2], COS_MIN))
     wi = wp.vec3(0.0, 0.0, 1.0)
+    pdf = float(0.0)
     if u3 < fres:
         wi = _safe_unit(2.0 * c * m - uo)
         if not (wi[2] > 0.0):
             return out
+        pdf = fres * d_vis / (4.0 * c)
     else:
         inv = 1.0 / eta
         wi = _safe_unit(-uo * inv + m * (inv * c - ct))
         if not (wi[2] < 0.0):
             return out
+        ci = wp.dot(wi, m)
+        den = c + eta * ci
+        pdf = (1.0 - fres) * d_vis * eta * eta * wp.abs(ci) / wp.max(den * den, 1.0e-30)
         out.transmitted = 1
-    lo = ggx_lambda(alpha, uo[2])
     out.wi = wi
     out.weight = (1.0 + lo) / (1.0 + lo + ggx_lambda(alpha, wp.abs(wi[2])))
+    out.pdf = wp.min(pdf, 1.0e30)
     return out
 
 
@@ -476,10 +489,11 @@ def rough_dielectric_sample(wo: wp.vec3, alpha: float, eta: float, u1: float, u2
 def rough_dielectric_sample_kernel(wo: wp.array(dtype=wp.vec3), alpha: wp.array(dtype=float),
                                    eta: wp.array(dtype=float), u: wp.array(dtype=wp.vec3),
                                    wi: wp.array(dtype=wp.vec3), weight: wp.array(dtype=float),
-                                   transmitted: wp.array(dtype=int)):
+                                   pdf: wp.array(dtype=float), transmitted: wp.array(dtype=int)):
     """Test hook: :func:`rough_dielectric_sample` per entry."""
     i = wp.tid()
     s = rough_dielectric_sample(wo[i], alpha[i], eta[i], u[i][0], u[i][1], u[i][2])
     wi[i] = s.wi
     weight[i] = s.weight
+    pdf[i] = s.pdf
     transmitted[i] = s.transmitted

@@ -392,6 +392,7 @@ def _make_path(textured: bool):
                 if tr < 1.0:
                     glass = wp.randf(rng) < tr
             wi = wp.vec3(0.0, 0.0, 0.0)
+            spread_pdf = float(PDF_MAX)  # the next ray's density, which widens its cone: a smooth interface's delta
             if glass:
                 eta = ior
                 if wp.dot(gn, d) > 0.0:
@@ -411,6 +412,7 @@ def _make_path(textured: bool):
                     if not (ds.weight > 0.0):
                         break
                     wi = to_world(gf, ds.wi)
+                    spread_pdf = ds.pdf
                     if ds.transmitted != 0:
                         if not (wp.dot(wi, ng) < 0.0):
                             break
@@ -433,7 +435,7 @@ def _make_path(textured: bool):
                         po = p - ng * eps
                         # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
                         thr = wp.cw_mul(thr, tint) * (inv * inv)
-                prev_pdf = PDF_MAX  # what the next hit's emission is weighted against: a delta, weight 1
+                prev_pdf = PDF_MAX  # what the next hit's emission is weighted against: no light sample, weight 1
             else:
                 # point and spot lights
                 for li in range(pp.num_lights):
@@ -527,6 +529,7 @@ def _make_path(textured: bool):
                     break
                 thr = wp.cw_mul(thr, s.f) * (s.wi[2] / s.pdf)
                 prev_pdf = s.pdf
+                spread_pdf = s.pdf
             if not finite3(thr):
                 break
             if depth + 1 >= pp.rr_depth:
@@ -538,7 +541,7 @@ def _make_path(textured: bool):
                 break
             if wp.static(textured):
                 cone_w = cone_hit
-                cone_a = wp.min(cone_a + bounce_spread_angle(prev_pdf), SPREAD_ANGLE_MAX)
+                cone_a = wp.min(cone_a + bounce_spread_angle(spread_pdf), SPREAD_ANGLE_MAX)
             o = po
             d = wi
         return L, rng

@@ -20,8 +20,8 @@ The material is the glTF metallic-roughness BSDF of ``kernels/bsdf.py`` in both 
   texture LOD (``ShadingConfig.texture_lod`` "ray_cone") follows a ray cone along the path: the camera ray's spans
   one pixel, or on a foveated frame's list the sample's spacing; at each hit the cone's width grows by
   ``2 t tan(spread / 2)`` and a bounce widens its spread by the apex angle of the cone of solid angle
-  ``1 / pdf`` of the sampled direction (``kernels.path.bounce_spread_angle``). The occlusion map is not used: the
-  paths compute the occlusion.
+  ``1 / pdf`` of the sampled direction (``kernels.path.bounce_spread_angle``; rough glass by its microfacet
+  sample's pdf, smooth glass not at all). The occlusion map is not used: the paths compute the occlusion.
 
 Ambient, AO and the light-tree indirect term of the direct integrator have no part in it: the path tracer computes
 the indirect light itself.
