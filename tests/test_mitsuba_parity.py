@@ -1,4 +1,4 @@
-"""Textured shading against Mitsuba 3 (scalar_rgb) on pixel-centre rays under point lights.
+"""Textured shading against Mitsuba 3 (scalar_rgb) on pixel-centre rays under point lights and an environment map.
 
 Mitsuba side: the same mesh (written as a PLY with its UVs) and texture (a PNG read with ``raw``: the stored
 values are the linear ones both sides use), traced with ray queries built here through the same pixel centres;
@@ -19,6 +19,8 @@ and shading with ``texture_lod="none"`` (Mitsuba's bitmap has no MIP maps), no a
   the test bounds the ratio: glTF / Mitsuba has median 1.38 at roughness 0.5 (5-95%: 1.31-1.50, measured), so
   its median must lie in [1.30, 1.46] and 90% of the pixels within 12% of the median (the texture and the
   lights' falloff agree; the angular weighting differs).
+- Environment light: the same mesh under an environment map alone against Mitsuba's ``direct`` integrator
+  (Lambert and rough metal, MIS and the map alone); see the test.
 """
 
 import numpy as np
@@ -192,3 +194,75 @@ def test_rough_plastic_matches_mitsuba(tmp_path):
     med = np.median(ratio)
     assert 1.30 <= med <= 1.46, med
     assert np.mean(np.abs(ratio / med - 1.0) <= 0.12) >= 0.9
+
+
+def _smooth_sky():
+    """An 8 x 16 environment, brighter towards the top (local +Y), with texel-to-texel colour noise."""
+    rng = np.random.default_rng(5)
+    y = np.linspace(0.0, 1.0, 8)[:, None, None]
+    return (0.3 + 1.5 * (1.0 - y) * rng.uniform(0.5, 1.5, (8, 16, 3))).astype(np.float32)
+
+
+@pytest.mark.parametrize("metal, rough, mis", [(False, 1.0, True), (False, 1.0, False), (True, 0.3, True)])
+def test_environment_light_matches_mitsuba_direct(tmp_path, metal, rough, mis):
+    """The wavy mesh under an environment map only, against Mitsuba's ``direct`` integrator (one emitter and one
+    BSDF sample per pass, MIS) with the same map (``envmap`` from the array: the mapping of kernels/envmap.py)
+    and camera: a Lambert surface (``diffuse``; foveawarp's dielectric with specular scale 0) and a rough metal
+    (``roughconductor`` GGX, ``material="none"``: F = 1, as a white glTF metal). Mitsuba renders 1024 paths per
+    pixel through uniform points of each pixel (box filter), foveawarp shades pixel centres over 64 frames of 16
+    draws; at 80 x 64 pixels the map varies slowly across a pixel. Measured on the 1787 interior pixels: median
+    relative error 0.94 % and mean ratio 0.99997 (Lambert, MIS), 2.29 % and 0.99968 (Lambert, the map alone: half
+    the rays, more noise), 1.30 % and 0.9988 (metal, roughness 0.3, MIS: the Smith terms differ, separable
+    against height-correlated; the map alone leaves 15.6 % of noise there); bounds 3 % and 1.5 %."""
+    mi.set_variant("scalar_rgb")
+    w, h = 80, 64
+    env = _smooth_sky()
+    v, f, uv = wavy_mesh()
+    write_ply(tmp_path / "m.ply", v, f, uv)
+    bsdf = ({"type": "roughconductor", "distribution": "ggx", "alpha": rough * rough, "material": "none"} if metal
+            else {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.6, 0.4]}})
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "direct"},
+        "sensor": {"type": "perspective", "fov": CAM.fov_y_deg, "fov_axis": "y",
+                   "to_world": mi.ScalarTransform4f().look_at(origin=list(CAM.eye), target=list(CAM.target),
+                                                              up=list(CAM.up)),
+                   "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                            "pixel_format": "rgb"},
+                   "sampler": {"type": "independent", "sample_count": 1024}},
+        "env": {"type": "envmap", "bitmap": mi.Bitmap(env)},
+        "m": {"type": "ply", "filename": str(tmp_path / "m.ply"), "bsdf": bsdf}})
+    ref = np.array(mi.render(scene, seed=1), np.float64).reshape(-1, 3)
+
+    from foveawarp.envmap import Environment
+
+    mat = (Material(metallic_factor=1.0, roughness_factor=rough) if metal
+           else Material(base_color_factor=(0.8, 0.6, 0.4, 1.0), metallic_factor=0.0))
+    sc = Scene(v, f, None, uvs=uv, face_material=np.zeros(len(f), np.int32), materials=[mat], images=[], lights=[])
+    sc.lights = []
+    sc.environment = Environment.from_array(env)
+    ds = DeviceScene(sc, "cpu")
+    if not metal:
+        set_material_specular(ds, 0.0)
+    g = GBuffer(w, h, "cpu")
+    gs = GBufferStage(ds, w, h, "cpu")
+    gs.texture_lod = "none"
+    gs.run(g, CAM, CAM)
+    cfg = ShadingConfig(ambient=(0.0, 0.0, 0.0), background=(0.0, 0.0, 0.0), texture_lod="none",
+                        area_light_samples=16, env_mis=mis)
+    sh = ShadeStage(ds, cfg, w, h, "cpu")
+    out = wp.zeros((h, w), dtype=wp.vec3, device="cpu")
+    acc = np.zeros((h * w, 3))
+    for k in range(64):
+        sh.upload_frame(CAM, k)
+        sh.full(g, out, wp.zeros_like(out))
+        acc += out.numpy().reshape(-1, 3)
+    got = acc / 64.0
+    hit = g.hit.numpy() != 0
+    sel = np.zeros_like(hit)
+    sel[1:-1, 1:-1] = np.all([hit[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)],
+                             axis=0)
+    sel = sel.reshape(-1)
+    assert sel.sum() > 1000
+    rel = np.abs(got[sel].sum(axis=1) / ref[sel].sum(axis=1) - 1.0)
+    ratio = got[sel].mean() / ref[sel].mean()
+    assert np.median(rel) <= 0.03 and abs(ratio - 1.0) <= 0.015, (np.median(rel), ratio)

@@ -270,9 +270,10 @@ def mitsuba_interior(m, scene, shape=None) -> np.ndarray:
 @pytest.mark.parametrize("max_depth, glass", [(2, ""), (5, ""), (5, "smooth"), (5, "rough")])
 def test_xml_room_matches_mitsuba_path(mitsuba_scalar, tmp_path, max_depth, glass):
     """The XML room read by foveawarp.load_scene (materials, a bitmap texture, the emitter as an emissive
-    single-sided material; with ``glass`` a smooth or rough dielectric sphere, refracting) and by Mitsuba: the same bounds as the
-    closed room above. foveawarp's texture LOD is "none" (Mitsuba's bitmap has no MIP maps) and its diffuse
-    materials' specular scale 0 (Mitsuba's diffuse is Lambert; the glTF model's dielectric lobe would add 4 %)."""
+    single-sided material; with ``glass`` a smooth or rough dielectric sphere, refracting) and by Mitsuba: the
+    same bounds as the closed room above. foveawarp's texture LOD is "none" (Mitsuba's bitmap has no MIP maps)
+    and its diffuse materials' specular scale 0 (Mitsuba's diffuse is Lambert; the glTF model's dielectric lobe
+    would add 4 %)."""
     import warnings
 
     from foveawarp.scene import DeviceScene

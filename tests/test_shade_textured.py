@@ -1,9 +1,9 @@
 """The textured shading (kernels/shade_textured.py) against NumPy: the glTF BSDF of tests/test_bsdf.py at the
 G-buffer's points under point, spot and directional lights; shadow rays through MASK cut-outs; emission and the
 occlusion map on the ambient term; the environment seen by misses and importance-sampled (a constant map's
-analytic irradiance; a sky with a sun on glossy plates against a NumPy quadrature, with and without MIS). Tolerance 2e-4 relative on the deterministic terms (float32 against float64), 3% on the
-Monte Carlo environment mean (4096 samples per pixel of a constant map over 300 pixels: about 0.3% standard
-error).
+analytic irradiance; a sky with a sun on glossy plates against a NumPy quadrature, with and without MIS).
+Tolerance 2e-4 relative on the deterministic terms (float32 against float64), 3% on the Monte Carlo environment
+mean (4096 samples per pixel of a constant map over 300 pixels: about 0.3% standard error).
 """
 
 import math

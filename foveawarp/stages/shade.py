@@ -103,8 +103,8 @@ class ShadeStage:
 
     def _textured_params(self) -> TexturedShadeParams:
         """The textured shading's per-scene constants: surfaces at ``texture_lod``, the environment with
-        ``area_light_samples`` samples per pixel (each a map and a BSDF direction with ``env_mis``), shadow rays to infinity as twice the scene's extent (every
-        point lies inside its bounding box)."""
+        ``area_light_samples`` samples per pixel (each a map and a BSDF direction with ``env_mis``), shadow rays
+        to infinity as twice the scene's extent (every point lies inside its bounding box)."""
         ds = self.dscene
         tp = TexturedShadeParams()
         tp.sd = surface_data(ds, self.config.texture_lod)
