@@ -219,6 +219,7 @@ for n in ("exposure", "white_point"):  # bounded by float32's largest value (the
     field(fw.ShadingConfig, n, "(0.0, 3.4028234663852886e+38]", [0.0, -2.0, 1e39])
 field(fw.ShadingConfig, "seed", "[0, 2147483647]", [-1, 2**31], kind="int")
 field(fw.ShadingConfig, "shadows", "True or False", kind="bool")
+field(fw.ShadingConfig, "env_mis", "True or False", kind="bool")
 for n in ("ambient", "background"):
     vec_arg("Config fields", "ShadingConfig", fw.ShadingConfig, {}, n, 3, "[0.0, inf]", -0.5,
             param=f"ShadingConfig.{n}")
