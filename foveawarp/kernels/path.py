@@ -48,8 +48,8 @@ from .bsdf import SurfaceMaterial, bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_
 from .camera import CameraParams, camera_ray_dir
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
 from .gbuffer import smooth_normal
-from .mis import PDF_MAX, nee_weight, power_heuristic
 from .gbuffer_textured import primary_spread_angle, sample_footprint_px
+from .mis import PDF_MAX, nee_weight, power_heuristic
 from .rng import pixel_rng
 from .shade import AreaLightParams, LightParams, spot_factor
 from .shade_textured import raised_wo
