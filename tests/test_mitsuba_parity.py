@@ -142,10 +142,11 @@ def foveawarp_render(material, specular=None):
     return out.numpy().reshape(-1, 3), g.hit.numpy().reshape(-1) != 0
 
 
-def interior(hit):
-    h = hit.reshape(H, W)
-    m = np.zeros_like(h)
-    m[1:-1, 1:-1] = np.all([h[1 + dy:H - 1 + dy, 1 + dx:W - 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)],
+def interior(hit, w=W, h=H):
+    """(h * w,) bool: the hit pixels whose 3 x 3 neighbourhood all hit."""
+    a = hit.reshape(h, w)
+    m = np.zeros_like(a)
+    m[1:-1, 1:-1] = np.all([a[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)],
                            axis=0)
     return m.reshape(-1)
 
@@ -234,34 +235,17 @@ def test_environment_light_matches_mitsuba_direct(tmp_path, metal, rough, mis):
     ref = np.array(mi.render(scene, seed=1), np.float64).reshape(-1, 3)
 
     from foveawarp.envmap import Environment
+    from test_shade_textured import env_frames
 
     mat = (Material(metallic_factor=1.0, roughness_factor=rough) if metal
            else Material(base_color_factor=(0.8, 0.6, 0.4, 1.0), metallic_factor=0.0))
     sc = Scene(v, f, None, uvs=uv, face_material=np.zeros(len(f), np.int32), materials=[mat], images=[], lights=[])
     sc.lights = []
     sc.environment = Environment.from_array(env)
-    ds = DeviceScene(sc, "cpu")
-    if not metal:
-        set_material_specular(ds, 0.0)
-    g = GBuffer(w, h, "cpu")
-    gs = GBufferStage(ds, w, h, "cpu")
-    gs.texture_lod = "none"
-    gs.run(g, CAM, CAM)
-    cfg = ShadingConfig(ambient=(0.0, 0.0, 0.0), background=(0.0, 0.0, 0.0), texture_lod="none",
-                        area_light_samples=16, env_mis=mis)
-    sh = ShadeStage(ds, cfg, w, h, "cpu")
-    out = wp.zeros((h, w), dtype=wp.vec3, device="cpu")
-    acc = np.zeros((h * w, 3))
-    for k in range(64):
-        sh.upload_frame(CAM, k)
-        sh.full(g, out, wp.zeros_like(out))
-        acc += out.numpy().reshape(-1, 3)
-    got = acc / 64.0
-    hit = g.hit.numpy() != 0
-    sel = np.zeros_like(hit)
-    sel[1:-1, 1:-1] = np.all([hit[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)],
-                             axis=0)
-    sel = sel.reshape(-1)
+    _, hit, est = env_frames(sc, "cpu", mis, 64, 16, w=w, h=h, cam=CAM, specular=None if metal else 0.0)
+    got = np.zeros((h * w, 3))
+    got[hit.reshape(-1)] = est.mean(axis=0)
+    sel = interior(hit, w, h)
     assert sel.sum() > 1000
     rel = np.abs(got[sel].sum(axis=1) / ref[sel].sum(axis=1) - 1.0)
     ratio = got[sel].mean() / ref[sel].mean()

@@ -19,7 +19,7 @@ from foveawarp.config import ShadingConfig
 from foveawarp.envmap import Environment
 from foveawarp.kernels.shade import LightParams
 from foveawarp.materials import Material, TextureRef
-from foveawarp.scene import DeviceScene, Light
+from foveawarp.scene import DeviceScene
 from foveawarp.stages.gbuffer import GBufferStage
 from foveawarp.stages.shade import ShadeStage
 from foveawarp.surface import set_material_specular
@@ -210,13 +210,16 @@ def test_environment_seen_by_misses_and_sampled(device, mis):
     np.testing.assert_allclose(stoch[hit], out[hit], rtol=1e-6)  # the environment is the stochastic part
 
 
-def _env_frames(sc, device, mis, frames, samples, w=12, h=10):
-    """(G-buffer as NumPy, hit mask, (frames, hits, 3) radiance of ``frames`` independent frames)."""
+def env_frames(sc, device, mis, frames, samples, w=12, h=10, cam=CAM, specular=None):
+    """(G-buffer as NumPy, hit mask, (frames, hits, 3) radiance of ``frames`` independent frames) of ``sc`` without
+    ambient or background, texture LOD "none"; ``specular``: the materials' specular scale."""
     ds = DeviceScene(sc, device)
+    if specular is not None:
+        set_material_specular(ds, specular)
     g = GBuffer(w, h, device)
     gs = GBufferStage(ds, w, h, device)
     gs.texture_lod = "none"
-    gs.run(g, CAM, CAM)
+    gs.run(g, cam, cam)
     gn = g.numpy() | {"material": g.material.numpy()}
     hit = gn["hit"] != 0
     sh = ShadeStage(ds, ShadingConfig(**NOLIGHT, area_light_samples=samples, texture_lod="none", env_mis=mis),
@@ -225,7 +228,7 @@ def _env_frames(sc, device, mis, frames, samples, w=12, h=10):
     st_ = wp.zeros_like(out)
     est = []
     for k in range(frames):
-        sh.upload_frame(CAM, k)
+        sh.upload_frame(cam, k)
         sh.full(g, out, st_)
         est.append(out.numpy()[hit])
     return gn, hit, np.array(est, np.float64)
@@ -245,7 +248,7 @@ def test_environment_mis_matches_quadrature(device, metal, rough):
     sc.lights = []
     img = _sky(16, 32)
     sc.environment = Environment.from_array(img)
-    g, hit, mis = _env_frames(sc, device, True, frames=64, samples=32)
+    g, hit, mis = env_frames(sc, device, True, frames=64, samples=32)
     p = g["position"][hit].astype(np.float64)
     n = g["normal"][hit].astype(np.float64)
     spec = g["material"][hit][:, 3].astype(np.float64)
@@ -272,7 +275,7 @@ def test_environment_mis_matches_quadrature(device, metal, rough):
         se = est.std(axis=0, ddof=1) / math.sqrt(len(est)) / q
         assert np.all(err <= 0.01 + 4.0 * se) and np.all(se < 0.03), (i, err, se)
     if metal == 1.0:
-        _, _, light_only = _env_frames(sc, device, False, frames=64, samples=32)
+        _, _, light_only = env_frames(sc, device, False, frames=64, samples=32)
         assert light_only.var(axis=0).mean() > 10.0 * mis.var(axis=0).mean()
 
 

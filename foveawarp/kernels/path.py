@@ -403,6 +403,8 @@ def _make_path(textured: bool):
                     nn = ng
                     cos_i = -wp.dot(d, ng)
                 inv = 1.0 / eta
+                transmitted = False
+                weight = float(1.0)  # f |cos| / pdf of the chosen direction: 1 for the smooth interface
                 if m.roughness > 0.0:
                     # a rough interface (GGX microfacets): still no light samples, so the emission the next hit
                     # sees keeps weight 1, as behind a smooth one
@@ -413,28 +415,25 @@ def _make_path(textured: bool):
                         break
                     wi = to_world(gf, ds.wi)
                     spread_pdf = ds.pdf
-                    if ds.transmitted != 0:
-                        if not (wp.dot(wi, ng) < 0.0):
-                            break
-                        po = p - ng * eps
-                        thr = wp.cw_mul(thr, tint) * (inv * inv * ds.weight)
-                    else:
-                        if not (wp.dot(wi, ng) > 0.0):
-                            break
-                        thr = thr * ds.weight
+                    transmitted = ds.transmitted != 0
+                    weight = ds.weight
                 else:
                     fres, cos_t = fresnel_dielectric(cos_i, eta)
                     if wp.randf(rng) < fres:
                         wi = wp.normalize(d + nn * (2.0 * cos_i))
-                        if not (wp.dot(wi, ng) > 0.0):
-                            break
                     else:
                         wi = wp.normalize(d * inv + nn * (inv * cos_i - cos_t))
-                        if not (wp.dot(wi, ng) < 0.0):
-                            break
-                        po = p - ng * eps
-                        # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
-                        thr = wp.cw_mul(thr, tint) * (inv * inv)
+                        transmitted = True
+                if transmitted:
+                    if not (wp.dot(wi, ng) < 0.0):
+                        break
+                    po = p - ng * eps
+                    # radiance entering a medium of relative index eta scales by 1 / eta^2 (as in Mitsuba 3)
+                    thr = wp.cw_mul(thr, tint) * (inv * inv * weight)
+                else:
+                    if not (wp.dot(wi, ng) > 0.0):
+                        break
+                    thr = thr * weight
                 prev_pdf = PDF_MAX  # what the next hit's emission is weighted against: no light sample, weight 1
             else:
                 # point and spot lights
