@@ -234,14 +234,9 @@ class TextureSet:
         d = self.device
         a = tk.TextureAtlas()
         a.texels = wp.array(texels, dtype=wp.vec4, device=d)
-        a.level_offset = wp.array(np.array(offsets, dtype=i32), dtype=wp.int32, device=d)
-        a.level_width = wp.array(np.array(widths, dtype=i32), dtype=wp.int32, device=d)
-        a.level_height = wp.array(np.array(heights, dtype=i32), dtype=wp.int32, device=d)
-        a.tex_first_level = wp.array(first, dtype=wp.int32, device=d)
-        a.tex_num_levels = wp.array(nlev, dtype=wp.int32, device=d)
-        a.tex_wrap_s = wp.array(wrap_s, dtype=wp.int32, device=d)
-        a.tex_wrap_t = wp.array(wrap_t, dtype=wp.int32, device=d)
-        a.tex_filter = wp.array(filt, dtype=wp.int32, device=d)
+        a.levels = wp.array(np.stack([offsets, widths, heights], axis=1).astype(i32), dtype=wp.vec3i, device=d)
+        a.textures = wp.array(np.stack([first, nlev, wrap_s, wrap_t], axis=1).astype(i32), dtype=wp.vec4i, device=d)
+        a.filters = wp.array(filt, dtype=wp.int32, device=d)
         a.num_textures = len(samplers)
         self.atlas = a
         self.num_textures = len(samplers)
