@@ -64,18 +64,19 @@ def test_order_width_is_checked(device):
 
 
 @pytest.mark.parametrize("size", [(37, 23), (64, 36)])
-@pytest.mark.parametrize("shading", ["default", "ao2"])
-def test_tiles_order_renders_the_same_frames(device, size, shading, monkeypatch):
+@pytest.mark.parametrize("scene_name, shading", [("cornell", "default"), ("cornell", "ao2"), ("room", "default")])
+def test_tiles_order_renders_the_same_frames(device, size, scene_name, shading, monkeypatch):
     """G-buffer and reference shading launched with each warp on an 8 x 4 block (the CUDA default) or a 16 x 2
-    one against the row order: every G-buffer field and the reference image equal bit for bit, odd sizes included; and the foveated
-    frame that reads that G-buffer. The CPU runs the per-pixel kernels here instead of its row kernels."""
+    one against the row order: every G-buffer field and the reference image equal bit for bit, odd sizes
+    included; and the foveated frame that reads that G-buffer. The textured room's G-buffer (its material fields
+    included) takes the same orders. The CPU runs the per-pixel kernels here instead of its row kernels."""
     from foveawarp import parallel
     from foveawarp.stages.gbuffer import GBufferStage
     from foveawarp.stages.shade import ShadeStage
 
     w, h = size
     cfg = fw.Config() if shading == "default" else fw.Config().with_(shading={"ao_samples": 2})
-    scene = fw.load_scene("cornell")
+    scene = fw.load_scene(scene_name)
     monkeypatch.setattr(parallel, "ROW_KERNELS", False)
     got = {}
     saved = GBufferStage.order_width, ShadeStage.order_width
@@ -89,6 +90,9 @@ def test_tiles_order_renders_the_same_frames(device, size, shading, monkeypatch)
             g = loop.gbuffer.numpy()
             frame = loop.render(scene.camera).numpy().copy()
             got[order] = [ref, frame] + [np.ascontiguousarray(g[k]) for k in sorted(g)]
+            if scene_name == "room":
+                assert loop.gbuffer.textured
+                got[order] += [loop.gbuffer.material.numpy().copy(), loop.gbuffer.emission.numpy().copy()]
     finally:
         GBufferStage.order_width, ShadeStage.order_width = saved
     for order in (8, 16):

@@ -5,7 +5,7 @@ common fields are :func:`kernels.gbuffer.write_primary`'s; the normal is then th
 kernels/surface.py (normal map applied), and three fields are added: ``albedo`` (linear base colour: texture x
 factor), ``material`` (roughness, metallic, occlusion, specular scale as half floats: 8 bytes) and ``emission``.
 
-Kernels: the full-resolution G-buffer (a one-pixel cone), the sparse mode's coarse G-buffer (a cone over the cell)
+Kernels: the full-resolution G-buffer (a one-pixel cone; per pixel, or in warp-sized blocks on CUDA), the sparse mode's coarse G-buffer (a cone over the cell)
 and its saliency from the entries' Lab albedo, and its sampled pixels traced and shaded in one thread (a cone over
 the sample's spacing).
 """
@@ -17,6 +17,7 @@ from .context import FrameContext
 from .envmap import EnvironmentMap, env_eval
 from .gbuffer import cell_pixel, write_primary
 from .load import store_vec3
+from .order import tile_order_pixel
 from .saliency import sobel_vec3
 from .sampling import FrameParams, SamplingParams, saliency_velocity
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel
@@ -127,6 +128,40 @@ def gbuffer_textured_kernel(
     trace_primary_textured(mesh, sd, env, has_env, points_prev, ctx.cam, ctx.cam_prev, ctx.max_t, float(x) + 0.5,
                            float(y) + 0.5, 1.0, y, x, out_pos, out_normal, out_depth, out_face, out_hit, out_reproj,
                            out_prev_dist, out_moved, out_albedo, out_material, out_emission)
+
+
+@wp.kernel(enable_backward=False)
+def gbuffer_textured_tiles_kernel(
+    mesh: wp.uint64,
+    sd: SurfaceData,
+    env: EnvironmentMap,
+    has_env: int,
+    points_prev: wp.array(dtype=wp.vec3),
+    ctx: FrameContext,
+    out_pos: wp.array2d(dtype=wp.vec3),
+    out_normal: wp.array2d(dtype=wp.vec3),
+    out_depth: wp.array2d(dtype=float),
+    out_face: wp.array2d(dtype=wp.int32),
+    out_hit: wp.array2d(dtype=wp.uint8),
+    out_reproj: wp.array2d(dtype=wp.vec2),
+    out_prev_dist: wp.array2d(dtype=float),
+    out_moved: wp.array2d(dtype=wp.uint8),
+    out_albedo: wp.array2d(dtype=wp.vec3),
+    out_material: wp.array2d(dtype=wp.vec4h),
+    out_emission: wp.array2d(dtype=wp.vec3),
+    wlog2: int,
+    row0: int,
+):
+    """:func:`gbuffer_textured_kernel` with each warp on a block of ``2**wlog2`` x ``32 / 2**wlog2`` pixels
+    (kernels/order.py; CUDA): neighbouring lanes hit nearby texels and BVH nodes. The same entries."""
+    p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
+    x = p[0]
+    y = p[1]
+    if x < out_depth.shape[1] and y < out_depth.shape[0]:
+        trace_primary_textured(mesh, sd, env, has_env, points_prev, ctx.cam, ctx.cam_prev, ctx.max_t,
+                               float(x) + 0.5, float(y) + 0.5, 1.0, y, x, out_pos, out_normal, out_depth, out_face,
+                               out_hit, out_reproj, out_prev_dist, out_moved, out_albedo, out_material,
+                               out_emission)
 
 
 @wp.kernel(enable_backward=False)

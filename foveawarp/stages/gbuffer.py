@@ -10,7 +10,7 @@ from .. import parallel
 from ..camera import Camera
 from ..frame_context import FrameContextBuilder, FrameView
 from ..kernels.gbuffer import gbuffer_kernel, gbuffer_rows_kernel, gbuffer_tiles_kernel
-from ..kernels.gbuffer_textured import gbuffer_textured_kernel
+from ..kernels.gbuffer_textured import gbuffer_textured_kernel, gbuffer_textured_tiles_kernel
 from ..surface import environment_map, is_textured, surface_data
 from .._util import check_order_width, tile_order_threads
 
@@ -87,8 +87,13 @@ class GBufferStage:
         ds = self.dscene
         g.store_surface()
         env, has_env = environment_map(ds)
-        parallel.launch(gbuffer_textured_kernel, dim=(self.height, self.width),
-                        inputs=[ds.mesh.id, surface_data(ds, self.texture_lod), env, int(has_env), ds.points_prev,
-                                frame.struct],
-                        outputs=[g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved,
-                                 g._albedo, g.material, g.emission], device=self.device)
+        inputs = [ds.mesh.id, surface_data(ds, self.texture_lod), env, int(has_env), ds.points_prev, frame.struct]
+        outputs = [g.position, g.normal, g.depth, g.face, g.hit, g.reproj_uv, g.prev_dist, g.moved, g._albedo,
+                   g.material, g.emission]
+        if self._kernel is gbuffer_tiles_kernel and not parallel.use_row_kernels(self.device):
+            # warps on 8 x 4 blocks, as the untextured launch
+            parallel.launch(gbuffer_textured_tiles_kernel, dim=self._dim, inputs=inputs,
+                            outputs=outputs + [self._wlog2], device=self.device)
+        else:
+            parallel.launch(gbuffer_textured_kernel, dim=(self.height, self.width), inputs=inputs, outputs=outputs,
+                            device=self.device)
