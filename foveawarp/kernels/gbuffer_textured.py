@@ -5,9 +5,9 @@ common fields are :func:`kernels.gbuffer.write_primary`'s; the normal is then th
 kernels/surface.py (normal map applied), and three fields are added: ``albedo`` (linear base colour: texture x
 factor), ``material`` (roughness, metallic, occlusion, specular scale as half floats: 8 bytes) and ``emission``.
 
-Kernels: the full-resolution G-buffer (a one-pixel cone; per pixel, or in warp-sized blocks on CUDA), the sparse mode's coarse G-buffer (a cone over the cell)
-and its saliency from the entries' Lab albedo, and its sampled pixels traced and shaded in one thread (a cone over
-the sample's spacing).
+Kernels: the full-resolution G-buffer (a one-pixel cone; a thread per pixel, on CUDA warps on 8 x 4 blocks), the
+sparse mode's coarse G-buffer (a cone over the cell) and its saliency from the entries' Lab albedo, and its sampled
+pixels traced and shaded in one thread (a cone over the sample's spacing).
 """
 
 import warp as wp

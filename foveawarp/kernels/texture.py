@@ -99,8 +99,8 @@ SPREAD_ANGLE_MAX = wp.constant(3.0)
 class TextureAtlas:
     """All mip levels of all textures of a scene in one array, with their tables.
 
-    Each table row is one load: a lookup reads a texture's row and a level's row, not six scalar tables
-    (the room's textured G-buffer at 1920x1080 spends half its time in texture lookups, H200).
+    A lookup reads one row of each table, not six scalar tables (the room's textured G-buffer kernel at
+    1920x1080 on the H200: 0.55 to 0.52 ms).
 
     Attributes:
         texels: linear RGBA texels, level after level, each level row-major with row 0 at the image's top.
