@@ -403,6 +403,11 @@ class ShadingConfig:
             (9.21 to 8.67) and city (9.00 to 8.41) at 1080p (H200, max_depth 5).
         path_filter_fovea_deg: eccentricity in degrees within which the frame is not filtered, in [0, 90]; the
             filter reaches full strength at twice it.
+        path_history: the weight of the previous frame in a foveated path-traced frame's periphery, in [0, 0.95];
+            0 (the default) turns it off. After the filter, each surface pixel beyond ``path_filter_fovea_deg`` is
+            blended with the previous frame's output reprojected there (bilinear, depth-validated), the weight
+            growing to ``path_history`` at twice that eccentricity (kernels/atrous.py): the periphery, rebuilt
+            from new sparse paths every frame, then changes less from frame to frame. The fovea stays as traced.
         background: linear RGB radiance of rays that miss, each channel >= 0.
         exposure: linear scale before tone mapping, in (0, float32 max].
         white_point: Uncharted 2 linear white point, in (0, float32 max]; radiance beyond ~1e18 after the exposure
@@ -434,6 +439,7 @@ class ShadingConfig:
     path_filter: str = "atrous"
     path_filter_iterations: int = 3
     path_filter_fovea_deg: float = 5.0
+    path_history: float = 0.0
     background: tuple = (0.02, 0.02, 0.03)
     exposure: float = 2.0
     white_point: float = 11.2
@@ -464,6 +470,7 @@ class ShadingConfig:
         check_choice("ShadingConfig.path_filter", self.path_filter, ("none", "atrous"))
         check_int_range("ShadingConfig.path_filter_iterations", self.path_filter_iterations, 1, 5)
         check_range("ShadingConfig.path_filter_fovea_deg", self.path_filter_fovea_deg, 0.0, 90.0)
+        check_range("ShadingConfig.path_history", self.path_history, 0.0, 0.95)
         # at most float32's largest value: the kernels hold them in float32 (an exposure that became inf there made
         # every black pixel inf * 0 = NaN)
         check_range("ShadingConfig.exposure", self.exposure, 0.0, FLOAT32_MAX, lo_open=True)

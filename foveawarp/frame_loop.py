@@ -214,6 +214,14 @@ class FrameLoop:
             self.path_filter = PathFilterStage(w, h, dev, cfg.shading.path_filter_iterations,
                                                cfg.shading.path_filter_fovea_deg)
             self.filtered = wp.zeros((h, w), dtype=wp.vec3, device=dev)
+        # and its history blend (ShadingConfig.path_history)
+        self.path_history = self.held = None
+        if self.path is not None and cfg.shading.path_history > 0.0 and cfg.foveation.enabled:
+            from .stages.path_filter import PeripheryHistoryStage
+
+            self.path_history = PeripheryHistoryStage(w, h, dev, cfg.shading.path_history,
+                                                      cfg.shading.path_filter_fovea_deg, cfg.temporal.depth_eps_rel)
+            self.held = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         # albedo demodulation around the reconstruction (ReconstructionConfig.demodulate; None: with the path
         # integrator, whose periphery filter it keeps off the texture: the room's equal-time FovVideoVDP at 1080p on
         # an H200, 6.83 JOD with the filter alone, 7.42 with both)
@@ -634,6 +642,7 @@ class FrameLoop:
         self._hdr_out = None
         if foveated:
             self._hdr_out = (self.recon if sparse else self.remod if self.demodulation is not None else
+                             self.held if self.path_history is not None else
                              self.filtered if self.path_filter is not None else self.recon)
         if ev is not None:
             self.device.stream.record_event(ev[1])
@@ -806,6 +815,12 @@ class FrameLoop:
             if foveated and self.path_filter is not None:
                 self.path_filter.run(hdr, self.gbuffer, self.sampling.frame_params, self.filtered)
                 hdr = self.filtered
+        with self._stage("path_history", foveated and self.path_history is not None):
+            if foveated and self.path_history is not None:
+                self.path_history.run(hdr, self.gbuffer, self.sampling.frame_params, self.held, history)
+                hdr = self.held
+            elif self.path_history is not None:
+                self.path_history.reset()  # a full-resolution frame: the next foveated one starts afresh
         with self._stage("remodulate", foveated and self.demodulation is not None):
             if foveated and self.demodulation is not None:
                 self.demodulation.remodulate(hdr, self.gbuffer, self.remod)
@@ -834,8 +849,8 @@ class FrameLoop:
             return False
         if strategy == "full":
             return self.indirect is None and self.path is None
-        if self.path_filter is not None or self.demodulation is not None:
-            return False  # the filter or the remodulation follows the reconstruction
+        if self.path_filter is not None or self.path_history is not None or self.demodulation is not None:
+            return False  # the filter, the history blend or the remodulation follows the reconstruction
         rc = self.reconstruct
         return bool(rc.config.sibson and not rc.exact_sibson)
 

@@ -13,11 +13,23 @@ and a tap whose hit flag differs from the pixel's (a surface next to the backgro
 pixels are left as they are. After the last iteration each pixel is blended with its unfiltered value by its
 eccentricity ``e`` from the gaze: the filtered value's weight is 0 within ``fovea_deg`` and grows linearly to 1 at
 ``2 fovea_deg`` (``filter_ramp``), so the exact fovea stays as traced.
+
+The periphery's history (``ShadingConfig.path_history`` = ``a``, off at 0): then each surface pixel's output is
+
+    out = c + (h - c) * a * filter_ramp(e, fovea_deg)
+
+with ``c`` the filtered value and ``h`` the previous frame's output at the pixel's reprojected position
+(``GBuffer.reproj_uv``), bilinear over the taps whose stored depth matches the point's previous distance
+(``GBuffer.prev_dist``) within ``depth_eps_rel`` of its depth, renormalized; with no such tap, a miss, no
+reprojection or no history (first frame, cut, a full-resolution frame before) ``out = c``.
 """
 
 import warp as wp
 
+from .gbuffer import NO_REPROJ
+from .load import load_f32, load_vec3
 from .sampling import FrameParams, eccentricity_at
+from .temporal import bilinear_taps
 
 # the edge-stopping constants: depth relative to the pixel's depth per pixel of step, the normals' exponent and
 # the relative luminance difference
@@ -118,3 +130,69 @@ def blend_by_eccentricity_kernel(frame: wp.array(dtype=FrameParams), unfiltered:
     a = filter_ramp(e, fovea_deg)
     u = unfiltered[y, x]
     out[y, x] = u + (filtered[y, x] - u) * a
+
+
+@wp.func
+def _history_tap(hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float), tx: int, ty: int,
+                 wt: float, dist_prev: float, tol: float):
+    """(weight x colour, weight) of history tap (tx, ty) of bilinear weight ``wt``: 0 off screen or where its
+    stored depth is not ``dist_prev`` within ``tol``."""
+    z = wp.vec3(0.0, 0.0, 0.0)
+    if wt <= 0.0 or tx < 0 or ty < 0 or tx >= hist.shape[1] or ty >= hist.shape[0]:
+        return z, 0.0
+    if not (wp.abs(load_f32(hist_depth, ty, tx) - dist_prev) < tol):
+        return z, 0.0
+    return load_vec3(hist, ty, tx) * wt, wt
+
+
+@wp.kernel(enable_backward=False)
+def periphery_history_kernel(frame: wp.array(dtype=FrameParams), cur: wp.array2d(dtype=wp.vec3),
+                             hit: wp.array2d(dtype=wp.uint8), depth: wp.array2d(dtype=float),
+                             reproj_uv: wp.array2d(dtype=wp.vec2), prev_dist: wp.array2d(dtype=float),
+                             hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float),
+                             valid: wp.array(dtype=wp.int32), use_history: int, weight: float, fovea_deg: float,
+                             depth_eps_rel: float, out: wp.array2d(dtype=wp.vec3), row0: int):
+    """The periphery's history blend of the module docstring: ``cur`` -> ``out``; ``hist`` and ``hist_depth``
+    hold the previous frame's output and G-buffer depth, ``valid[0]`` 1 when they do."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    c = cur[y, x]
+    out[y, x] = c
+    if use_history == 0 or valid[0] == 0 or hit[y, x] == wp.uint8(0):
+        return
+    w = cur.shape[1]
+    h = cur.shape[0]
+    fp = frame[0]
+    e = eccentricity_at(float(x) + 0.5, float(y) + 0.5, fp.gaze, float(w), float(h), fp.tan_half_fov_y)
+    a = weight * filter_ramp(e, fovea_deg)
+    if not (a > 0.0):
+        return
+    uv = reproj_uv[y, x]
+    if uv[0] == NO_REPROJ and uv[1] == NO_REPROJ:
+        return
+    x0, y0, fx, fy = bilinear_taps(uv, w, h)
+    dp = prev_dist[y, x]
+    tol = depth_eps_rel * depth[y, x]
+    c00, w00 = _history_tap(hist, hist_depth, x0, y0, (1.0 - fx) * (1.0 - fy), dp, tol)
+    c10, w10 = _history_tap(hist, hist_depth, x0 + 1, y0, fx * (1.0 - fy), dp, tol)
+    c01, w01 = _history_tap(hist, hist_depth, x0, y0 + 1, (1.0 - fx) * fy, dp, tol)
+    c11, w11 = _history_tap(hist, hist_depth, x0 + 1, y0 + 1, fx * fy, dp, tol)
+    ws = w00 + w10 + w01 + w11
+    if not (ws > 1.0e-6):
+        return
+    hv = (c00 + c10 + c01 + c11) / ws
+    if wp.isfinite(hv[0]) and wp.isfinite(hv[1]) and wp.isfinite(hv[2]):
+        out[y, x] = c + (hv - c) * a
+
+
+@wp.kernel(enable_backward=False)
+def keep_history_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float),
+                        hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float),
+                        valid: wp.array(dtype=wp.int32), row0: int):
+    """The frame's output and depth become the next frame's history (``valid[0] = 1``)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    hist[y, x] = src[y, x]
+    hist_depth[y, x] = depth[y, x]
+    if y == 0 and x == 0:
+        valid[0] = 1
