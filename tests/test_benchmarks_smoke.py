@@ -200,21 +200,23 @@ def test_path(tmp_path):
 
 def test_path_variants_and_summarize(tmp_path):
     """path.py --variants: each foveated item once per variant, with its own configuration (the filtered ones
-    differ from the plain ones outside the fovea), the equal-time read-off per variant and its table; a bad
-    list refused; --summarize writes the markdown and the plot again from the JSON alone."""
+    differ from the plain ones outside the fovea, and the periphery's history from the filter alone), the
+    equal-time read-off per variant and its table; a bad list refused; --summarize writes the markdown and the
+    plot again from the JSON alone."""
     _run("path", ["--device", "cpu", "--quick", "--scenes", "cornell", "--budgets", "pixel",
-                  "--variants", "demod+filter,plain"], tmp_path)
+                  "--variants", "demod+filter,plain,demod+filter+history"], tmp_path)
     res = _result("path", tmp_path)
     (r,) = res["records"]
-    assert r["variants"] == ["demod+filter", "plain"]
+    assert r["variants"] == ["demod+filter", "plain", "demod+filter+history"]
     fov = {it["variant"]: it for it in r["items"] if it["policy"] == "foveated"}
-    assert set(fov) == {"demod+filter", "plain"} and {it["variant"] for it in r["items"]
-                                                        if it["policy"] == "full"} == {"-"}
-    # the fovea as traced in both, the rest of the frame filtered in one
-    assert fov["demod+filter"]["fovea_psnr"] == pytest.approx(fov["plain"]["fovea_psnr"], abs=0.01)
+    assert set(fov) == set(r["variants"]) and {it["variant"] for it in r["items"] if it["policy"] == "full"} == {"-"}
+    # the fovea as traced in all, the rest of the frame filtered in two, and steadied by its history in one
+    for v in ("plain", "demod+filter+history"):
+        assert fov["demod+filter"]["fovea_psnr"] == pytest.approx(fov[v]["fovea_psnr"], abs=0.01)
     assert fov["demod+filter"]["psnr_mean"] != fov["plain"]["psnr_mean"]
+    assert fov["demod+filter"]["psnr_mean"] != fov["demod+filter+history"]["psnr_mean"]
     by = r["equal_time_by_variant"]
-    assert set(by) == {"demod+filter", "plain"} and r["equal_time_item"] == by["demod+filter"]["item"]
+    assert set(by) == set(r["variants"]) and r["equal_time_item"] == by["demod+filter"]["item"]
     md = (tmp_path / "path-cpu.md").read_text()
     assert "Equal time by variant" in md and "| demod+filter |" in md and "| plain |" in md
     (tmp_path / "path-cpu.md").unlink()
