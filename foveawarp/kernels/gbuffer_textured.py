@@ -101,67 +101,56 @@ def trace_primary_textured(
         store_material(y, x, z, pack_material(1.0, 0.0, 1.0, 1.0), e, out_albedo, out_material, out_emission)
 
 
-@wp.kernel(enable_backward=False)
-def gbuffer_textured_kernel(
-    mesh: wp.uint64,
-    sd: SurfaceData,
-    env: EnvironmentMap,
-    has_env: int,
-    points_prev: wp.array(dtype=wp.vec3),
-    ctx: FrameContext,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_material: wp.array2d(dtype=wp.vec4h),
-    out_emission: wp.array2d(dtype=wp.vec3),
-    row0: int,
-):
-    """The full-resolution G-buffer of a textured scene: pixel (x, y) through its centre, a one-pixel cone."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    trace_primary_textured(mesh, sd, env, has_env, points_prev, ctx.cam, ctx.cam_prev, ctx.max_t, float(x) + 0.5,
-                           float(y) + 0.5, 1.0, y, x, out_pos, out_normal, out_depth, out_face, out_hit, out_reproj,
-                           out_prev_dist, out_moved, out_albedo, out_material, out_emission)
+def _make_gbuffer_textured(tiles: bool):
+    """``gbuffer_textured_kernel`` (a thread per pixel over (H, W)) or ``gbuffer_textured_tiles_kernel`` (each
+    warp on a block of ``2**wlog2`` x ``32 / 2**wlog2`` pixels, kernels/order.py; CUDA: neighbouring lanes hit
+    nearby texels and BVH nodes). The same entries in both."""
 
-
-@wp.kernel(enable_backward=False)
-def gbuffer_textured_tiles_kernel(
-    mesh: wp.uint64,
-    sd: SurfaceData,
-    env: EnvironmentMap,
-    has_env: int,
-    points_prev: wp.array(dtype=wp.vec3),
-    ctx: FrameContext,
-    out_pos: wp.array2d(dtype=wp.vec3),
-    out_normal: wp.array2d(dtype=wp.vec3),
-    out_depth: wp.array2d(dtype=float),
-    out_face: wp.array2d(dtype=wp.int32),
-    out_hit: wp.array2d(dtype=wp.uint8),
-    out_reproj: wp.array2d(dtype=wp.vec2),
-    out_prev_dist: wp.array2d(dtype=float),
-    out_moved: wp.array2d(dtype=wp.uint8),
-    out_albedo: wp.array2d(dtype=wp.vec3),
-    out_material: wp.array2d(dtype=wp.vec4h),
-    out_emission: wp.array2d(dtype=wp.vec3),
-    wlog2: int,
-    row0: int,
-):
-    """:func:`gbuffer_textured_kernel` with each warp on a block of ``2**wlog2`` x ``32 / 2**wlog2`` pixels
-    (kernels/order.py; CUDA): neighbouring lanes hit nearby texels and BVH nodes. The same entries."""
-    p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
-    x = p[0]
-    y = p[1]
-    if x < out_depth.shape[1] and y < out_depth.shape[0]:
+    @wp.kernel(enable_backward=False, name="gbuffer_textured_tiles_kernel" if tiles else "gbuffer_textured_kernel")
+    def gbuffer_textured(
+        mesh: wp.uint64,
+        sd: SurfaceData,
+        env: EnvironmentMap,
+        has_env: int,
+        points_prev: wp.array(dtype=wp.vec3),
+        ctx: FrameContext,
+        out_pos: wp.array2d(dtype=wp.vec3),
+        out_normal: wp.array2d(dtype=wp.vec3),
+        out_depth: wp.array2d(dtype=float),
+        out_face: wp.array2d(dtype=wp.int32),
+        out_hit: wp.array2d(dtype=wp.uint8),
+        out_reproj: wp.array2d(dtype=wp.vec2),
+        out_prev_dist: wp.array2d(dtype=float),
+        out_moved: wp.array2d(dtype=wp.uint8),
+        out_albedo: wp.array2d(dtype=wp.vec3),
+        out_material: wp.array2d(dtype=wp.vec4h),
+        out_emission: wp.array2d(dtype=wp.vec3),
+        wlog2: int,
+        row0: int,
+    ):
+        """The full-resolution G-buffer of a textured scene: pixel (x, y) through its centre, a one-pixel cone;
+        ``wlog2`` the tiles launch's block width, log2 (the per-pixel launch ignores it)."""
+        x = int(0)
+        y = int(0)
+        if wp.static(tiles):
+            p = tile_order_pixel(wp.tid() + row0, out_depth.shape[1], wlog2)  # band offset: a range of threads
+            x = p[0]
+            y = p[1]
+            if x >= out_depth.shape[1] or y >= out_depth.shape[0]:
+                return
+        else:
+            y, x = wp.tid()
+            y += row0  # band offset (foveawarp.parallel)
         trace_primary_textured(mesh, sd, env, has_env, points_prev, ctx.cam, ctx.cam_prev, ctx.max_t,
                                float(x) + 0.5, float(y) + 0.5, 1.0, y, x, out_pos, out_normal, out_depth, out_face,
                                out_hit, out_reproj, out_prev_dist, out_moved, out_albedo, out_material,
                                out_emission)
+
+    return gbuffer_textured
+
+
+gbuffer_textured_kernel = _make_gbuffer_textured(False)
+gbuffer_textured_tiles_kernel = _make_gbuffer_textured(True)
 
 
 @wp.kernel(enable_backward=False)

@@ -95,5 +95,5 @@ class GBufferStage:
             parallel.launch(gbuffer_textured_tiles_kernel, dim=self._dim, inputs=inputs,
                             outputs=outputs + [self._wlog2], device=self.device)
         else:
-            parallel.launch(gbuffer_textured_kernel, dim=(self.height, self.width), inputs=inputs, outputs=outputs,
-                            device=self.device)
+            parallel.launch(gbuffer_textured_kernel, dim=(self.height, self.width), inputs=inputs,
+                            outputs=outputs + [0], device=self.device)
