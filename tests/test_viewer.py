@@ -119,6 +119,7 @@ _KNOB_FIELDS = {
     "ao_samples": ("shading", "ao_samples"),
     "max_depth": ("shading", "max_depth"),
     "spp": ("shading", "spp"),
+    "path_history": ("shading", "path_history"),
 }
 
 
@@ -155,7 +156,9 @@ def test_session_config_follows_the_knobs():
     assert (path.shading.integrator, path.shading.max_depth, path.shading.spp) == ("path", 3, 2)
     assert path.shading.path_filter == "none"
     filt = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_filter": True})
-    assert filt.shading.path_filter == "atrous"
+    assert filt.shading.path_filter == "atrous" and filt.shading.path_history == 0.0
+    hist = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_history": 0.5})
+    assert hist.shading.path_history == 0.5
     with pytest.raises(ValueError, match="computes indirect light itself"):
         ViewerSession.config_for({**knobs, "path": True})
 

@@ -292,15 +292,17 @@ def test_path_knob_renders_path_traced_frames():
 
 
 def test_path_filter_knob_filters_the_foveated_frame():
-    """The page's periphery-filter knob builds the loop's a-trous filter; the frames stay finite."""
+    """The page's periphery-filter and periphery-history knobs build the loop's a-trous filter and history
+    blend; the frames stay finite."""
     s = ViewerSession(["cornell"], W, H, device="cpu")
     s.apply({"type": "set", "knob": "indirect", "value": False})
-    for knob, value in (("path", True), ("path_filter", True)):
+    for knob, value in (("path", True), ("path_filter", True), ("path_history", 0.5)):
         s.apply({"type": "set", "knob": knob, "value": value})
     with s._cond:
         snap = s._snapshot()
     s._ensure_loops(snap)
     assert s._loop.path_filter is not None and s._loop.config.shading.path_filter == "atrous"
+    assert s._loop.path_history is not None and s._loop.config.shading.path_history == 0.5
     for _ in range(2):
         s._render(snap)
     out = s._loop.filtered.numpy()

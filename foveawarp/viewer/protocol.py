@@ -99,6 +99,8 @@ KNOBS = {
                                   '"direct"'),
         Knob("path_filter", "bool", doc='ShadingConfig.path_filter: "atrous" (the foveated path-traced frame\'s '
                                          'periphery filtered) or "none"'),
+        Knob("path_history", "float", 0.0, 0.95, doc="ShadingConfig.path_history: the previous frame's weight in "
+                                                      "the path-traced periphery, [0, 0.95]; 0 = off"),
         Knob("max_depth", "int", 1, 4096, doc="ShadingConfig.max_depth of the path integrator, [1, 4096]"),
         Knob("spp", "int", 1, 65536, doc="ShadingConfig.spp: paths per traced pixel, [1, 65536]"),
     )

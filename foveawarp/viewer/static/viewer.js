@@ -177,7 +177,7 @@
     $("falloff_deg").disabled = off;
     if (!off) $("falloff_deg").value = k.falloff_deg;
     $("falloff_deg_out").textContent = off ? "null" : String(k.falloff_deg);
-    for (const id of ["block", "ao_samples", "max_depth", "spp"]) if (document.activeElement !== $(id)) $(id).value = k[id];
+    for (const id of ["block", "ao_samples", "max_depth", "spp", "path_history"]) if (document.activeElement !== $(id)) $(id).value = k[id];
     for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter"]) $(id).checked = !!k[id];
     for (const el of document.querySelectorAll("small.range")) {
       const i = s.knob_info[el.dataset.range];
@@ -206,6 +206,7 @@
   for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter"]) {
     $(id).addEventListener("change", (e) => setKnob(id, e.target.checked));
   }
+  $("path_history").addEventListener("change", (e) => { const v = Number(e.target.value); if (Number.isFinite(v)) setKnob("path_history", v); else showError("path_history must be a number"); });
 
   // -- stats -------------------------------------------------------------------------------------
   function pct(v) { return v === undefined || v === null ? "-" : (100 * v).toFixed(1) + " %"; }
