@@ -2,7 +2,8 @@
 stages/path_filter.py): the kernel against a NumPy transcription of the module docstring's formula (bilinear
 reprojection, depth-validated taps, the eccentricity ramp; 1e-5), the cases that leave the frame as it is, an
 exponential moving average on a still view, finite output from any input (hypothesis), and inside FrameLoop:
-the fovea exactly as without it and a periphery that changes less from frame to frame."""
+the fovea exactly as without it, a periphery that changes less from frame to frame, and a full-resolution
+frame in between emptying the history."""
 
 from __future__ import annotations
 
@@ -209,3 +210,24 @@ def test_frame_loop_steadies_the_periphery_only(device):
     err = {ph: float(np.sqrt(np.mean((out[ph][far] / (1 + out[ph][far]) - conv[far] / (1 + conv[far])) ** 2)))
            for ph in out}
     assert err[0.75] < 1.05 * err[0.0], err
+
+
+def test_a_full_resolution_frame_resets_the_history():
+    """A full-resolution frame between foveated ones (the policy switched) empties the history: the next
+    foveated frame is the filtered frame itself; the one after blends again."""
+    scene = fw.load_scene("cornell", area_light=True)
+    cfg = fw.Config().with_(shading={**PATH, "path_history": 0.75})
+    loop = fw.FrameLoop(scene, 64, 36, config=cfg, device="cpu", policy="foveated")
+    gaze = (20.0, 18.0)
+    for i in range(3):
+        loop.render(scene.camera_at(i / 30.0), gaze_px=gaze)
+    assert loop.path_history.valid.numpy()[0] == 1
+    assert not np.array_equal(loop.held.numpy(), loop.filtered.numpy())
+    loop.policy = "full"
+    loop.render(scene.camera_at(3 / 30.0), gaze_px=gaze)
+    assert loop.path_history.valid.numpy()[0] == 0
+    loop.policy = "foveated"
+    loop.render(scene.camera_at(4 / 30.0), gaze_px=gaze)
+    np.testing.assert_array_equal(loop.held.numpy(), loop.filtered.numpy())
+    loop.render(scene.camera_at(5 / 30.0), gaze_px=gaze)
+    assert not np.array_equal(loop.held.numpy(), loop.filtered.numpy())
