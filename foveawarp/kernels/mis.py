@@ -30,7 +30,9 @@ def power_heuristic(pa: float, pb: float) -> float:
 
 @wp.func
 def nee_weight(f: wp.vec3, cos_s: float, le: wp.vec3, pdf_light: float, pdf_bsdf: float) -> wp.vec3:
-    """A light sample's MIS-weighted contribution f cos Le w / pdf_light (0 for a zero pdf)."""
+    """A sample's MIS-weighted contribution f cos Le w / pdf_light (0 for a zero pdf), w the power heuristic of
+    the strategy that drew it (pdf ``pdf_light``: a light, or the BSDF for a BSDF-sampled direction) against the
+    other (``pdf_bsdf``)."""
     if not (pdf_light > 0.0):
         return wp.vec3(0.0, 0.0, 0.0)
     w = power_heuristic(pdf_light, pdf_bsdf)

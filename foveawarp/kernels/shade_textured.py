@@ -27,7 +27,7 @@ import warp as wp
 
 from .bsdf import bsdf_eval, bsdf_pdf, bsdf_sample, frame_from_normal, make_material, to_local, to_world
 from .envmap import EnvironmentMap, env_eval, env_pdf, env_sample
-from .mis import nee_weight, power_heuristic
+from .mis import nee_weight
 from .rng import cosine_hemisphere, pixel_rng
 from .shade import AreaLightParams, LightParams, ShadeParams, list_pixel, spot_factor
 from .surface import SurfaceData, surface_visible
@@ -154,9 +154,7 @@ def shade_textured_parts(sp: ShadeParams, tp: TexturedShadeParams, pixel: int, p
                     if sp.shadows != 0:
                         vis = surface_visible(sp.mesh, tp.sd, p, n, sp.ray_eps, wb, tp.far)
                     if vis > 0.0:
-                        le = env_eval(tp.env, wb)
-                        w = power_heuristic(bs.pdf, env_pdf(tp.env, wb))
-                        acc += wp.cw_mul(bs.f, le) * (bs.wi[2] * w / bs.pdf)
+                        acc += nee_weight(bs.f, bs.wi[2], env_eval(tp.env, wb), bs.pdf, env_pdf(tp.env, wb))
         stoch += acc / float(tp.env_samples)
     return col, stoch, rng
 
