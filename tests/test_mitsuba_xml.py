@@ -272,6 +272,34 @@ def test_cube_matches_mitsubas_mesh(tmp_path):
     assert uv.min() == 0.0 and uv.max() == 1.0
 
 
+@pytest.mark.parametrize("flip", [False, True])
+def test_negative_radius_turns_the_sphere_inward_as_mitsuba_does(tmp_path, flip):
+    """A sphere of radius -0.5 (with and without flip_normals): the same surface as radius 0.5, its shading normals
+    and winding against the ones Mitsuba 3 reports where rays along the axes hit it."""
+    fl = '<boolean name="flip_normals" value="true"/>' if flip else ""
+    p = _scene(tmp_path, f'<shape type="sphere"><point name="center" x="1" y="2" z="3"/>'
+                         f'<float name="radius" value="-0.5"/>{fl}</shape>')
+    d, _ = _read(p)
+    v, f, _, nrm = _shape_arrays(d, 0)
+    c = np.array([1.0, 2.0, 3.0])
+    np.testing.assert_allclose(np.linalg.norm(v - c, axis=1), 0.5, rtol=1e-6)
+    outward = np.einsum("ij,ij->i", nrm, v - c) > 0
+    geo = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    geo_out = np.einsum("ij,ij->i", geo, v[f].mean(axis=1) - c) > 0
+    assert outward.all() == flip and (~outward).all() == (not flip)
+    assert geo_out.all() == flip and (~geo_out).all() == (not flip)
+    mi.set_variant("scalar_rgb")
+    ms = mi.load_file(str(p))
+    for axis in range(3):
+        o = c.copy()
+        o[axis] += 5.0
+        dvec = np.zeros(3)
+        dvec[axis] = -1.0
+        si = ms.ray_intersect(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*dvec)))
+        assert si.is_valid()
+        assert (float(np.dot(np.array(si.n), np.array(si.p) - c)) > 0) == flip
+
+
 # --------------------------------------------------------------------------------------------------------------
 # the sensor against Mitsuba 3
 
@@ -541,6 +569,10 @@ def test_emitters(tmp_path):
     ('<shape type="disk"/>', "1.0.0", "version '1.0.0'"),
     ('<shape type="disk"/>', "0.4.0", "version '0.4.0'"),
     ('<shape type="sphere"><float name="radius" value="big"/></shape>', "3.0.0", "'big'"),
+    ('<shape type="disk"><bsdf type="roughconductor"><float name="alpha" value="-0.2"/></bsdf></shape>', "3.0.0",
+     "alpha must be >= 0, got -0.2"),
+    ('<shape type="disk"><bsdf type="roughplastic"><float name="alpha_u" value="0.1"/>'
+     '<float name="alpha_v" value="-1"/></bsdf></shape>', "3.0.0", "alpha_u and alpha_v must be >= 0"),
 ])
 def test_errors_name_the_file_and_what_was_wrong(tmp_path, body, version, what):
     p = _scene(tmp_path, body, version=version)

@@ -310,6 +310,18 @@ def test_malformed_numbers_name_the_line(tmp_path):
         read_obj(tmp_path / "none.obj")
 
 
+@pytest.mark.parametrize("stmt", ["Kd 0.5 nan 0.5", "Ke inf 1 1", "Ns nan", "d -inf", "Pr nan",
+                                  "map_Kd -s nan 1 1 t.png"])
+def test_non_finite_mtl_numbers_name_the_line(tmp_path, stmt):
+    """NaN or Inf in an MTL statement is a ValueError naming the file, the line and the statement (a NaN base
+    colour once clamped silently to 0)."""
+    (tmp_path / "t.png").write_bytes(b"")
+    (tmp_path / "bad.mtl").write_text(f"newmtl m\nKs 1 1 1\n{stmt}\n")
+    (tmp_path / "m.obj").write_text("mtllib bad.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n")
+    with pytest.raises(ValueError, match=r"bad\.mtl:3: " + stmt.split()[0] + " must be followed by finite numbers"):
+        read_obj(tmp_path / "m.obj")
+
+
 def test_load_scene_obj_with_and_without_materials(tmp_path):
     _png(tmp_path / "tex.png", np.tile(np.array([255, 0, 0, 255], dtype=np.uint8), (4, 4, 1)))
     p = _quad_with(tmp_path, "newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")

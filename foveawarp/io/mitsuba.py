@@ -26,8 +26,9 @@ Shapes (each placed by its ``to_world``; normals by the inverse transpose, the w
     - ``rectangle`` ([-1, 1]^2 at z = 0, normal +z, uv = ((x + 1) / 2, (y + 1) / 2)), ``disk`` (unit disk at z = 0,
       normal +z, 128 segments, uv = (r, phi / 2 pi)), ``cube`` ([-1, 1]^3, 4 vertices per face, uv 0..1 per face
       in a layout of its own, not Mitsuba's),
-      ``sphere`` (``center``, ``radius``; 96 x 48 quads in latitude-longitude about local z, uv = (phi / 2 pi,
-      theta / pi); its vertices lie on the sphere and its flat facets at most 0.054 % of the radius inside).
+      ``sphere`` (``center``, ``radius``, a negative one turning the normals inward as in Mitsuba; 96 x 48 quads
+      in latitude-longitude about local z, uv = (phi / 2 pi, theta / pi); its vertices lie on the sphere and its
+      flat facets at most 0.054 % of the radius inside).
     - an ``area`` emitter on a shape: the shape's material emits ``radiance`` (``SceneData`` convention:
       :func:`~foveawarp.io.scenedata.emission_material`).
 
@@ -445,7 +446,9 @@ class _Reader:
             au, av = self.float_of(p.get("alpha_u"), 0.1), self.float_of(p.get("alpha_v"), 0.1)
             if abs(au - av) > 1e-9:
                 self.note(f"anisotropic roughness of {what} (the geometric mean of alpha_u and alpha_v is used)")
-            a = math.sqrt(max(au, 0.0) * max(av, 0.0))
+            if au < 0.0 or av < 0.0:
+                self.fail(f"{what}: alpha_u and alpha_v must be >= 0, got {au:g} and {av:g}")
+            a = math.sqrt(au * av)
         else:
             el = p.get("alpha")
             if el is not None and self.resolve(el).tag == "texture":
@@ -453,7 +456,9 @@ class _Reader:
                 a = 0.1
             else:
                 a = self.float_of(el, 0.1)
-        return min(1.0, math.sqrt(max(a, 0.0)))
+                if a < 0.0:
+                    self.fail(f"{what}: alpha must be >= 0, got {a:g}")
+        return min(1.0, math.sqrt(a))
 
     def material(self, el: Optional[ET.Element]) -> int:
         """The material index of a BSDF element (one per element; None: Mitsuba's default diffuse)."""
@@ -848,6 +853,7 @@ def read_mitsuba(path, *, params: Optional[dict] = None) -> SceneData:
 
 def _shape(rd: _Reader, el: ET.Element):
     kind = el.get("type")
+    inward = False  # a negative sphere radius turns its normals inward (Mitsuba 3's sphere does the same)
     p = rd.params(el)
     name = el.get("id") or el.get("name") or kind or "shape"
     m = rd.transform_of(p.get("to_world"))
@@ -873,6 +879,7 @@ def _shape(rd: _Reader, el: ET.Element):
         pos, nrm, uv, tri = _sphere()
         c = rd.vec3_of(p["center"]) if "center" in p else np.zeros(3)
         r = rd.float_of(p.get("radius"), 1.0)
+        inward, r = r < 0.0, abs(r)
         local = np.eye(4)
         local[:3, :3] *= r
         local[:3, 3] = c
@@ -889,7 +896,7 @@ def _shape(rd: _Reader, el: ET.Element):
     if abs(float(np.linalg.det(m[:3, :3]))) < 1e-300:
         rd.note(f"{rd.label(el)} with a singular to_world (flattened)")
     pos, nrm, tri = transform_mesh(pos, nrm, tri, m)
-    if rd.bool_of(p.get("flip_normals"), False):
+    if rd.bool_of(p.get("flip_normals"), False) != inward:
         nrm, tri = -nrm, tri[:, [0, 2, 1]]
     if rd.bool_of(p.get("face_normals"), False):
         tri, pos, uv = split_flat(tri, pos, uv)

@@ -431,7 +431,7 @@ def _rgb(vals: list, default) -> tuple:
 def read_mtl(path, *, strict: bool = False, warn: Optional[list] = None) -> dict:
     """{material name: dict of the statements read} of one MTL file: "Kd", "Ks", "Ke" (RGB tuples), "Ns", "d",
     "Pr", "Pm" (floats), "map_Kd", "map_Ke", "map_d", "norm", "bump" (:class:`_MapSpec`). ValueError for a
-    missing file or a malformed number, naming the file and line."""
+    missing file or a malformed or non-finite number, naming the file and line."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"MTL file {str(path)!r} not found")
@@ -459,17 +459,25 @@ def read_mtl(path, *, strict: bool = False, warn: Optional[list] = None) -> dict
                 if rest.split()[:1] in (["spectral"], ["xyz"]):
                     (warn if warn is not None else []).append(f"{path}:{no}: {key} {rest.split()[0]} is not read")
                     continue
-                cur[key[0].upper() + key[1].lower()] = _rgb([float(x) for x in rest.split()], None)
+                vals = [float(x) for x in rest.split()]
+                if not all(math.isfinite(v) for v in vals):
+                    raise ValueError(key)
+                cur[key[0].upper() + key[1].lower()] = _rgb(vals, None)
             elif lk in ("ns", "d", "tr", "pr", "pm", "ni"):
-                cur[{"ns": "Ns", "d": "d", "tr": "Tr", "pr": "Pr", "pm": "Pm", "ni": "Ni"}[lk]] = \
-                    float(rest.split()[0])
+                v = float(rest.split()[0])
+                if not math.isfinite(v):
+                    raise ValueError(key)
+                cur[{"ns": "Ns", "d": "d", "tr": "Tr", "pr": "Pr", "pm": "Pm", "ni": "Ni"}[lk]] = v
             elif lk in ("map_kd", "map_ke", "map_d", "norm", "map_bump", "bump", "map_pr", "map_pm", "map_ks",
                         "map_ns", "disp", "refl"):
                 spec = _parse_map(rest, path.parent)
+                if spec is not None and not all(math.isfinite(v) for k in ("-o", "-s", "-t")
+                                                for v in spec.options.get(k, [])):
+                    raise ValueError(key)
                 if spec is not None:
                     cur[_MAP_KEYS.get(lk, lk)] = spec
         except (ValueError, IndexError):
-            lp.fail(no, f"{key} must be followed by numbers, got {rest!r}")
+            lp.fail(no, f"{key} must be followed by finite numbers, got {rest!r}")
     return out
 
 
