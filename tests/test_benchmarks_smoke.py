@@ -424,7 +424,7 @@ def test_help_shows_the_common_options_and_the_canonical_run(capsys):
 
 def test_canonical_sh_parts(tmp_path):
     """tools/canonical.sh with a stand-in python that logs its arguments: part1 and part2 together run every
-    entry point but path once, each part its own, part3 the textured frame and stages runs, part4 the seven path
+    entry point but path once, each part its own, part3 the textured frame and stages runs, part4 the eight path
     runs (the 4K entry one scene per run); a list runs the names given; an unknown name is refused; without
     frame-h200.json the README step fails and the exit status says so."""
     fake = tmp_path / "bin"
@@ -453,7 +453,7 @@ def test_canonical_sh_parts(tmp_path):
     r5, s5 = run("part3")
     assert r5.returncode == 0 and s5 == ["benchmarks/frame.py", "benchmarks/stages.py"], r5.stderr
     r6, s6 = run("part4")
-    assert r6.returncode == 0 and s6 == ["benchmarks/path.py"] * 7, r6.stderr
+    assert r6.returncode == 0 and s6 == ["benchmarks/path.py"] * 8, r6.stderr
     assert set(s1[:2]) | set(s2) | set(s5) | set(s6) == entries
     r3, s3 = run("dof", "cpu")
     assert r3.returncode == 0 and s3 == ["benchmarks/dof.py", "benchmarks/cpu.py"]

@@ -13,12 +13,13 @@
 #   part4   path (path: foveated against full-resolution path tracing on cornell, bunny, city at 1920x1080, then
 #           path4k: at 3840x2160, FovVideoVDP on cornell and bunny against 64-path whole-frame targets, one scene
 #           per run; pathrooms: the textured room and the Grey & White Room at 1920x1080,
-#           pathrooms4k: the room at 3840x2160, all kept in the same JSON), pathvariants (path-variants: the
-#           foveated reconstruction with and without demodulation and filter) (estimated 7 x 6 minutes)
+#           pathrooms4k: the room at 3840x2160, pathgwr4k: the Grey & White Room at 3840x2160, all kept in the
+#           same JSON), pathvariants (path-variants: the foveated reconstruction with and without demodulation and
+#           filter) (estimated 8 x 6 minutes)
 #   all     part1 to part4 (the default)
 #   readme  only the README's results table, from benchmarks/results/frame-h200.json
 #   ENTRY   one or more entry point names (frame, reorder, stages, dof, indirect, viewer, robustness, cpu,
-#           textured, textures, path, path4k, pathrooms, pathrooms4k, pathvariants)
+#           textured, textures, path, path4k, pathrooms, pathrooms4k, pathgwr4k, pathvariants)
 #
 # The GPU machine has a copy of the working tree without .git: set FOVEAWARP_COMMIT to the commit it came from
 # (every JSON records it). Meshes that assets/ does not ship (nefertiti) are read from $FOVEAWARP_SCENES or a
@@ -92,6 +93,12 @@ canonical_pathrooms4k() {
     run pathrooms4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
         --scenes room --sizes 3840x2160 --converged-spp 48 --warm 4 "${keep[@]}"
 }
+canonical_pathgwr4k() {  # fovea metrics only, as the room at 4K; the scene is read from $FOVEAWARP_SCENES_DIR
+    local keep=()
+    [ -f benchmarks/results/path-h200.json ] && keep=(--keep benchmarks/results/path-h200.json)
+    run pathgwr4k python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 \
+        --scenes grey-white-room --sizes 3840x2160 --converged-spp 48 --warm 4 "${keep[@]}"
+}
 canonical_pathvariants() {
     run pathvariants python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag variants-h200 \
         --scenes cornell,room --sizes 1920x1080 --full-spp 1,2,4 --fov-spp 1,2,4 --budgets pixel \
@@ -144,9 +151,9 @@ canonical_readme() {
 PART1=(frame reorder readme)
 PART2=(stages dof indirect viewer robustness cpu)
 PART3=(textured textures)
-PART4=(path path4k pathrooms pathrooms4k pathvariants)
+PART4=(path path4k pathrooms pathrooms4k pathgwr4k pathvariants)
 ENTRIES=(frame reorder stages dof indirect viewer robustness cpu textured textures path path4k pathrooms pathrooms4k
-         pathvariants readme)
+         pathgwr4k pathvariants readme)
 
 todo=()
 [ $# -eq 0 ] && set -- all
