@@ -313,8 +313,8 @@ def test_malformed_numbers_name_the_line(tmp_path):
 @pytest.mark.parametrize("stmt", ["Kd 0.5 nan 0.5", "Ke inf 1 1", "Ns nan", "d -inf", "Pr nan",
                                   "map_Kd -s nan 1 1 t.png"])
 def test_non_finite_mtl_numbers_name_the_line(tmp_path, stmt):
-    """NaN or Inf in an MTL statement is a ValueError naming the file, the line and the statement (a NaN base
-    colour once clamped silently to 0)."""
+    """NaN or Inf in an MTL statement is a ValueError naming the file, the line and the statement (clamped
+    to [0, 1] by min and max, a NaN base colour would become 0 without a word)."""
     (tmp_path / "t.png").write_bytes(b"")
     (tmp_path / "bad.mtl").write_text(f"newmtl m\nKs 1 1 1\n{stmt}\n")
     (tmp_path / "m.obj").write_text("mtllib bad.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n")
