@@ -322,6 +322,38 @@ def test_non_finite_mtl_numbers_name_the_line(tmp_path, stmt):
         read_obj(tmp_path / "m.obj")
 
 
+_MTL_KEYS = ["Kd", "Ks", "Ke", "Ns", "d", "Tr", "Pr", "Pm", "Ni"]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.sampled_from(_MTL_KEYS), st.lists(st.floats(width=32), min_size=1, max_size=3)),
+                min_size=1, max_size=6))
+def test_mtl_numbers_load_finite_or_fail_at_their_line(tmp_path, stmts):
+    """Any numbers, NaN, Inf and float32's extremes included, in any MTL statement: the file loads with finite
+    material factors, or raises ValueError; a non-finite number raises naming the first line that holds one."""
+    import math
+
+    lines = ["newmtl m"] + [f"{k} " + " ".join(repr(v) for v in vals[:3 if k in ('Kd', 'Ks', 'Ke') else 1])
+                            for k, vals in stmts]
+    (tmp_path / "h.mtl").write_text("\n".join(lines) + "\n")
+    (tmp_path / "h.obj").write_text("mtllib h.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n")
+    bad = [no for no, ln in enumerate(lines[1:], 2) if any(not math.isfinite(float(t)) for t in ln.split()[1:])]
+    try:
+        d, _ = _read(tmp_path / "h.obj")
+    except ValueError as e:
+        if bad:
+            assert f"h.mtl:{bad[0]}:" in str(e)
+        else:  # finite but outside a field's range (an IOR of 1e30): the material names itself
+            assert "'m'" in str(e) or "h.mtl" in str(e), str(e)
+        return
+    assert not bad
+    (m,) = d.materials
+    for name in ("base_color_factor", "emissive_factor", "metallic_factor", "roughness_factor", "emissive_strength",
+                 "ior", "transmission_factor", "alpha_cutoff"):
+        assert np.isfinite(np.asarray(getattr(m, name), dtype=np.float64)).all(), name
+    assert 0.0 <= min(m.base_color_factor) and max(m.base_color_factor) <= 1.0
+
+
 def test_load_scene_obj_with_and_without_materials(tmp_path):
     _png(tmp_path / "tex.png", np.tile(np.array([255, 0, 0, 255], dtype=np.uint8), (4, 4, 1)))
     p = _quad_with(tmp_path, "newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")
