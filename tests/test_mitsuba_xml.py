@@ -610,6 +610,17 @@ def test_unsupported_content_is_named_in_one_warning(tmp_path):
     np.testing.assert_allclose(d.materials[0].base_color_factor, (0.5, 0.5, 0.5, 1.0))  # the hair -> diffuse 0.5
 
 
+@pytest.mark.parametrize("value, expect", [("1.5, 0.5, 0.5", (1.0, 0.5, 0.5)), ("-0.5, 0.25, 1", (0.0, 0.25, 1.0))])
+def test_a_colour_outside_0_1_is_clamped_and_named(tmp_path, value, expect):
+    d, msgs = _read(_scene(tmp_path, f'<shape type="rectangle"><bsdf type="diffuse" id="wall"><rgb name="reflectance" '
+                                     f'value="{value}"/></bsdf></shape>'))
+    np.testing.assert_allclose(d.materials[0].base_color_factor, expect + (1.0,))
+    assert len(msgs) == 1 and "bsdf 'wall' (diffuse): a colour outside [0, 1] (clamped)" in msgs[0]
+    d, msgs = _read(_scene(tmp_path, '<shape type="rectangle"><bsdf type="diffuse"><rgb name="reflectance" '
+                                     'value="1, 0, 0.5"/></bsdf></shape>', name="in.xml"))
+    assert msgs == []
+
+
 _SNIPPETS = [
     '<shape type="sphere"><float name="radius" value="0"/></shape>',
     '<shape type="rectangle"><transform name="to_world"><scale value="0"/></transform></shape>',

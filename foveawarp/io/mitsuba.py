@@ -62,6 +62,8 @@ BSDFs -> :class:`foveawarp.materials.Material` (glTF metallic-roughness; GGX rou
       ``raw`` / version 0.5's ``gamma`` (an sRGB base colour read raw is taken as sRGB, with a warning), the
       ``to_uv`` scale and offset and version 0.5's ``uscale``/``vscale``/``uoffset``/``voffset``.
     - a shape without a BSDF gets Mitsuba's default, a single-sided diffuse of reflectance 0.5.
+    - a base colour outside [0, 1] (Mitsuba renders it as given) is clamped to it, with a warning; a negative
+      ``alpha`` is a ``ValueError``.
 
 Emitters -> :class:`~foveawarp.io.scenedata.LightData` / :class:`~foveawarp.io.scenedata.EnvironmentData`:
     ``point`` (``position`` or ``to_world``, ``intensity`` W/sr), ``spot`` (``to_world`` along local +z,
@@ -441,6 +443,13 @@ class _Reader:
             return ((1.0, 1.0, 1.0), t) if t is not None else (tuple(default), None)
         return self.color_of(r, default), None
 
+    def rgba(self, col, what: str) -> tuple:
+        """A base colour in [0, 1] (opaque); a channel outside is clamped and named in the warning."""
+        out = tuple(min(1.0, max(0.0, float(c))) for c in col[:3])
+        if out != tuple(float(c) for c in col[:3]):
+            self.note(f"{what}: a colour outside [0, 1] (clamped)")
+        return out + (1.0,)
+
     def alpha_param(self, p: dict, what: str) -> float:
         if "alpha_u" in p or "alpha_v" in p:
             au, av = self.float_of(p.get("alpha_u"), 0.1), self.float_of(p.get("alpha_v"), 0.1)
@@ -499,7 +508,8 @@ class _Reader:
 
         if kind == "diffuse":
             col, tex = self.colour_param(get("reflectance"), (0.5, 0.5, 0.5), "base colour")
-            mat = Material(name=name, base_color_factor=_rgba(col), base_color_texture=tex, metallic_factor=0.0,
+            mat = Material(name=name, base_color_factor=self.rgba(col, what),
+                           base_color_texture=tex, metallic_factor=0.0,
                            roughness_factor=1.0)
         elif kind in ("plastic", "roughplastic"):
             col, tex = self.colour_param(get("diffuse_reflectance"), (0.5, 0.5, 0.5), "base colour")
@@ -507,7 +517,8 @@ class _Reader:
                 if kind == "roughplastic" else 0.0
             used.update(("int_ior", "ext_ior", "distribution", "nonlinear", "specular_reflectance",
                          "sample_visible"))
-            mat = Material(name=name, base_color_factor=_rgba(col), base_color_texture=tex, metallic_factor=0.0,
+            mat = Material(name=name, base_color_factor=self.rgba(col, what),
+                           base_color_texture=tex, metallic_factor=0.0,
                            roughness_factor=rough)
         elif kind in ("conductor", "roughconductor"):
             spec, stex = self.colour_param(get("specular_reflectance"), (1.0, 1.0, 1.0), "base colour")
@@ -526,7 +537,7 @@ class _Reader:
             rough = self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what) \
                 if kind == "roughconductor" else 0.0
             used.update(("ext_eta", "distribution", "sample_visible"))
-            mat = Material(name=name, base_color_factor=_rgba(tuple(a * b for a, b in zip(spec, f0))),
+            mat = Material(name=name, base_color_factor=self.rgba(tuple(a * b for a, b in zip(spec, f0)), what),
                            base_color_texture=stex, metallic_factor=1.0, roughness_factor=rough)
         elif kind in ("dielectric", "roughdielectric"):
             rough = self.alpha_param({k: get(k) for k in ("alpha", "alpha_u", "alpha_v") if k in p}, what) \
@@ -541,7 +552,8 @@ class _Reader:
             used.update(("distribution", "specular_reflectance", "sample_visible"))
             self.note(f"{kind} BSDFs (path integrator: refracting glass; direct integrator: its surface "
                       f"reflection only)")
-            mat = Material(name=name, base_color_factor=_rgba(tint), metallic_factor=0.0, roughness_factor=rough,
+            mat = Material(name=name, base_color_factor=self.rgba(tint, what),
+                           metallic_factor=0.0, roughness_factor=rough,
                            double_sided=True, transmission_factor=1.0, ior=ior)
         elif kind == "thindielectric":
             used.update(("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"))
@@ -560,7 +572,8 @@ class _Reader:
                     vals.append(min(1.0, max(0.0, self.float_of(el_k, default))))
             used.update(("specular", "spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat",
                          "clearcoat_gloss", "spec_trans", "eta", "sample_visible"))
-            mat = Material(name=name, base_color_factor=_rgba(col), base_color_texture=tex, metallic_factor=vals[0],
+            mat = Material(name=name, base_color_factor=self.rgba(col, what),
+                           base_color_texture=tex, metallic_factor=vals[0],
                            roughness_factor=vals[1])
         elif kind == "twosided":
             mat = replace(inner(), double_sided=True)
@@ -601,8 +614,6 @@ class _Reader:
         return replace(mat, name=name)
 
 
-def _rgba(col) -> tuple:
-    return tuple(min(1.0, max(0.0, float(c))) for c in col[:3]) + (1.0,)
 
 
 def _rotation(axis: np.ndarray, angle_deg: float, rd: _Reader, el) -> np.ndarray:
