@@ -7,10 +7,10 @@ history), the others are each synchronized and timed (median ms) and scored:
 
 * the full-resolution frame (``FrameLoop(policy="full")``: every pixel traced, no reuse) at each ``--full-spp``;
 * the foveated frame (``policy="foveated"``: the sampled pixels traced, the temporal resolve accumulating the
-  paths with history clipping, Sibson reconstruction; with demodulation, the periphery filter and its history per
-  ``--variants`` item, by default the path integrator's defaults) at each ``--fov-spp`` under each ``--budgets`` item
-  (``ShadingConfig.path_budget``: "pixel", spp paths at every traced pixel; "frame", a full-resolution frame's
-  spp x W x H paths shared by sampling probability, at most ``--max-spp`` per pixel).
+  paths with history clipping, Sibson reconstruction; with demodulation, the periphery filter, its history or its
+  variance guide per ``--variants`` item, by default the path integrator's defaults) at each ``--fov-spp`` under
+  each ``--budgets`` item (``ShadingConfig.path_budget``: "pixel", spp paths at every traced pixel; "frame", a
+  full-resolution frame's spp x W x H paths shared by sampling probability, at most ``--max-spp`` per pixel).
 
 Target: the converged image of each frame's camera, traced by the loops' own path stage (the same pixel filter
 and material). In the fovea (eccentricity <= 5 degrees of the gaze) ``--fovea-spp`` paths per pixel over the
@@ -60,10 +60,14 @@ from benchmarks.frame import gaze_path  # noqa: E402
 CANONICAL = ("python benchmarks/path.py --device cuda:0 --out benchmarks/results --tag h200 "
              "--scenes cornell,bunny,city --sizes 1920x1080 --images benchmarks/out/path-images")
 FOVEA_DEG = 5.0
-# --variants: (ReconstructionConfig.demodulate, ShadingConfig.path_filter, ShadingConfig.path_history) of the
-# foveated frames
-VARIANTS = {"plain": (False, "none", 0.0), "demod": (True, "none", 0.0), "filter": (False, "atrous", 0.0),
-            "demod+filter": (True, "atrous", 0.0), "demod+filter+history": (True, "atrous", 0.75)}
+# --variants: (ReconstructionConfig.demodulate, ShadingConfig overrides) of the foveated frames
+_FILTER = {"path_filter": "atrous"}
+VARIANTS = {"plain": (False, {"path_filter": "none"}), "demod": (True, {"path_filter": "none"}),
+            "filter": (False, _FILTER), "demod+filter": (True, _FILTER),
+            "demod+filter+history": (True, {**_FILTER, "path_history": 0.75}),
+            "demod+filter+variance": (True, {**_FILTER, "path_filter_guide": "variance"}),
+            "demod+filter5+variance": (True, {**_FILTER, "path_filter_guide": "variance",
+                                              "path_filter_iterations": 5})}
 FLIP_MARGIN = 8  # pixels of context around the fovea's box for FLIP's spatial filters
 
 
@@ -263,8 +267,9 @@ def main(argv=None):
                    help="comma list of the foveated frames' reconstruction: plain (ReconstructionConfig.demodulate "
                         "off, ShadingConfig.path_filter 'none'), demod (demodulated, no filter), filter (the filter "
                         "alone), demod+filter (both: the path integrator's defaults), demod+filter+history (both and "
-                        "ShadingConfig.path_history 0.75); the first is the read-offs' (the full-resolution frames "
-                        "have none of them)")
+                        "ShadingConfig.path_history 0.75), demod+filter+variance (both, the filter's variance "
+                        "guide: ShadingConfig.path_filter_guide), demod+filter5+variance (that with 5 iterations); "
+                        "the first is the read-offs' (the full-resolution frames have none of them)")
     p.add_argument("--summarize", default=None, metavar="FILE.json",
                    help="render nothing: write FILE's markdown tables and plot again next to it from its records")
     p.add_argument("--frames", type=int, default=16, help="timed and scored frames per item")
@@ -337,9 +342,8 @@ def main(argv=None):
             res = {}
             lasts = {}
             for policy, budget, spp, variant in progress(items, f"{name} {w}x{h} items"):
-                demod, filt, hist = VARIANTS.get(variant, (False, "none", 0.0))
-                cfg = fw.Config().with_(shading={**base, "spp": spp, "path_budget": budget, "path_filter": filt,
-                                                 "path_history": hist},
+                demod, over = VARIANTS.get(variant, (False, {"path_filter": "none"}))
+                cfg = fw.Config().with_(shading={**base, "spp": spp, "path_budget": budget, **over},
                                         reconstruction={"demodulate": demod})
                 out, last = run_item(fw, scene, w, h, dev, cfg, policy, args.frames, args.warm, targets, fov_deg,
                                      flip_on, whole and fvvdp_on, bool(args.images))

@@ -403,6 +403,11 @@ class ShadingConfig:
             (9.21 to 8.67) and city (9.00 to 8.41) at 1080p (H200, max_depth 5).
         path_filter_fovea_deg: eccentricity in degrees within which the frame is not filtered, in [0, 90]; the
             filter reaches full strength at twice it.
+        path_filter_guide: the filter's luminance stop: "relative" (the default; a tap's weight falls with its
+            luminance difference relative to the pixel's) or "variance" (SVGF's: relative to the standard
+            deviation of the pixel's luminance over the last frames, reprojected and depth-validated: noise is
+            still averaged, and a clean edge of light, such as a sharp shadow, is kept at any step; the relative
+            stop until a pixel has 4 frames of history). See kernels/atrous.py.
         path_history: the weight of the previous frame in a foveated path-traced frame's periphery, in [0, 0.95];
             0 (the default) turns it off. After the filter, each surface pixel beyond ``path_filter_fovea_deg`` is
             blended with the previous frame's output reprojected there (bilinear, depth-validated), the weight
@@ -441,6 +446,7 @@ class ShadingConfig:
     path_filter: str = "atrous"
     path_filter_iterations: int = 3
     path_filter_fovea_deg: float = 5.0
+    path_filter_guide: str = "relative"
     path_history: float = 0.0
     background: tuple = (0.02, 0.02, 0.03)
     exposure: float = 2.0
@@ -472,6 +478,7 @@ class ShadingConfig:
         check_choice("ShadingConfig.path_filter", self.path_filter, ("none", "atrous"))
         check_int_range("ShadingConfig.path_filter_iterations", self.path_filter_iterations, 1, 5)
         check_range("ShadingConfig.path_filter_fovea_deg", self.path_filter_fovea_deg, 0.0, 90.0)
+        check_choice("ShadingConfig.path_filter_guide", self.path_filter_guide, ("relative", "variance"))
         check_range("ShadingConfig.path_history", self.path_history, 0.0, 0.95)
         # at most float32's largest value: the kernels hold them in float32 (an exposure that became inf there made
         # every black pixel inf * 0 = NaN)

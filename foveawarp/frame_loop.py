@@ -212,7 +212,8 @@ class FrameLoop:
             from .stages.path_filter import PathFilterStage
 
             self.path_filter = PathFilterStage(w, h, dev, cfg.shading.path_filter_iterations,
-                                               cfg.shading.path_filter_fovea_deg)
+                                               cfg.shading.path_filter_fovea_deg, cfg.shading.path_filter_guide,
+                                               cfg.temporal.depth_eps_rel)
             self.filtered = wp.zeros((h, w), dtype=wp.vec3, device=dev)
         # and its history blend (ShadingConfig.path_history)
         self.path_history = self.held = None
@@ -813,8 +814,10 @@ class FrameLoop:
                 hdr = self.radiance
         with self._stage("path_filter", foveated and self.path_filter is not None):
             if foveated and self.path_filter is not None:
-                self.path_filter.run(hdr, self.gbuffer, self.sampling.frame_params, self.filtered)
+                self.path_filter.run(hdr, self.gbuffer, self.sampling.frame_params, self.filtered, history)
                 hdr = self.filtered
+            elif self.path_filter is not None:
+                self.path_filter.reset()  # a full-resolution frame: the next foveated one starts afresh
         with self._stage("path_history", foveated and self.path_history is not None):
             if foveated and self.path_history is not None:
                 self.path_history.run(hdr, self.gbuffer, self.sampling.frame_params, self.held, history)

@@ -200,21 +200,21 @@ def test_path(tmp_path):
 
 def test_path_variants_and_summarize(tmp_path):
     """path.py --variants: each foveated item once per variant, with its own configuration (the filtered ones
-    differ from the plain ones outside the fovea, and the periphery's history from the filter alone), the
-    equal-time read-off per variant and its table; a bad list refused; --summarize writes the markdown and the
+    differ from the plain ones outside the fovea, and the periphery's history and the variance guide from the
+    filter alone), the equal-time read-off per variant and its table; a bad list refused; --summarize writes the markdown and the
     plot again from the JSON alone."""
     _run("path", ["--device", "cpu", "--quick", "--scenes", "cornell", "--budgets", "pixel",
-                  "--variants", "demod+filter,plain,demod+filter+history"], tmp_path)
+                  "--variants", "demod+filter,plain,demod+filter+history,demod+filter+variance"], tmp_path)
     res = _result("path", tmp_path)
     (r,) = res["records"]
-    assert r["variants"] == ["demod+filter", "plain", "demod+filter+history"]
+    assert r["variants"] == ["demod+filter", "plain", "demod+filter+history", "demod+filter+variance"]
     fov = {it["variant"]: it for it in r["items"] if it["policy"] == "foveated"}
     assert set(fov) == set(r["variants"]) and {it["variant"] for it in r["items"] if it["policy"] == "full"} == {"-"}
     # the fovea as traced in all, the rest of the frame filtered in two, and steadied by its history in one
-    for v in ("plain", "demod+filter+history"):
+    for v in ("plain", "demod+filter+history", "demod+filter+variance"):
         assert fov["demod+filter"]["fovea_psnr"] == pytest.approx(fov[v]["fovea_psnr"], abs=0.01)
-    assert fov["demod+filter"]["psnr_mean"] != fov["plain"]["psnr_mean"]
-    assert fov["demod+filter"]["psnr_mean"] != fov["demod+filter+history"]["psnr_mean"]
+    for v in ("plain", "demod+filter+history", "demod+filter+variance"):
+        assert fov["demod+filter"]["psnr_mean"] != fov[v]["psnr_mean"], v
     by = r["equal_time_by_variant"]
     assert set(by) == set(r["variants"]) and r["equal_time_item"] == by["demod+filter"]["item"]
     md = (tmp_path / "path-cpu.md").read_text()

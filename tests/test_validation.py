@@ -221,6 +221,7 @@ field(fw.ShadingConfig, "seed", "[0, 2147483647]", [-1, 2**31], kind="int")
 field(fw.ShadingConfig, "shadows", "True or False", kind="bool")
 field(fw.ShadingConfig, "env_mis", "True or False", kind="bool")
 field(fw.ShadingConfig, "path_history", "[0.0, 0.95]", [-0.1, 0.96])
+field(fw.ShadingConfig, "path_filter_guide", "'variance'", kind="choice")
 for n in ("ambient", "background"):
     vec_arg("Config fields", "ShadingConfig", fw.ShadingConfig, {}, n, 3, "[0.0, inf]", -0.5,
             param=f"ShadingConfig.{n}")

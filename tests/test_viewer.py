@@ -158,7 +158,10 @@ def test_session_config_follows_the_knobs():
     filt = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_filter": True})
     assert filt.shading.path_filter == "atrous" and filt.shading.path_history == 0.0
     hist = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_history": 0.5})
-    assert hist.shading.path_history == 0.5
+    assert hist.shading.path_history == 0.5 and hist.shading.path_filter_guide == "relative"
+    guided = ViewerSession.config_for({**knobs, "indirect": False, "path": True, "path_filter": True,
+                                       "path_filter_variance": True})
+    assert guided.shading.path_filter_guide == "variance"
     with pytest.raises(ValueError, match="computes indirect light itself"):
         ViewerSession.config_for({**knobs, "path": True})
 

@@ -1,5 +1,5 @@
 """Edge-avoiding a-trous filtering of a path-traced frame's periphery (Dammertz et al. 2010; the spatial filter of
-SVGF, Schied et al. 2017, without its variance estimate).
+SVGF, Schied et al. 2017, with its variance-guided luminance stop as an option).
 
 One iteration ``k`` (step ``s = 2^k`` pixels) replaces each pixel's radiance by the normalized weighted sum over the
 5 x 5 taps ``q = p + s (i, j)``, ``i, j`` in -2..2, inside the image:
@@ -9,8 +9,21 @@ One iteration ``k`` (step ``s = 2^k`` pixels) replaces each pixel's radiance by 
     w_n = max(0, n_p . n_q)^SIGMA_N                     (normals)
     w_l = exp(-|l_p - l_q| / (SIGMA_L (l_p + l_q) / 2 + L_EPS))  (relative luminance: keeps strong edges of light)
 
-and a tap whose hit flag differs from the pixel's (a surface next to the background) has weight 0. Background
-pixels are left as they are. After the last iteration each pixel is blended with its unfiltered value by its
+and a tap whose hit flag differs from the pixel's (a surface next to the background) has weight 0.
+
+With ``ShadingConfig.path_filter_guide = "variance"`` the luminance stop is SVGF's instead,
+
+    w_l = exp(-|l_p - l_q| / (SIGMA_LV sqrt(var_p) + L_EPS)),
+
+guided by the temporal variance of each pixel's luminance: the stop widens with a pixel's noise, so noise is
+still averaged, and narrows where the light is clean, whose edges it keeps (the relative stop lets a shadow's
+other side in at any step). Before the filter, each surface pixel's luminance moments
+``(m1, m2, n)`` are carried over from the previous frame (reprojected as the periphery's history below, bilinear
+over depth-matching taps): ``m_k <- m_k + (l^k - m_k) a`` with ``a = max(alpha, 1 / n)``, ``n`` counting the
+frames; ``var = m2 - m1^2`` once ``n >= MOMENTS_MIN_FRAMES``, before that (and where the history fails) the
+relative stop above. Each iteration then carries the variance of its weighted mean, ``sum w^2 var_q / (sum w)^2``.
+
+Background pixels are left as they are. After the last iteration each pixel is blended with its unfiltered value by its
 eccentricity ``e`` from the gaze: the filtered value's weight is 0 within ``fovea_deg`` and grows linearly to 1 at
 ``2 fovea_deg`` (``filter_ramp``), so the exact fovea stays as traced.
 
@@ -37,6 +50,10 @@ SIGMA_Z = wp.constant(0.01)
 SIGMA_N = wp.constant(32.0)  # pow32 below hard-codes this exponent
 SIGMA_L = wp.constant(1.0)
 L_EPS = wp.constant(1.0e-4)
+# the variance-guided luminance stop's width in standard deviations (SVGF's sigma_l) and the frames of moments it
+# needs before it trusts them
+SIGMA_LV = wp.constant(4.0)
+MOMENTS_MIN_FRAMES = wp.constant(4.0)
 
 
 @wp.func
@@ -74,25 +91,45 @@ def filter_ramp(e_deg: float, fovea_deg: float) -> float:
     return wp.clamp(e_deg / fovea_deg - 1.0, 0.0, 1.0)
 
 
-@wp.kernel(enable_backward=False)
-def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
-                  hit: wp.array2d(dtype=wp.uint8), step: int, dst: wp.array2d(dtype=wp.vec3), row0: int):
-    """One a-trous iteration of step ``step`` from ``src`` into ``dst`` (the module docstring)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
+@wp.func
+def _history_tap(hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float), tx: int, ty: int,
+                 wt: float, dist_prev: float, tol: float):
+    """(weight x colour, weight) of history tap (tx, ty) of bilinear weight ``wt``: 0 off screen or where its
+    stored depth is not ``dist_prev`` within ``tol``."""
+    z = wp.vec3(0.0, 0.0, 0.0)
+    if wt <= 0.0 or tx < 0 or ty < 0 or tx >= hist.shape[1] or ty >= hist.shape[0]:
+        return z, 0.0
+    if not (wp.abs(load_f32(hist_depth, ty, tx) - dist_prev) < tol):
+        return z, 0.0
+    return load_vec3(hist, ty, tx) * wt, wt
+
+
+@wp.func
+def atrous_pixel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
+                 hit: wp.array2d(dtype=wp.uint8), step: int, x: int, y: int, var: wp.array2d(dtype=float),
+                 guided: int):
+    """Pixel (x, y) of one a-trous iteration of step ``step`` (the module docstring): (its value, the variance
+    of its luminance). ``guided`` 0: the relative luminance stop, variance 0; 1: the variance-guided stop
+    (``var`` the luminance variance, negative where unknown, which falls back to the relative stop)."""
     h = src.shape[0]
     w = src.shape[1]
     c = src[y, x]
     hp = hit[y, x]
+    vp = float(0.0)
+    if guided != 0:
+        vp = var[y, x]
     if hp == wp.uint8(0):
-        dst[y, x] = c
-        return
+        return c, vp
     zp = depth[y, x]
     np_ = normal[y, x]
     lp = luminance(c)
     inv_z = 1.0 / wp.max(SIGMA_Z * wp.abs(zp) * float(step), 1.0e-20)
+    inv_lv = float(-1.0)  # 1 / (SIGMA_LV sqrt(var_p)) when guided by a known variance
+    if guided != 0 and vp >= 0.0:
+        inv_lv = 1.0 / (SIGMA_LV * wp.sqrt(vp) + L_EPS)
     acc = wp.vec3(0.0, 0.0, 0.0)
     wsum = float(0.0)
+    vsum = float(0.0)
     for j in range(-2, 3):
         qy = y + j * step
         if qy >= 0 and qy < h:
@@ -105,16 +142,91 @@ def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float)
                         # w_z w_l as one exponential and w_n = cos^32 by five squarings, not two exps and a pow:
                         # 3 iterations at 960x540 on one CPU thread 1193 -> 811 ms, results within 1e-6 relative
                         ez = wp.abs(zp - depth[qy, qx]) * inv_z
-                        el = wp.abs(lp - lq) / (SIGMA_L * 0.5 * wp.abs(lp + lq) + L_EPS)
+                        el = float(0.0)
+                        if inv_lv >= 0.0:
+                            el = wp.abs(lp - lq) * inv_lv
+                        else:
+                            el = wp.abs(lp - lq) / (SIGMA_L * 0.5 * wp.abs(lp + lq) + L_EPS)
                         wt = b3(i) * b3(j) * wp.exp(-(ez + el)) * pow32(wp.max(wp.dot(np_, normal[qy, qx]), 0.0))
                         if wp.isfinite(wt) and wt > 0.0:
                             acc += cq * wt
                             wsum += wt
+                            if guided != 0:
+                                vsum += wt * wt * wp.max(var[qy, qx], 0.0)
     if wsum > 0.0:
         out = acc / wsum
         if wp.isfinite(out[0]) and wp.isfinite(out[1]) and wp.isfinite(out[2]):
             c = out
+            if vp >= 0.0:
+                vp = vsum / (wsum * wsum)  # SVGF: the variance of the weighted mean of independent taps
+    return c, vp
+
+
+@wp.kernel(enable_backward=False)
+def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
+                  hit: wp.array2d(dtype=wp.uint8), step: int, dst: wp.array2d(dtype=wp.vec3), row0: int):
+    """One a-trous iteration of step ``step`` from ``src`` into ``dst`` (the module docstring)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    c, v = atrous_pixel(src, depth, normal, hit, step, x, y, depth, 0)
     dst[y, x] = c
+
+
+@wp.kernel(enable_backward=False)
+def atrous_guided_kernel(src: wp.array2d(dtype=wp.vec3), var: wp.array2d(dtype=float),
+                         depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
+                         hit: wp.array2d(dtype=wp.uint8), step: int, dst: wp.array2d(dtype=wp.vec3),
+                         var_dst: wp.array2d(dtype=float), row0: int):
+    """One variance-guided a-trous iteration (``path_filter_guide = "variance"``): ``src``, ``var`` ->
+    ``dst``, ``var_dst`` (the module docstring)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    c, v = atrous_pixel(src, depth, normal, hit, step, x, y, var, 1)
+    dst[y, x] = c
+    var_dst[y, x] = v
+
+
+@wp.kernel(enable_backward=False)
+def luminance_moments_kernel(cur: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
+                             depth: wp.array2d(dtype=float), reproj_uv: wp.array2d(dtype=wp.vec2),
+                             prev_dist: wp.array2d(dtype=float), hist: wp.array2d(dtype=wp.vec3),
+                             hist_depth: wp.array2d(dtype=float), valid: wp.array(dtype=wp.int32),
+                             use_history: int, alpha: float, depth_eps_rel: float,
+                             mom: wp.array2d(dtype=wp.vec3), var: wp.array2d(dtype=float), row0: int):
+    """The temporal moments of each surface pixel's luminance (the module docstring): ``mom`` = (m1, m2, n) from
+    ``cur`` and the reprojected ``hist``, ``var`` = m2 - m1^2 once n >= MOMENTS_MIN_FRAMES, else -1 (unknown)."""
+    y, x = wp.tid()
+    y += row0  # band offset (foveawarp.parallel)
+    l = luminance(cur[y, x])
+    if not wp.isfinite(l):
+        l = 0.0
+    m = wp.vec3(l, l * l, 1.0)
+    if use_history != 0 and valid[0] != 0 and hit[y, x] != wp.uint8(0):
+        uv = reproj_uv[y, x]
+        if not (uv[0] == NO_REPROJ and uv[1] == NO_REPROJ):
+            w = cur.shape[1]
+            h = cur.shape[0]
+            x0, y0, fx, fy = bilinear_taps(uv, w, h)
+            dp = prev_dist[y, x]
+            tol = depth_eps_rel * depth[y, x]
+            c00, w00 = _history_tap(hist, hist_depth, x0, y0, (1.0 - fx) * (1.0 - fy), dp, tol)
+            c10, w10 = _history_tap(hist, hist_depth, x0 + 1, y0, fx * (1.0 - fy), dp, tol)
+            c01, w01 = _history_tap(hist, hist_depth, x0, y0 + 1, (1.0 - fx) * fy, dp, tol)
+            c11, w11 = _history_tap(hist, hist_depth, x0 + 1, y0 + 1, fx * fy, dp, tol)
+            ws = w00 + w10 + w01 + w11
+            if ws > 1.0e-6:
+                hm = (c00 + c10 + c01 + c11) / ws
+                if wp.isfinite(hm[0]) and wp.isfinite(hm[1]) and wp.isfinite(hm[2]):
+                    n = wp.min(wp.max(hm[2], 0.0), 1.0e6) + 1.0
+                    a = wp.max(alpha, 1.0 / n)  # a plain mean over the first 1 / alpha frames, then exponential
+                    m = wp.vec3(hm[0] + (l - hm[0]) * a, hm[1] + (l * l - hm[1]) * a, n)
+    mom[y, x] = m
+    v = float(-1.0)
+    if m[2] >= MOMENTS_MIN_FRAMES:
+        v = wp.max(m[1] - m[0] * m[0], 0.0)
+        if not wp.isfinite(v):
+            v = -1.0
+    var[y, x] = v
 
 
 @wp.kernel(enable_backward=False)
@@ -130,19 +242,6 @@ def blend_by_eccentricity_kernel(frame: wp.array(dtype=FrameParams), unfiltered:
     a = filter_ramp(e, fovea_deg)
     u = unfiltered[y, x]
     out[y, x] = u + (filtered[y, x] - u) * a
-
-
-@wp.func
-def _history_tap(hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float), tx: int, ty: int,
-                 wt: float, dist_prev: float, tol: float):
-    """(weight x colour, weight) of history tap (tx, ty) of bilinear weight ``wt``: 0 off screen or where its
-    stored depth is not ``dist_prev`` within ``tol``."""
-    z = wp.vec3(0.0, 0.0, 0.0)
-    if wt <= 0.0 or tx < 0 or ty < 0 or tx >= hist.shape[1] or ty >= hist.shape[0]:
-        return z, 0.0
-    if not (wp.abs(load_f32(hist_depth, ty, tx) - dist_prev) < tol):
-        return z, 0.0
-    return load_vec3(hist, ty, tx) * wt, wt
 
 
 @wp.kernel(enable_backward=False)

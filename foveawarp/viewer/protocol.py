@@ -99,6 +99,9 @@ KNOBS = {
                                   '"direct"'),
         Knob("path_filter", "bool", doc='ShadingConfig.path_filter: "atrous" (the foveated path-traced frame\'s '
                                          'periphery filtered) or "none"'),
+        Knob("path_filter_variance", "bool", doc='ShadingConfig.path_filter_guide: "variance" (the filter\'s '
+                                                  'luminance stop from each pixel\'s temporal variance) or '
+                                                  '"relative"'),
         Knob("path_history", "float", 0.0, 0.95, doc="ShadingConfig.path_history: the previous frame's weight in "
                                                       "the path-traced periphery, [0, 0.95]; 0 = off"),
         Knob("max_depth", "int", 1, 4096, doc="ShadingConfig.max_depth of the path integrator, [1, 4096]"),

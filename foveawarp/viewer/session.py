@@ -94,6 +94,7 @@ class ViewerSession:
             "timing": bool(timing),
             "path": base.shading.integrator == "path",
             "path_filter": base.shading.path_filter == "atrous",
+            "path_filter_variance": base.shading.path_filter_guide == "variance",
             "path_history": float(base.shading.path_history),
             "max_depth": int(base.shading.max_depth),
             "spp": int(base.shading.spp),
@@ -154,6 +155,7 @@ class ViewerSession:
             shading={"ao_samples": knobs["ao_samples"], "indirect": "lighttree" if knobs["indirect"] else "none",
                      "integrator": "path" if knobs["path"] else "direct", "max_depth": knobs["max_depth"],
                      "spp": knobs["spp"], "path_filter": "atrous" if knobs.get("path_filter") else "none",
+                     "path_filter_guide": "variance" if knobs.get("path_filter_variance") else "relative",
                      "path_history": float(knobs.get("path_history", 0.0))},
             dof={"aperture_m": aperture},
         )

@@ -178,7 +178,7 @@
     if (!off) $("falloff_deg").value = k.falloff_deg;
     $("falloff_deg_out").textContent = off ? "null" : String(k.falloff_deg);
     for (const id of ["block", "ao_samples", "max_depth", "spp", "path_history"]) if (document.activeElement !== $(id)) $(id).value = k[id];
-    for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter"]) $(id).checked = !!k[id];
+    for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter", "path_filter_variance"]) $(id).checked = !!k[id];
     for (const el of document.querySelectorAll("small.range")) {
       const i = s.knob_info[el.dataset.range];
       if (i) el.textContent = "[" + i.lo + ", " + i.hi + "]";
@@ -203,7 +203,7 @@
   for (const id of ["block", "ao_samples", "max_depth", "spp"]) {
     $(id).addEventListener("change", (e) => { const v = Number(e.target.value); if (Number.isInteger(v)) setKnob(id, v); else showError(id + " must be an integer"); });
   }
-  for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter"]) {
+  for (const id of ["temporal", "dof", "indirect", "timing", "path", "path_filter", "path_filter_variance"]) {
     $(id).addEventListener("change", (e) => setKnob(id, e.target.checked));
   }
   $("path_history").addEventListener("change", (e) => { const v = Number(e.target.value); if (Number.isFinite(v)) setKnob("path_history", v); else showError("path_history must be a number"); });
