@@ -15,12 +15,11 @@ import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_path_filter import H3, inputs
-from test_path_history import EPS, FOVEA, GB, H, W, frame_params, scene_arrays
+from test_path_history import EPS, FOVEA, GB, H, W, frame_params, np_reprojected, scene_arrays
 
 import foveawarp as fw
 from foveawarp.kernels.atrous import (L_EPS, MOMENTS_MIN_FRAMES, SIGMA_L, SIGMA_LV, SIGMA_N, SIGMA_Z,
                                       atrous_guided_kernel, luminance_moments_kernel)
-from foveawarp.kernels.gbuffer import NO_REPROJ
 from foveawarp.metrics import eccentricity_np
 from foveawarp.ops import render_converged
 from foveawarp.stages.path_filter import PathFilterStage
@@ -36,20 +35,10 @@ def np_moments(cur, hit, depth, uv, prev_dist, hist, hist_depth, use):
     mom = np.stack([lum, lum * lum, np.ones_like(lum)], axis=-1)
     for y in range(h):
         for x in range(w):
-            if not use or not hit[y, x] or (uv[y, x] == NO_REPROJ).all():
+            if not use or not hit[y, x]:
                 continue
-            u, v = uv[y, x, 0] - 0.5, uv[y, x, 1] - 0.5
-            x0, y0 = math.floor(u), math.floor(v)
-            fx, fy = u - x0, v - y0
-            acc, ws = np.zeros(3), 0.0
-            for tx, ty, wt in ((x0, y0, (1 - fx) * (1 - fy)), (x0 + 1, y0, fx * (1 - fy)),
-                               (x0, y0 + 1, (1 - fx) * fy), (x0 + 1, y0 + 1, fx * fy)):
-                if wt > 0 and 0 <= tx < w and 0 <= ty < h and abs(hist_depth[ty, tx] - prev_dist[y, x]) < \
-                        EPS * depth[y, x]:
-                    acc += wt * hist[ty, tx]
-                    ws += wt
-            if ws > 1e-6:
-                hm = acc / ws
+            hm = np_reprojected(hist, hist_depth, uv, prev_dist, depth, x, y)
+            if hm is not None:
                 n = min(max(hm[2], 0.0), 1e6) + 1.0
                 a = max(ALPHA, 1.0 / n)
                 mom[y, x] = (hm[0] + (lum[y, x] - hm[0]) * a, hm[1] + (lum[y, x] ** 2 - hm[1]) * a, n)
@@ -150,17 +139,22 @@ def test_moments_match_numpy(use):
         assert fresh.all() and (gvar == -1.0).all()
 
 
-def test_moments_of_a_still_noisy_pixel_give_its_variance():
-    """80 frames of one still surface whose luminance is Gaussian (mean 0.5, sd 0.1) per pixel and frame: the
-    moments' variance is the noise's, within 35 % over the image (an exponential window of about 10 frames)."""
+def still_stage(iterations, fovea_deg, guide):
+    """A stage over one still, flat surface facing the camera: (stage, its G-buffer, an output frame)."""
     d = "cpu"
-    stage = PathFilterStage(W, H, d, 1, FOVEA, "variance", EPS)
+    stage = PathFilterStage(W, H, d, iterations, fovea_deg, guide, EPS)
     yy, xx = np.mgrid[0:H, 0:W]
     uv = np.stack([xx + 0.5, yy + 0.5], axis=-1)
     depth = np.full((H, W), 2.0)
     g = GB(np.ones((H, W), bool), depth, uv, depth)
     g.normal = arr(np.tile([0.0, 0.0, 1.0], (H, W, 1)), wp.vec3)
-    out = wp.zeros((H, W), dtype=wp.vec3, device=d)
+    return stage, g, wp.zeros((H, W), dtype=wp.vec3, device=d)
+
+
+def test_moments_of_a_still_noisy_pixel_give_its_variance():
+    """80 frames of one still surface whose luminance is Gaussian (mean 0.5, sd 0.1) per pixel and frame: the
+    moments' variance is the noise's, within 35 % over the image (an exponential window of about 10 frames)."""
+    stage, g, out = still_stage(1, FOVEA, "variance")
     r = np.random.default_rng(4)
     for k in range(80):
         lum = 0.5 + 0.1 * r.standard_normal((H, W))
@@ -176,14 +170,7 @@ def test_moments_of_a_still_noisy_pixel_give_its_variance():
 def filter_twice(img, guide, frames=8, iterations=5):
     """The stage's output after ``frames`` still frames of ``img`` plus fresh noise (sd 0.02 per frame), the
     fovea far off-image so every pixel is filtered in full."""
-    d = "cpu"
-    stage = PathFilterStage(W, H, d, iterations, 0.0, guide, EPS)
-    yy, xx = np.mgrid[0:H, 0:W]
-    uv = np.stack([xx + 0.5, yy + 0.5], axis=-1)
-    depth = np.full((H, W), 2.0)
-    g = GB(np.ones((H, W), bool), depth, uv, depth)
-    g.normal = arr(np.tile([0.0, 0.0, 1.0], (H, W, 1)), wp.vec3)
-    out = wp.zeros((H, W), dtype=wp.vec3, device=d)
+    stage, g, out = still_stage(iterations, 0.0, guide)
     r = np.random.default_rng(9)
     for k in range(frames):
         noisy = img + 0.02 * r.standard_normal(img.shape[:2])[..., None]
@@ -203,17 +190,10 @@ def test_the_guide_still_averages_strong_noise():
     """A flat surface under strong noise (luminance 0.5, sd 0.25 a frame), 3 iterations after 12 frames: the
     guide's stop widens with the noise, so its residual error stays near the relative stop's (0.85x, 1.08x and
     1.23x at seeds 2, 3, 4; bound 1.3x at seed 2), an order of magnitude below the unfiltered noise."""
-    d = "cpu"
     r = np.random.default_rng(2)
     res = {}
     for guide in ("relative", "variance"):
-        stage = PathFilterStage(W, H, d, 3, 0.0, guide, EPS)
-        yy, xx = np.mgrid[0:H, 0:W]
-        uv = np.stack([xx + 0.5, yy + 0.5], axis=-1)
-        depth = np.full((H, W), 2.0)
-        g = GB(np.ones((H, W), bool), depth, uv, depth)
-        g.normal = arr(np.tile([0.0, 0.0, 1.0], (H, W, 1)), wp.vec3)
-        out = wp.zeros((H, W), dtype=wp.vec3, device=d)
+        stage, g, out = still_stage(3, 0.0, guide)
         for k in range(12):
             lum = np.clip(0.5 + 0.25 * r.standard_normal((H, W)), 0.0, None)
             stage.run(arr(np.repeat(lum[..., None], 3, axis=2), wp.vec3), g, frame_params(), out, k > 0)

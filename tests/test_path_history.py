@@ -55,23 +55,33 @@ def np_blend(cur, hist, hist_depth, hit, depth, uv, prev_dist, weight):
     out = cur.astype(np.float64).copy()
     for y in range(H):
         for x in range(W):
-            if not hit[y, x] or a_px[y, x] <= 0 or (uv[y, x] == NO_REPROJ).all():
+            if not hit[y, x] or a_px[y, x] <= 0:
                 continue
-            u, v = uv[y, x, 0] - 0.5, uv[y, x, 1] - 0.5
-            x0, y0 = math.floor(u), math.floor(v)
-            fx, fy = u - x0, v - y0
-            acc, ws = np.zeros(3), 0.0
-            for tx, ty, wt in ((x0, y0, (1 - fx) * (1 - fy)), (x0 + 1, y0, fx * (1 - fy)),
-                               (x0, y0 + 1, (1 - fx) * fy), (x0 + 1, y0 + 1, fx * fy)):
-                if wt <= 0 or not (0 <= tx < W and 0 <= ty < H):
-                    continue
-                if abs(hist_depth[ty, tx] - prev_dist[y, x]) >= EPS * depth[y, x]:
-                    continue
-                acc += wt * hist[ty, tx]
-                ws += wt
-            if ws > 1e-6:
-                out[y, x] = cur[y, x] + (acc / ws - cur[y, x]) * a_px[y, x]
+            hv = np_reprojected(hist, hist_depth, uv, prev_dist, depth, x, y)
+            if hv is not None:
+                out[y, x] = cur[y, x] + (hv - cur[y, x]) * a_px[y, x]
     return out
+
+
+def np_reprojected(hist, hist_depth, uv, prev_dist, depth, x, y):
+    """The previous frame's value at pixel (x, y)'s reprojected position, bilinear over the depth-matching taps,
+    renormalized; None without reprojection or matching tap."""
+    if (uv[y, x] == NO_REPROJ).all():
+        return None
+    h, w = hist.shape[:2]
+    u, v = uv[y, x, 0] - 0.5, uv[y, x, 1] - 0.5
+    x0, y0 = math.floor(u), math.floor(v)
+    fx, fy = u - x0, v - y0
+    acc, ws = np.zeros(hist.shape[2]), 0.0
+    for tx, ty, wt in ((x0, y0, (1 - fx) * (1 - fy)), (x0 + 1, y0, fx * (1 - fy)),
+                       (x0, y0 + 1, (1 - fx) * fy), (x0 + 1, y0 + 1, fx * fy)):
+        if wt <= 0 or not (0 <= tx < w and 0 <= ty < h):
+            continue
+        if abs(hist_depth[ty, tx] - prev_dist[y, x]) >= EPS * depth[y, x]:
+            continue
+        acc += wt * hist[ty, tx]
+        ws += wt
+    return acc / ws if ws > 1e-6 else None
 
 
 def scene_arrays(seed):

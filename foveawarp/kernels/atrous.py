@@ -105,6 +105,33 @@ def _history_tap(hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=f
 
 
 @wp.func
+def reprojected_history(hist: wp.array2d(dtype=wp.vec3), hist_depth: wp.array2d(dtype=float),
+                        reproj_uv: wp.array2d(dtype=wp.vec2), prev_dist: wp.array2d(dtype=float),
+                        depth: wp.array2d(dtype=float), x: int, y: int, depth_eps_rel: float):
+    """(value, found) of the previous frame's ``hist`` at pixel (x, y)'s reprojected position: bilinear over the
+    taps whose stored depth matches the point's previous distance within ``depth_eps_rel`` of its depth,
+    renormalized; found 0 without reprojection or matching tap, or for a non-finite value."""
+    z = wp.vec3(0.0, 0.0, 0.0)
+    uv = reproj_uv[y, x]
+    if uv[0] == NO_REPROJ and uv[1] == NO_REPROJ:
+        return z, 0
+    x0, y0, fx, fy = bilinear_taps(uv, hist.shape[1], hist.shape[0])
+    dp = prev_dist[y, x]
+    tol = depth_eps_rel * depth[y, x]
+    c00, w00 = _history_tap(hist, hist_depth, x0, y0, (1.0 - fx) * (1.0 - fy), dp, tol)
+    c10, w10 = _history_tap(hist, hist_depth, x0 + 1, y0, fx * (1.0 - fy), dp, tol)
+    c01, w01 = _history_tap(hist, hist_depth, x0, y0 + 1, (1.0 - fx) * fy, dp, tol)
+    c11, w11 = _history_tap(hist, hist_depth, x0 + 1, y0 + 1, fx * fy, dp, tol)
+    ws = w00 + w10 + w01 + w11
+    if not (ws > 1.0e-6):
+        return z, 0
+    hv = (c00 + c10 + c01 + c11) / ws
+    if wp.isfinite(hv[0]) and wp.isfinite(hv[1]) and wp.isfinite(hv[2]):
+        return hv, 1
+    return z, 0
+
+
+@wp.func
 def atrous_pixel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
                  hit: wp.array2d(dtype=wp.uint8), step: int, x: int, y: int, var: wp.array2d(dtype=float),
                  guided: int):
@@ -202,24 +229,11 @@ def luminance_moments_kernel(cur: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dty
         l = 0.0
     m = wp.vec3(l, l * l, 1.0)
     if use_history != 0 and valid[0] != 0 and hit[y, x] != wp.uint8(0):
-        uv = reproj_uv[y, x]
-        if not (uv[0] == NO_REPROJ and uv[1] == NO_REPROJ):
-            w = cur.shape[1]
-            h = cur.shape[0]
-            x0, y0, fx, fy = bilinear_taps(uv, w, h)
-            dp = prev_dist[y, x]
-            tol = depth_eps_rel * depth[y, x]
-            c00, w00 = _history_tap(hist, hist_depth, x0, y0, (1.0 - fx) * (1.0 - fy), dp, tol)
-            c10, w10 = _history_tap(hist, hist_depth, x0 + 1, y0, fx * (1.0 - fy), dp, tol)
-            c01, w01 = _history_tap(hist, hist_depth, x0, y0 + 1, (1.0 - fx) * fy, dp, tol)
-            c11, w11 = _history_tap(hist, hist_depth, x0 + 1, y0 + 1, fx * fy, dp, tol)
-            ws = w00 + w10 + w01 + w11
-            if ws > 1.0e-6:
-                hm = (c00 + c10 + c01 + c11) / ws
-                if wp.isfinite(hm[0]) and wp.isfinite(hm[1]) and wp.isfinite(hm[2]):
-                    n = wp.min(wp.max(hm[2], 0.0), 1.0e6) + 1.0
-                    a = wp.max(alpha, 1.0 / n)  # a plain mean over the first 1 / alpha frames, then exponential
-                    m = wp.vec3(hm[0] + (l - hm[0]) * a, hm[1] + (l * l - hm[1]) * a, n)
+        hm, found = reprojected_history(hist, hist_depth, reproj_uv, prev_dist, depth, x, y, depth_eps_rel)
+        if found != 0:
+            n = wp.min(wp.max(hm[2], 0.0), 1.0e6) + 1.0
+            a = wp.max(alpha, 1.0 / n)  # a plain mean over the first 1 / alpha frames, then exponential
+            m = wp.vec3(hm[0] + (l - hm[0]) * a, hm[1] + (l * l - hm[1]) * a, n)
     mom[y, x] = m
     v = float(-1.0)
     if m[2] >= MOMENTS_MIN_FRAMES:
@@ -266,21 +280,8 @@ def periphery_history_kernel(frame: wp.array(dtype=FrameParams), cur: wp.array2d
     a = weight * filter_ramp(e, fovea_deg)
     if not (a > 0.0):
         return
-    uv = reproj_uv[y, x]
-    if uv[0] == NO_REPROJ and uv[1] == NO_REPROJ:
-        return
-    x0, y0, fx, fy = bilinear_taps(uv, w, h)
-    dp = prev_dist[y, x]
-    tol = depth_eps_rel * depth[y, x]
-    c00, w00 = _history_tap(hist, hist_depth, x0, y0, (1.0 - fx) * (1.0 - fy), dp, tol)
-    c10, w10 = _history_tap(hist, hist_depth, x0 + 1, y0, fx * (1.0 - fy), dp, tol)
-    c01, w01 = _history_tap(hist, hist_depth, x0, y0 + 1, (1.0 - fx) * fy, dp, tol)
-    c11, w11 = _history_tap(hist, hist_depth, x0 + 1, y0 + 1, fx * fy, dp, tol)
-    ws = w00 + w10 + w01 + w11
-    if not (ws > 1.0e-6):
-        return
-    hv = (c00 + c10 + c01 + c11) / ws
-    if wp.isfinite(hv[0]) and wp.isfinite(hv[1]) and wp.isfinite(hv[2]):
+    hv, found = reprojected_history(hist, hist_depth, reproj_uv, prev_dist, depth, x, y, depth_eps_rel)
+    if found != 0:
         out[y, x] = c + (hv - c) * a
 
 
