@@ -12,23 +12,26 @@ import pytest
 import warp as wp
 
 import foveawarp as fw
-from foveawarp.kernels.atrous import L_EPS, SIGMA_L, SIGMA_N, SIGMA_Z, atrous_kernel
+from foveawarp.kernels.atrous import L_EPS, SIGMA_L, SIGMA_LV, SIGMA_N, SIGMA_Z, atrous_kernel
 from foveawarp.metrics import eccentricity_np
 from foveawarp.ops import render_converged
 
 H3 = np.array([1 / 16, 1 / 4, 3 / 8, 1 / 4, 1 / 16])
 
 
-def np_atrous(c, z, n, hit, step):
-    """One iteration in float64, term by term from the module docstring."""
+def np_atrous(c, z, n, hit, step, var=None):
+    """One iteration in float64, term by term from the module docstring; with ``var`` (the luminance variance,
+    negative where unknown) the variance-guided stop, returning (colour, variance)."""
     h, w, _ = c.shape
     lum = c @ np.array([0.2126, 0.7152, 0.0722])
     out = c.copy()
+    vout = None if var is None else var.copy()
     for y in range(h):
         for x in range(w):
             if not hit[y, x]:
                 continue
-            acc, ws = np.zeros(3), 0.0
+            guided = var is not None and var[y, x] >= 0
+            acc, ws, vs = np.zeros(3), 0.0, 0.0
             for j in range(-2, 3):
                 for i in range(-2, 3):
                     qy, qx = y + j * step, x + i * step
@@ -36,14 +39,21 @@ def np_atrous(c, z, n, hit, step):
                         continue
                     wz = math.exp(-abs(z[y, x] - z[qy, qx]) / max(SIGMA_Z * abs(z[y, x]) * step, 1e-20))
                     wn = max(float(n[y, x] @ n[qy, qx]), 0.0) ** SIGMA_N
-                    wl = math.exp(-abs(lum[y, x] - lum[qy, qx]) / (SIGMA_L * 0.5 * abs(lum[y, x] + lum[qy, qx])
-                                                                   + L_EPS))
+                    d = abs(lum[y, x] - lum[qy, qx])
+                    if guided:
+                        wl = math.exp(-d / (SIGMA_LV * math.sqrt(var[y, x]) + L_EPS))
+                    else:
+                        wl = math.exp(-d / (SIGMA_L * 0.5 * abs(lum[y, x] + lum[qy, qx]) + L_EPS))
                     wt = H3[i + 2] * H3[j + 2] * wz * wn * wl
                     acc += wt * c[qy, qx]
                     ws += wt
+                    if var is not None:
+                        vs += wt * wt * max(var[qy, qx], 0.0)
             if ws > 0:
                 out[y, x] = acc / ws
-    return out
+                if guided:
+                    vout[y, x] = vs / ws ** 2
+    return out if var is None else (out, vout)
 
 
 def run_atrous(c, z, n, hit, step):

@@ -14,12 +14,11 @@ import pytest
 import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_path_filter import H3, inputs
+from test_path_filter import inputs, np_atrous
 from test_path_history import EPS, FOVEA, GB, H, W, frame_params, np_reprojected, scene_arrays
 
 import foveawarp as fw
-from foveawarp.kernels.atrous import (L_EPS, MOMENTS_MIN_FRAMES, SIGMA_L, SIGMA_LV, SIGMA_N, SIGMA_Z,
-                                      atrous_guided_kernel, luminance_moments_kernel)
+from foveawarp.kernels.atrous import MOMENTS_MIN_FRAMES, atrous_guided_kernel, luminance_moments_kernel
 from foveawarp.metrics import eccentricity_np
 from foveawarp.ops import render_converged
 from foveawarp.stages.path_filter import PathFilterStage
@@ -46,39 +45,6 @@ def np_moments(cur, hit, depth, uv, prev_dist, hist, hist_depth, use):
     return mom, var
 
 
-def np_guided(c, var, z, n, hit, step):
-    """One guided iteration in float64: (colour, variance)."""
-    h, w, _ = c.shape
-    lum = c @ LUM
-    out, vout = c.copy(), var.copy()
-    for y in range(h):
-        for x in range(w):
-            if not hit[y, x]:
-                continue
-            acc, ws, vs = np.zeros(3), 0.0, 0.0
-            for j in range(-2, 3):
-                for i in range(-2, 3):
-                    qy, qx = y + j * step, x + i * step
-                    if not (0 <= qy < h and 0 <= qx < w) or hit[qy, qx] != hit[y, x]:
-                        continue
-                    wz = math.exp(-abs(z[y, x] - z[qy, qx]) / max(SIGMA_Z * abs(z[y, x]) * step, 1e-20))
-                    wn = max(float(n[y, x] @ n[qy, qx]), 0.0) ** SIGMA_N
-                    d = abs(lum[y, x] - lum[qy, qx])
-                    if var[y, x] >= 0:
-                        wl = math.exp(-d / (SIGMA_LV * math.sqrt(var[y, x]) + L_EPS))
-                    else:
-                        wl = math.exp(-d / (SIGMA_L * 0.5 * abs(lum[y, x] + lum[qy, qx]) + L_EPS))
-                    wt = H3[i + 2] * H3[j + 2] * wz * wn * wl
-                    acc += wt * c[qy, qx]
-                    ws += wt
-                    vs += wt * wt * max(var[qy, qx], 0.0)
-            if ws > 0:
-                out[y, x] = acc / ws
-                if var[y, x] >= 0:
-                    vout[y, x] = vs / ws ** 2
-    return out, vout
-
-
 def arr(a, dtype, d="cpu"):
     return wp.array(np.ascontiguousarray(a).astype(np.float32 if dtype is not wp.uint8 else np.uint8), dtype=dtype,
                     device=d)
@@ -101,8 +67,8 @@ def test_one_guided_iteration_matches_numpy(step):
     var[r.uniform(size=var.shape) < 0.25] = -1.0  # unknown: the relative stop
     var[0, :3] = 0.0  # known and exact: only equal luminances weigh
     got, gvar = run_guided(c, var, z, n, hit, step)
-    want, wvar = np_guided(c.astype(np.float32).astype(np.float64), var.astype(np.float32), z.astype(np.float32),
-                           n.astype(np.float32), hit, step)
+    f = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
+    want, wvar = np_atrous(f(c), f(z), f(n), hit, step, f(var))
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(gvar, wvar, rtol=1e-5, atol=1e-9)
     assert (gvar[var < 0] == -1.0).all() and (gvar[(var >= 0) & hit] >= 0).all()
