@@ -330,14 +330,16 @@ _MTL_KEYS = ["Kd", "Ks", "Ke", "Ns", "d", "Tr", "Pr", "Pm", "Ni"]
                 min_size=1, max_size=6))
 def test_mtl_numbers_load_finite_or_fail_at_their_line(tmp_path, stmts):
     """Any numbers, NaN, Inf and float32's extremes included, in any MTL statement: the file loads with finite
-    material factors, or raises ValueError; a non-finite number raises naming the first line that holds one."""
+    material factors, or raises ValueError; a non-finite number or a colour of two numbers raises naming the first
+    line that holds one."""
     import math
 
     lines = ["newmtl m"] + [f"{k} " + " ".join(repr(v) for v in vals[:3 if k in ('Kd', 'Ks', 'Ke') else 1])
                             for k, vals in stmts]
     (tmp_path / "h.mtl").write_text("\n".join(lines) + "\n")
     (tmp_path / "h.obj").write_text("mtllib h.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n")
-    bad = [no for no, ln in enumerate(lines[1:], 2) if any(not math.isfinite(float(t)) for t in ln.split()[1:])]
+    bad = [no for no, ln in enumerate(lines[1:], 2) if any(not math.isfinite(float(t)) for t in ln.split()[1:])
+           or len(ln.split()) == 3]  # a colour of two numbers: neither r nor r g b
     try:
         d, _ = _read(tmp_path / "h.obj")
     except ValueError as e:

@@ -460,7 +460,7 @@ def read_mtl(path, *, strict: bool = False, warn: Optional[list] = None) -> dict
                     (warn if warn is not None else []).append(f"{path}:{no}: {key} {rest.split()[0]} is not read")
                     continue
                 vals = [float(x) for x in rest.split()]
-                if not all(math.isfinite(v) for v in vals):
+                if len(vals) == 2 or not all(math.isfinite(v) for v in vals):  # r, or r g b
                     raise ValueError(key)
                 cur[key[0].upper() + key[1].lower()] = _rgb(vals, None)
             elif lk in ("ns", "d", "tr", "pr", "pm", "ni"):
@@ -477,7 +477,8 @@ def read_mtl(path, *, strict: bool = False, warn: Optional[list] = None) -> dict
                 if spec is not None:
                     cur[_MAP_KEYS.get(lk, lk)] = spec
         except (ValueError, IndexError):
-            lp.fail(no, f"{key} must be followed by finite numbers, got {rest!r}")
+            what = " (r, or r g b)" if lk in ("kd", "ks", "ke") else ""
+            lp.fail(no, f"{key} must be followed by finite numbers{what}, got {rest!r}")
     return out
 
 
