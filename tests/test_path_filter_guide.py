@@ -18,7 +18,8 @@ from test_path_filter import inputs, np_atrous
 from test_path_history import EPS, FOVEA, GB, H, W, frame_params, np_reprojected, scene_arrays
 
 import foveawarp as fw
-from foveawarp.kernels.atrous import MOMENTS_MIN_FRAMES, atrous_guided_kernel, luminance_moments_kernel
+from foveawarp.kernels.atrous import MOMENTS_MIN_FRAMES, luminance_moments_kernel
+from foveawarp.kernels.atrous_guided import atrous_guided_kernel
 from foveawarp.metrics import eccentricity_np
 from foveawarp.ops import render_converged
 from foveawarp.stages.path_filter import PathFilterStage

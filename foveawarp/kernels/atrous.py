@@ -200,20 +200,6 @@ def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float)
 
 
 @wp.kernel(enable_backward=False)
-def atrous_guided_kernel(src: wp.array2d(dtype=wp.vec3), var: wp.array2d(dtype=float),
-                         depth: wp.array2d(dtype=float), normal: wp.array2d(dtype=wp.vec3),
-                         hit: wp.array2d(dtype=wp.uint8), step: int, dst: wp.array2d(dtype=wp.vec3),
-                         var_dst: wp.array2d(dtype=float), row0: int):
-    """One variance-guided a-trous iteration (``path_filter_guide = "variance"``): ``src``, ``var`` ->
-    ``dst``, ``var_dst`` (the module docstring)."""
-    y, x = wp.tid()
-    y += row0  # band offset (foveawarp.parallel)
-    c, v = atrous_pixel(src, depth, normal, hit, step, x, y, var, 1)
-    dst[y, x] = c
-    var_dst[y, x] = v
-
-
-@wp.kernel(enable_backward=False)
 def luminance_moments_kernel(cur: wp.array2d(dtype=wp.vec3), hit: wp.array2d(dtype=wp.uint8),
                              depth: wp.array2d(dtype=float), reproj_uv: wp.array2d(dtype=wp.vec2),
                              prev_dist: wp.array2d(dtype=float), hist: wp.array2d(dtype=wp.vec3),

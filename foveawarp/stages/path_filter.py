@@ -18,8 +18,9 @@ from __future__ import annotations
 import warp as wp
 
 from .. import parallel
-from ..kernels.atrous import (atrous_guided_kernel, atrous_kernel, blend_by_eccentricity_kernel, keep_history_kernel,
+from ..kernels.atrous import (atrous_kernel, blend_by_eccentricity_kernel, keep_history_kernel,
                               luminance_moments_kernel, periphery_history_kernel)
+from ..kernels.atrous_guided import atrous_guided_kernel
 
 __all__ = ["PathFilterStage", "PeripheryHistoryStage"]
 
