@@ -195,7 +195,7 @@ def atrous_kernel(src: wp.array2d(dtype=wp.vec3), depth: wp.array2d(dtype=float)
     """One a-trous iteration of step ``step`` from ``src`` into ``dst`` (the module docstring)."""
     y, x = wp.tid()
     y += row0  # band offset (foveawarp.parallel)
-    c, v = atrous_pixel(src, depth, normal, hit, step, x, y, depth, 0)
+    c, v = atrous_pixel(src, depth, normal, hit, step, x, y, depth, 0)  # guided 0: its var array is not read
     dst[y, x] = c
 
 
